@@ -1,0 +1,10 @@
+"""mop: meta-learned output prediction of dynamical systems."""
+
+__version__ = "0.1.0"
+
+
+def load(run_dir, device="cpu"):
+    """Load a trained predictor from a run directory (see mop.train)."""
+    from mop.train import load_predictor
+
+    return load_predictor(run_dir, device=device)

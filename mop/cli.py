@@ -1,0 +1,45 @@
+"""The `mop` command: a thin dispatcher. Each subcommand lives in mop/commands/<name>.py and
+provides `add_arguments(parser)` and `run(args) -> int`."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from mop.errors import MopError
+
+# name -> (module, one-line help)
+COMMANDS = {
+    "simulate": ("mop.commands.simulate", "simulate trajectories of a system family to an .npz file"),
+    "train": ("mop.commands.train", "train a meta-output-predictor"),
+    "reproduce": ("mop.commands.reproduce", "reproduce a figure of the paper (train, evaluate, report)"),
+    "predict": ("mop.commands.predict", "one-step predictions on your own trajectories (.csv/.npz)"),
+    "bench": ("mop.commands.bench", "benchmarks: simulate, filters, train, stream"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mop", description="mop: meta-learned output prediction of dynamical systems.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        cmd = sub.add_parser(name, help=help_text, description=help_text)
+        importlib.import_module(module).add_arguments(cmd)
+        cmd.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except MopError as err:
+        print(f"mop: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("mop: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
