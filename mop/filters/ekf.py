@@ -1,0 +1,83 @@
+"""Extended Kalman filter one-step predictions, batched over systems (a loop over time only).
+
+For x_{t+1} = f(x_t, u_t) + w_t, y_t = C x_t + v_t, w ~ N(0, Q), v ~ N(0, R), x_0 ~ N(m_0, P_0):
+
+    yhat_t = C m_t                                   (m_t, P_t: prior of x_t given y_{<t})
+    condition on y_t:  S = C P C^T + R,  K = P C^T S^{-1},  m <- m + K (y_t - C m),  P <- (I - K C) P
+    predict:           F = df/dx(m, u_t),  m <- f(m, u_t),   P <- F P F^T + Q
+
+The quadrotor EKF knows (m, l, J, C, Q, R) but not the state clipping. On a linear family (params "A") f = A x
+and the EKF is exactly the Kalman filter.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+
+from mop.systems import quadrotor
+from mop.systems.base import Trajectories
+
+Dynamics = Callable[[Tensor, Tensor], Tensor]  # (x (B, n), u (B, k) | None) -> (B, n)
+
+
+def system_model(params: dict[str, Tensor]) -> tuple[Dynamics, Dynamics, Tensor]:
+    """(f, df/dx, m_0) of the system in `params` (float64): the quadrotor or a linear family (A)."""
+    p = {k: v.double() for k, v in params.items()}
+    if "mass" in p:
+        args = (p["mass"], p["length"], p["inertia"])
+        return (lambda x, u: quadrotor.dynamics(x, u, *args),
+                lambda x, u: quadrotor.dynamics_jacobian(x, u, *args), p["x0_mean"])
+    A = p["A"]
+    return (lambda x, u: (A @ x[..., None])[..., 0], lambda x, u: A,
+            torch.zeros(A.shape[:-1], dtype=A.dtype, device=A.device))
+
+
+def _condition_on(m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor) -> tuple[Tensor, Tensor]:
+    """Kalman measurement update: m (B, n), P (B, n, n), y (B, m) -> posterior (m, P) (Joseph form)."""
+    S = C @ P @ C.mT + R  # (B, m, m)
+    K = torch.linalg.solve(S, C @ P).mT  # (B, n, m) = P C^T S^{-1} (S, P symmetric)
+    m = m + (K @ (y - (C @ m[..., None])[..., 0])[..., None])[..., 0]
+    I_KC = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device) - K @ C  # (B, n, n)
+    P = I_KC @ P @ I_KC.mT + K @ R @ K.mT
+    return m, P
+
+
+def _predict(m: Tensor, P: Tensor, u: Tensor | None, f: Dynamics, jacobian: Dynamics, Q: Tensor
+             ) -> tuple[Tensor, Tensor]:
+    """EKF time update: m <- f(m, u), P <- F P F^T + Q with F = df/dx at the posterior mean."""
+    F = jacobian(m, u)  # (B, n, n)
+    return f(m, u), F @ P @ F.mT + Q
+
+
+def extended_kalman_predict(f: Dynamics, jacobian: Dynamics, C: Tensor, Q: Tensor, R: Tensor, m0: Tensor,
+                            P0: Tensor, y: Tensor, u: Tensor | None = None) -> Tensor:
+    """One-step predictions yhat (B, T+1, m): yhat_t = C E[x_t | y_{<t}, u_{<t}] under the linearized model.
+
+    C (B, m, n), Q (B, n, n), R (B, m, m), m0 (B, n), P0 (B, n, n), y (B, T+1, m), u (B, T+1, k) or None.
+    """
+    m, P, preds = m0, P0, []
+    for t in range(y.shape[1]):
+        preds.append((C @ m[..., None])[..., 0])
+        m, P = _condition_on(m, P, y[:, t], C, R)
+        m, P = _predict(m, P, None if u is None else u[:, t], f, jacobian, Q)
+    return torch.stack(preds, dim=1)
+
+
+def ekf_predict(params: dict[str, Tensor], y: Tensor, u: Tensor | None = None) -> Tensor:
+    """EKF predictions (B, T+1, m) for systems described by `params` (quadrotor or linear), computed in float64."""
+    f, jacobian, m0 = system_model(params)
+    p = {k: params[k].double() for k in ("C", "Q", "R", "P0")}
+    u = None if u is None else u.double()
+    return extended_kalman_predict(f, jacobian, p["C"], p["Q"], p["R"], m0, p["P0"], y.double(), u)
+
+
+class EKFPredictor:
+    """The extended Kalman filter that knows each system's parameters (traj.params) but not the clipping."""
+
+    name = "ekf"
+
+    def predict(self, traj: Trajectories) -> Tensor:
+        return ekf_predict(traj.params, traj.y, traj.u).to(traj.y.dtype)

@@ -1,0 +1,88 @@
+"""Bootstrap particle filter one-step predictions, batched over systems and particles (a loop over time only).
+
+With N particles X_t^i ~ p(x_t | y_{<t}) (start: X_0^i ~ N(m_0, P_0)):
+
+    yhat_t = C mean_i(X_t^i)
+    weights  w_i ∝ N(y_t; C X_t^i, R),  systematic resampling by w
+    propagate X_{t+1}^i = f(X_t^i, u_t) + L eps_i,  L L^T = Q,  eps_i ~ N(0, I)
+
+The filter knows (f, C, Q, R) from traj.params; with clip_state=True it also knows the quadrotor's clipping.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from mop.filters.ekf import Dynamics, system_model
+from mop.systems import quadrotor
+from mop.systems.base import Trajectories
+
+
+def _condition_on(X: Tensor, y: Tensor, C: Tensor, R: Tensor, generator: torch.Generator) -> Tensor:
+    """Resample particles X (B, N, n) by their likelihood of y (B, m) (systematic resampling)."""
+    resid = y[:, None] - X @ C.mT  # (B, N, m)
+    log_w = -0.5 * (resid * torch.linalg.solve(R[:, None], resid[..., None])[..., 0]).sum(-1)  # (B, N)
+    w = torch.softmax(log_w, dim=-1)
+    B, N = w.shape
+    cdf = w.cumsum(-1)
+    cdf[:, -1] = 1.0
+    offset = torch.rand((B, 1), generator=generator, device=generator.device, dtype=w.dtype)
+    positions = (offset + torch.arange(N, dtype=w.dtype, device=w.device)) / N  # (B, N)
+    idx = torch.searchsorted(cdf, positions).clamp_max(N - 1)
+    return torch.gather(X, 1, idx[..., None].expand_as(X))
+
+
+def _predict(X: Tensor, u: Tensor | None, f: Dynamics, L_Q: Tensor, generator: torch.Generator) -> Tensor:
+    """X (B, N, n) -> f(X, u) + w, w ~ N(0, Q) per particle."""
+    B, N, n = X.shape
+    u_rep = None if u is None else u[:, None].expand(B, N, u.shape[-1]).reshape(B * N, -1)
+    FX = f(X.reshape(B * N, n), u_rep).reshape(B, N, n)
+    eps = torch.randn((B, N, n), generator=generator, device=generator.device, dtype=X.dtype)
+    return FX + eps @ L_Q.mT
+
+
+def particle_filter_predict(f: Dynamics, C: Tensor, Q: Tensor, R: Tensor, m0: Tensor, P0: Tensor, y: Tensor,
+                            u: Tensor | None = None, *, num_particles: int = 1000,
+                            generator: torch.Generator, clip: bool = False) -> Tensor:
+    """One-step predictions yhat (B, T+1, m), shapes as in mop.filters.ekf.extended_kalman_predict."""
+    B, n = m0.shape
+    L_Q = torch.linalg.cholesky(Q + 1e-12 * torch.eye(n, dtype=Q.dtype, device=Q.device))
+    L_0 = torch.linalg.cholesky(P0 + 1e-12 * torch.eye(n, dtype=Q.dtype, device=Q.device))
+    eps = torch.randn((B, num_particles, n), generator=generator, device=generator.device, dtype=m0.dtype)
+    X = m0[:, None] + eps @ L_0.mT  # (B, N, n)
+    if clip:
+        X = quadrotor.clip_state(X)
+    preds = []
+    for t in range(y.shape[1]):
+        preds.append((C @ X.mean(1)[..., None])[..., 0])  # (B, m)
+        X = _condition_on(X, y[:, t], C, R, generator)
+        X = _predict(X, None if u is None else u[:, t], f, L_Q, generator)
+        if clip:
+            X = quadrotor.clip_state(X)
+    return torch.stack(preds, dim=1)
+
+
+def pf_predict(params: dict[str, Tensor], y: Tensor, u: Tensor | None = None, *, num_particles: int = 1000,
+               seed: int = 0, clip: bool = False) -> Tensor:
+    """Particle-filter predictions (B, T+1, m) for systems in `params` (quadrotor or linear), in float64."""
+    f, _, m0 = system_model(params)
+    p = {k: params[k].double() for k in ("C", "Q", "R", "P0")}
+    generator = torch.Generator(device=y.device).manual_seed(seed)
+    u = None if u is None else u.double()
+    return particle_filter_predict(f, p["C"], p["Q"], p["R"], m0, p["P0"], y.double(), u,
+                                   num_particles=num_particles, generator=generator, clip=clip)
+
+
+class ParticleFilterPredictor:
+    """Bootstrap particle filter knowing each system's parameters; seeded, `num_particles` per system."""
+
+    name = "pf"
+
+    def __init__(self, num_particles: int = 1000, seed: int = 0, clip: bool = False) -> None:
+        self.num_particles, self.seed, self.clip = num_particles, seed, clip
+
+    def predict(self, traj: Trajectories) -> Tensor:
+        yhat = pf_predict(traj.params, traj.y, traj.u, num_particles=self.num_particles, seed=self.seed,
+                          clip=self.clip)
+        return yhat.to(traj.y.dtype)

@@ -1,0 +1,117 @@
+"""The planar quadrotor of the paper's Sec. 5.3 (after Singh et al. 2019), Euler-discretized:
+
+    x_{t+1}   = x + (vx cos(phi) - vz sin(phi)) tau        state (x, z, phi, vx, vz, phidot)
+    z_{t+1}   = z + (vx sin(phi) + vz cos(phi)) tau
+    phi_{t+1} = phi + phidot tau
+    vx_{t+1}  = vx + (vz phidot - g sin(phi)) tau
+    vz_{t+1}  = vz + (-vx phidot - g cos(phi) + (u0 + u1) / m) tau
+    phidot_{t+1} = (u0 - u1) l tau / J                     (as printed in the paper)
+    then + w_t, and the state is clipped to BOUNDS;         y_t = C x_t + v_t.
+
+(m, l, J) ~ U[0.5, 2], u0, u1 ~ U[-0.5, 0.5] each step, C (3 x 6) U[0,1], w, v ~ N(0, sigma^2 I) (sigma = 0.1).
+x_0 ~ N(0, noise_var_w I) clipped (the paper does not say; the drone starts near rest at the origin).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from mop.config import SystemConfig
+from mop.errors import MopError
+from mop.systems.base import Trajectories
+from mop.systems.linear import cast, generate_with_redraws, normal, uniform
+
+TAU = 0.1
+GRAVITY = 10.0
+STATE_DIM, OUTPUT_DIM, INPUT_DIM = 6, 3, 2
+# per-coordinate clip bounds of (x, z, phi, vx, vz, phidot), from the authors' code (DESIGN.md)
+BOUNDS = (20.0, 20.0, math.pi / 3, 2.0, 2.0, math.pi / 4)
+PARAM_RANGE = (0.5, 2.0)
+ACTION_RANGE = (-0.5, 0.5)
+
+
+def dynamics(x: Tensor, u: Tensor, mass: Tensor, length: Tensor, inertia: Tensor) -> Tensor:
+    """x_next = f(x, u): (..., 6), (..., 2), params broadcastable to (...,). No noise, no clipping."""
+    px, pz, phi, vx, vz, phidot = x.unbind(-1)
+    u0, u1 = u.unbind(-1)
+    c, s = torch.cos(phi), torch.sin(phi)
+    return torch.stack([
+        px + (vx * c - vz * s) * TAU,
+        pz + (vx * s + vz * c) * TAU,
+        phi + phidot * TAU,
+        vx + (vz * phidot - GRAVITY * s) * TAU,
+        vz + (-vx * phidot - GRAVITY * c + (u0 + u1) / mass) * TAU,
+        (u0 - u1) * length * TAU / inertia,
+    ], dim=-1)
+
+
+def dynamics_jacobian(x: Tensor, u: Tensor, mass: Tensor, length: Tensor, inertia: Tensor) -> Tensor:
+    """F = df/dx at (x, u): (..., 6, 6). (f does not depend on x through m, l, J or u.)"""
+    _, _, phi, vx, vz, phidot = x.unbind(-1)
+    c, s = torch.cos(phi), torch.sin(phi)
+    one, zero = torch.ones_like(phi), torch.zeros_like(phi)
+    rows = [
+        [one, zero, (-vx * s - vz * c) * TAU, c * TAU, -s * TAU, zero],
+        [zero, one, (vx * c - vz * s) * TAU, s * TAU, c * TAU, zero],
+        [zero, zero, one, zero, zero, one * TAU],
+        [zero, zero, -GRAVITY * c * TAU, one, phidot * TAU, vz * TAU],
+        [zero, zero, GRAVITY * s * TAU, -phidot * TAU, one, -vx * TAU],
+        [zero, zero, zero, zero, zero, zero],
+    ]
+    return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
+
+
+def clip_state(x: Tensor) -> Tensor:
+    """Clip each coordinate of x (..., 6) to [-BOUNDS_i, BOUNDS_i]."""
+    bound = torch.tensor(BOUNDS, dtype=x.dtype, device=x.device)
+    return torch.maximum(torch.minimum(x, bound), -bound)
+
+
+class QuadrotorFamily:
+    """params: "mass", "length", "inertia" (B,), "C" (B,3,6), "Q" (B,6,6), "R" (B,3,3), "P0" (B,6,6), "x0_mean" (B,6).
+
+    Trajectories carry u (B, T+1, 2); u_T is drawn too (the model reads [y_t, u_t]) but moves nothing.
+    """
+
+    name = "quadrotor"
+    state_dim, output_dim, input_dim = STATE_DIM, OUTPUT_DIM, INPUT_DIM
+
+    def __init__(self, config: SystemConfig, dtype: torch.dtype = torch.float32) -> None:
+        if config.state_dim not in (None, STATE_DIM) or config.output_dim not in (None, OUTPUT_DIM):
+            raise MopError(f"the quadrotor has state_dim 6 and output_dim 3, got {config.state_dim}/{config.output_dim}; "
+                           "leave system.state_dim/output_dim unset")
+        self.config, self.dtype = config, dtype
+
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+        B, dev = num_systems, generator.device
+        mass, length, inertia = uniform((3, B), *PARAM_RANGE, generator)
+        C = uniform((B, OUTPUT_DIM, STATE_DIM), 0.0, 1.0, generator)
+        eye = lambda d, var: (var * torch.eye(d, dtype=torch.float64, device=dev)).expand(B, d, d).clone()  # noqa: E731
+        cfg = self.config
+        return {"mass": mass, "length": length, "inertia": inertia, "C": C,
+                "Q": eye(STATE_DIM, cfg.noise_var_w), "R": eye(OUTPUT_DIM, cfg.noise_var_v),
+                "P0": eye(STATE_DIM, cfg.noise_var_w), "x0_mean": torch.zeros(B, STATE_DIM, dtype=torch.float64, device=dev)}
+
+    def simulate(self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator) -> Trajectories:
+        p = {k: v.to(self.dtype) for k, v in params.items()}
+        B, cfg = p["C"].shape[0], self.config
+        u = uniform((B, horizon + 1, INPUT_DIM), *ACTION_RANGE, generator, self.dtype)  # (B, T+1, 2)
+        w = normal((B, horizon + 1, STATE_DIM), generator, self.dtype) * cfg.noise_var_w**0.5
+        v = normal((B, horizon + 1, OUTPUT_DIM), generator, self.dtype) * cfg.noise_var_v**0.5
+        x = clip_state(p["x0_mean"] + w[:, -1])  # x_0 ~ N(x0_mean, P0) with P0 = noise_var_w I, clipped
+        xs = [x]
+        for t in range(horizon):
+            x = clip_state(dynamics(x, u[:, t], p["mass"], p["length"], p["inertia"]) + w[:, t])
+            xs.append(x)
+        x = torch.stack(xs, dim=1)  # (B, T+1, 6)
+        y = x @ p["C"].mT + v  # (B, T+1, 3)
+        return Trajectories(y=y, u=u, x=x, params=dict(params), family=self.name)
+
+    def generate(self, num_systems: int, horizon: int, *, generator: torch.Generator) -> Trajectories:
+        return generate_with_redraws(self, num_systems, horizon, generator)
+
+
+__all__ = ["QuadrotorFamily", "dynamics", "dynamics_jacobian", "clip_state", "cast", "TAU", "GRAVITY", "BOUNDS"]
