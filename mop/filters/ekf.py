@@ -20,19 +20,25 @@ from torch import Tensor
 from mop.systems import quadrotor
 from mop.systems.base import Trajectories
 
-Dynamics = Callable[[Tensor, Tensor], Tensor]  # (x (B, n), u (B, k) | None) -> (B, n)
+Dynamics = Callable[[Tensor, Tensor | None], Tensor]  # f: (x (B, N, n), u (B, N, k) | None) -> (B, N, n)
+Jacobian = Callable[[Tensor, Tensor | None], Tensor]  # df/dx: (x (B, n), u (B, k) | None) -> (B, n, n)
 
 
-def system_model(params: dict[str, Tensor]) -> tuple[Dynamics, Dynamics, Tensor]:
-    """(f, df/dx, m_0) of the system in `params` (float64): the quadrotor or a linear family (A)."""
+def system_model(params: dict[str, Tensor]) -> tuple[Dynamics, Jacobian, Tensor]:
+    """(f, df/dx, m_0) of the system in `params` (float64): the quadrotor or a linear family (A).
+
+    f maps a batch of point sets x (B, N, n) (N particles / sigma points per system), u (B, N, k).
+    """
     p = {k: v.double() for k, v in params.items()}
     if "mass" in p:
-        args = (p["mass"], p["length"], p["inertia"])
-        return (lambda x, u: quadrotor.dynamics(x, u, *args),
-                lambda x, u: quadrotor.dynamics_jacobian(x, u, *args), p["x0_mean"])
+        mlJ = (p["mass"], p["length"], p["inertia"])  # (B,) each
+        return (
+            lambda x, u: quadrotor.dynamics(x, u, *(q[:, None] for q in mlJ)),
+            lambda x, u: quadrotor.dynamics_jacobian(x, u, *mlJ),
+            p["x0_mean"],
+        )
     A = p["A"]
-    return (lambda x, u: (A @ x[..., None])[..., 0], lambda x, u: A,
-            torch.zeros(A.shape[:-1], dtype=A.dtype, device=A.device))
+    return (lambda x, u: x @ A.mT, lambda x, u: A, torch.zeros(A.shape[:-1], dtype=A.dtype, device=A.device))
 
 
 def _condition_on(m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor) -> tuple[Tensor, Tensor]:
@@ -45,15 +51,26 @@ def _condition_on(m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor) -> tupl
     return m, P
 
 
-def _predict(m: Tensor, P: Tensor, u: Tensor | None, f: Dynamics, jacobian: Dynamics, Q: Tensor
-             ) -> tuple[Tensor, Tensor]:
+def _predict(
+    m: Tensor, P: Tensor, u: Tensor | None, f: Dynamics, jacobian: Jacobian, Q: Tensor
+) -> tuple[Tensor, Tensor]:
     """EKF time update: m <- f(m, u), P <- F P F^T + Q with F = df/dx at the posterior mean."""
     F = jacobian(m, u)  # (B, n, n)
-    return f(m, u), F @ P @ F.mT + Q
+    m_next = f(m[:, None], None if u is None else u[:, None])[:, 0]  # (B, n)
+    return m_next, F @ P @ F.mT + Q
 
 
-def extended_kalman_predict(f: Dynamics, jacobian: Dynamics, C: Tensor, Q: Tensor, R: Tensor, m0: Tensor,
-                            P0: Tensor, y: Tensor, u: Tensor | None = None) -> Tensor:
+def extended_kalman_predict(
+    f: Dynamics,
+    jacobian: Jacobian,
+    C: Tensor,
+    Q: Tensor,
+    R: Tensor,
+    m0: Tensor,
+    P0: Tensor,
+    y: Tensor,
+    u: Tensor | None = None,
+) -> Tensor:
     """One-step predictions yhat (B, T+1, m): yhat_t = C E[x_t | y_{<t}, u_{<t}] under the linearized model.
 
     C (B, m, n), Q (B, n, n), R (B, m, m), m0 (B, n), P0 (B, n, n), y (B, T+1, m), u (B, T+1, k) or None.
@@ -67,7 +84,7 @@ def extended_kalman_predict(f: Dynamics, jacobian: Dynamics, C: Tensor, Q: Tenso
 
 
 def ekf_predict(params: dict[str, Tensor], y: Tensor, u: Tensor | None = None) -> Tensor:
-    """EKF predictions (B, T+1, m) for systems described by `params` (quadrotor or linear), computed in float64."""
+    """EKF predictions (B, T+1, m) for systems described by `params` (quadrotor or linear), in float64."""
     f, jacobian, m0 = system_model(params)
     p = {k: params[k].double() for k in ("C", "Q", "R", "P0")}
     u = None if u is None else u.double()

@@ -19,10 +19,10 @@ from mop.systems import quadrotor
 from mop.systems.base import Trajectories
 
 
-def _condition_on(X: Tensor, y: Tensor, C: Tensor, R: Tensor, generator: torch.Generator) -> Tensor:
-    """Resample particles X (B, N, n) by their likelihood of y (B, m) (systematic resampling)."""
+def _condition_on(X: Tensor, y: Tensor, C: Tensor, R_inv: Tensor, generator: torch.Generator) -> Tensor:
+    """Resample particles X (B, N, n) by their likelihood N(y; C x, R) of y (B, m) (systematic resampling)."""
     resid = y[:, None] - X @ C.mT  # (B, N, m)
-    log_w = -0.5 * (resid * torch.linalg.solve(R[:, None], resid[..., None])[..., 0]).sum(-1)  # (B, N)
+    log_w = -0.5 * ((resid @ R_inv) * resid).sum(-1)  # (B, N)
     w = torch.softmax(log_w, dim=-1)
     B, N = w.shape
     cdf = w.cumsum(-1)
@@ -35,16 +35,26 @@ def _condition_on(X: Tensor, y: Tensor, C: Tensor, R: Tensor, generator: torch.G
 
 def _predict(X: Tensor, u: Tensor | None, f: Dynamics, L_Q: Tensor, generator: torch.Generator) -> Tensor:
     """X (B, N, n) -> f(X, u) + w, w ~ N(0, Q) per particle."""
-    B, N, n = X.shape
-    u_rep = None if u is None else u[:, None].expand(B, N, u.shape[-1]).reshape(B * N, -1)
-    FX = f(X.reshape(B * N, n), u_rep).reshape(B, N, n)
-    eps = torch.randn((B, N, n), generator=generator, device=generator.device, dtype=X.dtype)
+    u_rep = None if u is None else u[:, None].expand(-1, X.shape[1], -1)  # (B, N, k)
+    FX = f(X, u_rep)  # (B, N, n)
+    eps = torch.randn(X.shape, generator=generator, device=generator.device, dtype=X.dtype)
     return FX + eps @ L_Q.mT
 
 
-def particle_filter_predict(f: Dynamics, C: Tensor, Q: Tensor, R: Tensor, m0: Tensor, P0: Tensor, y: Tensor,
-                            u: Tensor | None = None, *, num_particles: int = 1000,
-                            generator: torch.Generator, clip: bool = False) -> Tensor:
+def particle_filter_predict(
+    f: Dynamics,
+    C: Tensor,
+    Q: Tensor,
+    R: Tensor,
+    m0: Tensor,
+    P0: Tensor,
+    y: Tensor,
+    u: Tensor | None = None,
+    *,
+    num_particles: int = 1000,
+    generator: torch.Generator,
+    clip: bool = False,
+) -> Tensor:
     """One-step predictions yhat (B, T+1, m), shapes as in mop.filters.ekf.extended_kalman_predict."""
     B, n = m0.shape
     L_Q = torch.linalg.cholesky(Q + 1e-12 * torch.eye(n, dtype=Q.dtype, device=Q.device))
@@ -53,25 +63,45 @@ def particle_filter_predict(f: Dynamics, C: Tensor, Q: Tensor, R: Tensor, m0: Te
     X = m0[:, None] + eps @ L_0.mT  # (B, N, n)
     if clip:
         X = quadrotor.clip_state(X)
+    R_inv = torch.linalg.inv(R)  # (B, m, m)
     preds = []
     for t in range(y.shape[1]):
         preds.append((C @ X.mean(1)[..., None])[..., 0])  # (B, m)
-        X = _condition_on(X, y[:, t], C, R, generator)
+        X = _condition_on(X, y[:, t], C, R_inv, generator)
         X = _predict(X, None if u is None else u[:, t], f, L_Q, generator)
         if clip:
             X = quadrotor.clip_state(X)
     return torch.stack(preds, dim=1)
 
 
-def pf_predict(params: dict[str, Tensor], y: Tensor, u: Tensor | None = None, *, num_particles: int = 1000,
-               seed: int = 0, clip: bool = False) -> Tensor:
+def pf_predict(
+    params: dict[str, Tensor],
+    y: Tensor,
+    u: Tensor | None = None,
+    *,
+    num_particles: int = 1000,
+    seed: int = 0,
+    clip: bool = False,
+) -> Tensor:
     """Particle-filter predictions (B, T+1, m) for systems in `params` (quadrotor or linear), in float64."""
     f, _, m0 = system_model(params)
     p = {k: params[k].double() for k in ("C", "Q", "R", "P0")}
     generator = torch.Generator(device=y.device).manual_seed(seed)
+    clip = clip and "mass" in params  # only the quadrotor is clipped
     u = None if u is None else u.double()
-    return particle_filter_predict(f, p["C"], p["Q"], p["R"], m0, p["P0"], y.double(), u,
-                                   num_particles=num_particles, generator=generator, clip=clip)
+    return particle_filter_predict(
+        f,
+        p["C"],
+        p["Q"],
+        p["R"],
+        m0,
+        p["P0"],
+        y.double(),
+        u,
+        num_particles=num_particles,
+        generator=generator,
+        clip=clip,
+    )
 
 
 class ParticleFilterPredictor:
@@ -83,6 +113,7 @@ class ParticleFilterPredictor:
         self.num_particles, self.seed, self.clip = num_particles, seed, clip
 
     def predict(self, traj: Trajectories) -> Tensor:
-        yhat = pf_predict(traj.params, traj.y, traj.u, num_particles=self.num_particles, seed=self.seed,
-                          clip=self.clip)
+        yhat = pf_predict(
+            traj.params, traj.y, traj.u, num_particles=self.num_particles, seed=self.seed, clip=self.clip
+        )
         return yhat.to(traj.y.dtype)

@@ -6,8 +6,9 @@ Time update by the unscented transform with 2n + 1 sigma points (Julier/Merwe sc
     m <- sum_i Wm_i f(X_i, u),  P <- sum_i Wc_i (f(X_i) - m)(f(X_i) - m)^T + Q,
     Wm_0 = lambda / (n + lambda), Wc_0 = Wm_0 + 1 - alpha^2 + beta, Wm_i = Wc_i = 1 / (2 (n + lambda)).
 
-The output map is linear (y = C x + v), for which the unscented measurement update is exactly the Kalman update,
-so conditioning reuses mop.filters.ekf._condition_on. On a linear system the UKF equals the Kalman filter.
+The output map is linear (y = C x + v), for which the unscented measurement update is exactly the
+Kalman update, so conditioning reuses mop.filters.ekf._condition_on.
+On a linear system the UKF equals the Kalman filter.
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ from mop.filters.ekf import Dynamics, _condition_on, system_model
 from mop.systems.base import Trajectories
 
 
-def sigma_points(m: Tensor, P: Tensor, alpha: float, beta: float, kappa: float) -> tuple[Tensor, Tensor, Tensor]:
+def sigma_points(
+    m: Tensor, P: Tensor, alpha: float, beta: float, kappa: float
+) -> tuple[Tensor, Tensor, Tensor]:
     """X (B, 2n+1, n), Wm (2n+1,), Wc (2n+1,) for N(m, P); m (B, n), P (B, n, n)."""
     n = m.shape[-1]
     lam = alpha**2 * (n + kappa) - n
@@ -32,22 +35,32 @@ def sigma_points(m: Tensor, P: Tensor, alpha: float, beta: float, kappa: float) 
     return X, Wm, Wc
 
 
-def _predict(m: Tensor, P: Tensor, u: Tensor | None, f: Dynamics, Q: Tensor,
-             alpha: float, beta: float, kappa: float) -> tuple[Tensor, Tensor]:
+def _predict(
+    m: Tensor, P: Tensor, u: Tensor | None, f: Dynamics, Q: Tensor, alpha: float, beta: float, kappa: float
+) -> tuple[Tensor, Tensor]:
     """Unscented time update of N(m, P) through f, plus Q."""
     X, Wm, Wc = sigma_points(m, P, alpha, beta, kappa)  # (B, 2n+1, n)
-    B, num_points, n = X.shape
-    u_rep = None if u is None else u[:, None].expand(B, num_points, u.shape[-1]).reshape(B * num_points, -1)
-    FX = f(X.reshape(B * num_points, n), u_rep).reshape(B, num_points, n)
+    u_rep = None if u is None else u[:, None].expand(-1, X.shape[1], -1)  # (B, 2n+1, k)
+    FX = f(X, u_rep)  # (B, 2n+1, n)
     m = torch.einsum("i,bin->bn", Wm, FX)
     D = FX - m[:, None]  # (B, 2n+1, n)
     P = torch.einsum("i,bin,bik->bnk", Wc, D, D) + Q
     return m, 0.5 * (P + P.mT)
 
 
-def unscented_kalman_predict(f: Dynamics, C: Tensor, Q: Tensor, R: Tensor, m0: Tensor, P0: Tensor, y: Tensor,
-                             u: Tensor | None = None, alpha: float = 1.0, beta: float = 0.0,
-                             kappa: float = 0.0) -> Tensor:
+def unscented_kalman_predict(
+    f: Dynamics,
+    C: Tensor,
+    Q: Tensor,
+    R: Tensor,
+    m0: Tensor,
+    P0: Tensor,
+    y: Tensor,
+    u: Tensor | None = None,
+    alpha: float = 1.0,
+    beta: float = 0.0,
+    kappa: float = 0.0,
+) -> Tensor:
     """One-step predictions yhat (B, T+1, m), shapes as in mop.filters.ekf.extended_kalman_predict."""
     m, P, preds = m0, P0, []
     for t in range(y.shape[1]):
@@ -57,8 +70,14 @@ def unscented_kalman_predict(f: Dynamics, C: Tensor, Q: Tensor, R: Tensor, m0: T
     return torch.stack(preds, dim=1)
 
 
-def ukf_predict(params: dict[str, Tensor], y: Tensor, u: Tensor | None = None, alpha: float = 1.0,
-                beta: float = 0.0, kappa: float = 0.0) -> Tensor:
+def ukf_predict(
+    params: dict[str, Tensor],
+    y: Tensor,
+    u: Tensor | None = None,
+    alpha: float = 1.0,
+    beta: float = 0.0,
+    kappa: float = 0.0,
+) -> Tensor:
     """UKF predictions (B, T+1, m) for systems described by `params` (quadrotor or linear), in float64."""
     f, _, m0 = system_model(params)
     p = {k: params[k].double() for k in ("C", "Q", "R", "P0")}

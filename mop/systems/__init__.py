@@ -1,7 +1,7 @@
 """System families (distributions over dynamical systems), batched and seeded.
 
-    family = make_family(SystemConfig(family="linear"))
-    traj = family.generate(1000, 50, generator=generator(seed=0))   # Trajectories, y (1000, 51, 5)
+family = make_family(SystemConfig(family="linear"))
+traj = family.generate(1000, 50, generator=generator(seed=0))   # Trajectories, y (1000, 51, 5)
 """
 
 from __future__ import annotations
@@ -29,5 +29,12 @@ def generator(seed: int, device: torch.device | str = "cpu") -> torch.Generator:
     return torch.Generator(device=device).manual_seed(int(seed))
 
 
-__all__ = ["make_family", "generator", "SystemFamily", "Trajectories", "LinearFamily", "SwitchingFamily",
-           "QuadrotorFamily"]
+__all__ = [
+    "make_family",
+    "generator",
+    "SystemFamily",
+    "Trajectories",
+    "LinearFamily",
+    "SwitchingFamily",
+    "QuadrotorFamily",
+]

@@ -2,8 +2,8 @@
 
     x_{t+1} = A x_t + w_t,   y_t = C x_t + v_t,   x_0 ~ N(0, x0_std^2 I),
 
-with w_t ~ N(0, sigma_w^2 I), v_t ~ N(0, sigma_v^2 I) i.i.d., or, for colored noise, w_t and v_t each the sum of
-the last `color_window` i.i.d. draws. A is dense (entries U[0,1] scaled to spectral radius rho) or upper
+with w_t ~ N(0, sigma_w^2 I), v_t ~ N(0, sigma_v^2 I) i.i.d., or, for colored noise, w_t and v_t each the sum
+of the last `color_window` i.i.d. draws. A is dense (entries U[0,1] scaled to spectral radius rho) or upper
 triangular (diagonal U[-rho, rho], strict upper part U[-1, 1]); C has entries U[0,1], redrawn until (A, C) is
 observable. Everything is batched over B systems and draws from one torch.Generator on its device.
 """
@@ -20,8 +20,13 @@ from mop.systems.base import Trajectories
 MAX_REDRAWS = 100
 
 
-def uniform(shape: tuple[int, ...], low: float, high: float, generator: torch.Generator,
-            dtype: torch.dtype = torch.float64) -> Tensor:
+def uniform(
+    shape: tuple[int, ...],
+    low: float,
+    high: float,
+    generator: torch.Generator,
+    dtype: torch.dtype = torch.float64,
+) -> Tensor:
     """U[low, high] draws on the generator's device."""
     draw = torch.rand(shape, generator=generator, device=generator.device, dtype=dtype)
     return low + (high - low) * draw
@@ -30,6 +35,11 @@ def uniform(shape: tuple[int, ...], low: float, high: float, generator: torch.Ge
 def normal(shape: tuple[int, ...], generator: torch.Generator, dtype: torch.dtype = torch.float64) -> Tensor:
     """N(0, 1) draws on the generator's device (float32 draws are ~4x faster on CPU)."""
     return torch.randn(shape, generator=generator, device=generator.device, dtype=dtype)
+
+
+def scaled_eye(num_systems: int, dim: int, var: float, device: torch.device) -> Tensor:
+    """(B, d, d) var * I in float64."""
+    return (var * torch.eye(dim, dtype=torch.float64, device=device)).expand(num_systems, dim, dim).clone()
 
 
 def check_stable(spectral_radius: float) -> None:
@@ -50,7 +60,9 @@ def perron_radius(A: Tensor, num_iters: int = 40) -> Tensor:
     return torch.einsum("bij,bj->bi", A, v).norm(dim=-1)
 
 
-def sample_dense_A(num_systems: int, state_dim: int, spectral_radius: float, generator: torch.Generator) -> Tensor:
+def sample_dense_A(
+    num_systems: int, state_dim: int, spectral_radius: float, generator: torch.Generator
+) -> Tensor:
     """(B, n, n) entries U[0,1], scaled so that max |eig(A)| = spectral_radius."""
     check_stable(spectral_radius)
     A = uniform((num_systems, state_dim, state_dim), 0.0, 1.0, generator)
@@ -58,8 +70,9 @@ def sample_dense_A(num_systems: int, state_dim: int, spectral_radius: float, gen
     return A * (spectral_radius / rho)[:, None, None]
 
 
-def sample_upper_triangular_A(num_systems: int, state_dim: int, spectral_radius: float,
-                              generator: torch.Generator) -> Tensor:
+def sample_upper_triangular_A(
+    num_systems: int, state_dim: int, spectral_radius: float, generator: torch.Generator
+) -> Tensor:
     """(B, n, n) diagonal U[-rho, rho] (the eigenvalues), strictly upper part U[-1, 1], zeros below."""
     check_stable(spectral_radius)
     A = uniform((num_systems, state_dim, state_dim), -1.0, 1.0, generator).triu(1)
@@ -79,8 +92,8 @@ def observability_matrix(A: Tensor, C: Tensor) -> Tensor:
 def is_observable(A: Tensor, C: Tensor) -> Tensor:
     """(B,) bool: the observability matrix O has full column rank n.
 
-    Singular values come from the eigenvalues of the Gram O^T O (a batched eigvalsh of n x n, much cheaper than
-    an SVD of O); the Gram resolves them only down to sqrt(eps) * sigma_max, so that is the rank tolerance.
+    Singular values come from the eigenvalues of the Gram O^T O (a batched eigvalsh of n x n, much cheaper
+    than an SVD of O); the Gram resolves them only down to sqrt(eps) * sigma_max: the rank tolerance.
     """
     O = observability_matrix(A, C)  # (B, n*m, n)
     gram_eigs = torch.linalg.eigvalsh(O.mT @ O)  # (B, n), ascending, = sigma_i(O)^2
@@ -97,21 +110,37 @@ def sample_observable_C(A: Tensor, output_dim: int, generator: torch.Generator) 
         if not bad.any():
             return C
         C[bad] = uniform((int(bad.sum()), output_dim, n), 0.0, 1.0, generator)
-    raise MopError(f"could not draw an observable C for {int(bad.sum())} systems in {MAX_REDRAWS} tries; "
-                   "check state_dim/output_dim")
+    raise MopError(
+        f"could not draw an observable C for {int(bad.sum())} systems in {MAX_REDRAWS} tries; "
+        "check state_dim/output_dim"
+    )
 
 
-def moving_sum_noise(num_systems: int, horizon: int, dim: int, var: float, window: int,
-                     generator: torch.Generator, dtype: torch.dtype = torch.float64) -> Tensor:
-    """(B, T+1, d) noise e_t = sum_{j=0}^{window-1} eps_{t-j}, eps i.i.d. N(0, var I); window=1 is white noise."""
+def moving_sum_noise(
+    num_systems: int,
+    horizon: int,
+    dim: int,
+    var: float,
+    window: int,
+    generator: torch.Generator,
+    dtype: torch.dtype = torch.float64,
+) -> Tensor:
+    """(B, T+1, d) noise e_t = sum_{j=0}^{window-1} eps_{t-j}, eps i.i.d. N(0, var I); window 1: white."""
     eps = normal((num_systems, horizon + window, dim), generator, dtype) * var**0.5  # (B, T+window, d)
     csum = torch.cat([torch.zeros_like(eps[:, :1]), eps.cumsum(1)], dim=1)  # (B, T+window+1, d)
-    return csum[:, window:window + horizon + 1] - csum[:, : horizon + 1]
+    return csum[:, window : window + horizon + 1] - csum[:, : horizon + 1]
 
 
-def simulate_linear(A: Tensor, C: Tensor, x0: Tensor, w: Tensor, v: Tensor,
-                    A2: Tensor | None = None, C2: Tensor | None = None, switch_time: int | None = None
-                    ) -> tuple[Tensor, Tensor]:
+def simulate_linear(
+    A: Tensor,
+    C: Tensor,
+    x0: Tensor,
+    w: Tensor,
+    v: Tensor,
+    A2: Tensor | None = None,
+    C2: Tensor | None = None,
+    switch_time: int | None = None,
+) -> tuple[Tensor, Tensor]:
     """x_{t+1} = A_t x_t + w_t, y_t = C_t x_t + v_t for t = 0..T; a loop over time only.
 
     A_t, C_t are (A, C) for t < switch_time and (A2, C2) from then on (no switch when A2 is None).
@@ -140,7 +169,9 @@ def out_of_bounds(traj: Trajectories, max_abs: float) -> Tensor:
 def generate_with_redraws(family, num_systems: int, horizon: int, generator: torch.Generator) -> Trajectories:
     """sample + simulate, then redraw (sample and simulate again) only the systems that left +-max_abs."""
     if num_systems < 1 or horizon < 1:
-        raise MopError(f"need at least 1 system and horizon >= 1, got {num_systems} systems, horizon {horizon}")
+        raise MopError(
+            f"need at least 1 system and horizon >= 1, got {num_systems} systems, horizon {horizon}"
+        )
     traj = family.simulate(family.sample(num_systems, generator=generator), horizon, generator=generator)
     for _ in range(MAX_REDRAWS):
         bad = out_of_bounds(traj, family.config.max_abs)
@@ -149,18 +180,22 @@ def generate_with_redraws(family, num_systems: int, horizon: int, generator: tor
         idx = bad.nonzero().squeeze(1)
         new = family.simulate(family.sample(len(idx), generator=generator), horizon, generator=generator)
         traj = replace_rows(traj, idx, new)
-    raise MopError(f"{int(bad.sum())} systems stayed outside |x|,|y| <= {family.config.max_abs} after "
-                   f"{MAX_REDRAWS} redraws; raise system.max_abs or lower the noise / spectral_radius")
+    raise MopError(
+        f"{int(bad.sum())} systems stayed outside |x|,|y| <= {family.config.max_abs} after "
+        f"{MAX_REDRAWS} redraws; raise system.max_abs or lower the noise / spectral_radius"
+    )
 
 
 def replace_rows(traj: Trajectories, idx: Tensor, new: Trajectories) -> Trajectories:
     """traj with systems idx replaced by the systems of `new` (same family and horizon)."""
+
     def put(old: Tensor | None, fresh: Tensor | None) -> Tensor | None:
         if old is None:
             return None
         old = old.clone()
         old[idx] = fresh
         return old
+
     params = {k: put(v, new.params[k]) for k, v in traj.params.items()}
     return Trajectories(put(traj.y, new.y), put(traj.u, new.u), put(traj.x, new.x), params, traj.family)
 
@@ -168,16 +203,18 @@ def replace_rows(traj: Trajectories, idx: Tensor, new: Trajectories) -> Trajecto
 def cast(traj: Trajectories, dtype: torch.dtype) -> Trajectories:
     """Floating tensors to dtype (integer params such as switch_time stay as they are)."""
     to = lambda t: None if t is None else (t.to(dtype) if t.is_floating_point() else t)  # noqa: E731
-    return Trajectories(to(traj.y), to(traj.u), to(traj.x), {k: to(v) for k, v in traj.params.items()}, traj.family)
+    return Trajectories(
+        to(traj.y), to(traj.u), to(traj.x), {k: to(v) for k, v in traj.params.items()}, traj.family
+    )
 
 
 class LinearFamily:
-    """Linear Gaussian systems: "linear" (dense A), "upper-triangular", "colored-noise" (dense A, moving-sum noise).
+    """Linear Gaussian systems: "linear" (dense A), "upper-triangular", "colored-noise".
 
-    params: "A" (B,n,n), "C" (B,m,n), "Q" (B,n,n) = var(w_t) I, "R" (B,m,m) = var(v_t) I (for colored noise the
-    summed variance color_window * sigma^2, as the paper's Kalman filter uses), "P0" (B,n,n) = x0_std^2 I.
-    Parameters are drawn in float64 (the spectral radius and observability checks need it); noise and simulation
-    run in `dtype`, which generate() returns (float32 for training, float64 for filter references).
+    params: "A" (B,n,n), "C" (B,m,n), "Q" (B,n,n) = var(w_t) I, "R" (B,m,m) = var(v_t) I (for colored noise
+    the summed variance color_window * sigma^2, as the paper's Kalman filter uses), "P0" (B,n,n) = x0_std^2 I.
+    Parameters are drawn in float64 (the spectral radius and observability checks need it); noise and
+    simulation run in `dtype`, which generate() returns (float32 for training, float64 for filter references).
     """
 
     def __init__(self, config: SystemConfig, dtype: torch.dtype = torch.float32) -> None:
@@ -190,7 +227,9 @@ class LinearFamily:
 
     def sample_A(self, num_systems: int, generator: torch.Generator) -> Tensor:
         if self.name == "upper-triangular":
-            return sample_upper_triangular_A(num_systems, self.state_dim, self.config.spectral_radius, generator)
+            return sample_upper_triangular_A(
+                num_systems, self.state_dim, self.config.spectral_radius, generator
+            )
         return sample_dense_A(num_systems, self.state_dim, self.config.spectral_radius, generator)
 
     def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
@@ -199,12 +238,17 @@ class LinearFamily:
         return {"A": A, "C": C, **self.noise_params(num_systems, A.device)}
 
     def noise_params(self, num_systems: int, device: torch.device) -> dict[str, Tensor]:
-        eye = lambda d, var: (var * torch.eye(d, dtype=torch.float64, device=device)).expand(num_systems, d, d)  # noqa: E731
+        eye = lambda d, var: scaled_eye(num_systems, d, var, device)  # noqa: E731
         cfg, n, m = self.config, self.state_dim, self.output_dim
-        return {"Q": eye(n, cfg.noise_var_w * self.window).clone(), "R": eye(m, cfg.noise_var_v * self.window).clone(),
-                "P0": eye(n, cfg.x0_std**2).clone()}
+        return {
+            "Q": eye(n, cfg.noise_var_w * self.window).clone(),
+            "R": eye(m, cfg.noise_var_v * self.window).clone(),
+            "P0": eye(n, cfg.x0_std**2).clone(),
+        }
 
-    def draw_noise(self, num_systems: int, horizon: int, generator: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
+    def draw_noise(
+        self, num_systems: int, horizon: int, generator: torch.Generator
+    ) -> tuple[Tensor, Tensor, Tensor]:
         """x0 (B, n), w (B, T+1, n), v (B, T+1, m)."""
         cfg, n, m = self.config, self.state_dim, self.output_dim
         x0 = normal((num_systems, n), generator, self.dtype) * cfg.x0_std
@@ -212,7 +256,9 @@ class LinearFamily:
         v = moving_sum_noise(num_systems, horizon, m, cfg.noise_var_v, self.window, generator, self.dtype)
         return x0, w, v
 
-    def simulate(self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator) -> Trajectories:
+    def simulate(
+        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
+    ) -> Trajectories:
         A, C = params["A"].to(self.dtype), params["C"].to(self.dtype)
         x, y = simulate_linear(A, C, *self.draw_noise(A.shape[0], horizon, generator))
         return Trajectories(y=y, x=x, params=dict(params), family=self.name)

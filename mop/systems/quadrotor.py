@@ -8,7 +8,7 @@
     phidot_{t+1} = (u0 - u1) l tau / J                     (as printed in the paper)
     then + w_t, and the state is clipped to BOUNDS;         y_t = C x_t + v_t.
 
-(m, l, J) ~ U[0.5, 2], u0, u1 ~ U[-0.5, 0.5] each step, C (3 x 6) U[0,1], w, v ~ N(0, sigma^2 I) (sigma = 0.1).
+(m, l, J) ~ U[0.5, 2], u0, u1 ~ U[-0.5, 0.5] each step, C (3 x 6) U[0,1], w, v ~ N(0, sigma^2 I), sigma 0.1.
 x_0 ~ N(0, noise_var_w I) clipped (the paper does not say; the drone starts near rest at the origin).
 """
 
@@ -22,7 +22,7 @@ from torch import Tensor
 from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.systems.base import Trajectories
-from mop.systems.linear import cast, generate_with_redraws, normal, uniform
+from mop.systems.linear import cast, generate_with_redraws, normal, scaled_eye, uniform
 
 TAU = 0.1
 GRAVITY = 10.0
@@ -38,14 +38,17 @@ def dynamics(x: Tensor, u: Tensor, mass: Tensor, length: Tensor, inertia: Tensor
     px, pz, phi, vx, vz, phidot = x.unbind(-1)
     u0, u1 = u.unbind(-1)
     c, s = torch.cos(phi), torch.sin(phi)
-    return torch.stack([
-        px + (vx * c - vz * s) * TAU,
-        pz + (vx * s + vz * c) * TAU,
-        phi + phidot * TAU,
-        vx + (vz * phidot - GRAVITY * s) * TAU,
-        vz + (-vx * phidot - GRAVITY * c + (u0 + u1) / mass) * TAU,
-        (u0 - u1) * length * TAU / inertia,
-    ], dim=-1)
+    return torch.stack(
+        [
+            px + (vx * c - vz * s) * TAU,
+            pz + (vx * s + vz * c) * TAU,
+            phi + phidot * TAU,
+            vx + (vz * phidot - GRAVITY * s) * TAU,
+            vz + (-vx * phidot - GRAVITY * c + (u0 + u1) / mass) * TAU,
+            (u0 - u1) * length * TAU / inertia,
+        ],
+        dim=-1,
+    )
 
 
 def dynamics_jacobian(x: Tensor, u: Tensor, mass: Tensor, length: Tensor, inertia: Tensor) -> Tensor:
@@ -71,7 +74,8 @@ def clip_state(x: Tensor) -> Tensor:
 
 
 class QuadrotorFamily:
-    """params: "mass", "length", "inertia" (B,), "C" (B,3,6), "Q" (B,6,6), "R" (B,3,3), "P0" (B,6,6), "x0_mean" (B,6).
+    """params: "mass", "length", "inertia" (B,), "C" (B,3,6), "Q" (B,6,6), "R" (B,3,3), "P0" (B,6,6),
+    "x0_mean" (B,6).
 
     Trajectories carry u (B, T+1, 2); u_T is drawn too (the model reads [y_t, u_t]) but moves nothing.
     """
@@ -81,21 +85,33 @@ class QuadrotorFamily:
 
     def __init__(self, config: SystemConfig, dtype: torch.dtype = torch.float32) -> None:
         if config.state_dim not in (None, STATE_DIM) or config.output_dim not in (None, OUTPUT_DIM):
-            raise MopError(f"the quadrotor has state_dim 6 and output_dim 3, got {config.state_dim}/{config.output_dim}; "
-                           "leave system.state_dim/output_dim unset")
+            raise MopError(
+                f"the quadrotor has state_dim 6 and output_dim 3, got "
+                f"{config.state_dim}/{config.output_dim}; "
+                "leave system.state_dim/output_dim unset"
+            )
         self.config, self.dtype = config, dtype
 
     def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
         B, dev = num_systems, generator.device
         mass, length, inertia = uniform((3, B), *PARAM_RANGE, generator)
         C = uniform((B, OUTPUT_DIM, STATE_DIM), 0.0, 1.0, generator)
-        eye = lambda d, var: (var * torch.eye(d, dtype=torch.float64, device=dev)).expand(B, d, d).clone()  # noqa: E731
+        eye = lambda d, var: scaled_eye(B, d, var, dev)  # noqa: E731
         cfg = self.config
-        return {"mass": mass, "length": length, "inertia": inertia, "C": C,
-                "Q": eye(STATE_DIM, cfg.noise_var_w), "R": eye(OUTPUT_DIM, cfg.noise_var_v),
-                "P0": eye(STATE_DIM, cfg.noise_var_w), "x0_mean": torch.zeros(B, STATE_DIM, dtype=torch.float64, device=dev)}
+        return {
+            "mass": mass,
+            "length": length,
+            "inertia": inertia,
+            "C": C,
+            "Q": eye(STATE_DIM, cfg.noise_var_w),
+            "R": eye(OUTPUT_DIM, cfg.noise_var_v),
+            "P0": eye(STATE_DIM, cfg.noise_var_w),
+            "x0_mean": torch.zeros(B, STATE_DIM, dtype=torch.float64, device=dev),
+        }
 
-    def simulate(self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator) -> Trajectories:
+    def simulate(
+        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
+    ) -> Trajectories:
         p = {k: v.to(self.dtype) for k, v in params.items()}
         B, cfg = p["C"].shape[0], self.config
         u = uniform((B, horizon + 1, INPUT_DIM), *ACTION_RANGE, generator, self.dtype)  # (B, T+1, 2)
@@ -114,4 +130,13 @@ class QuadrotorFamily:
         return generate_with_redraws(self, num_systems, horizon, generator)
 
 
-__all__ = ["QuadrotorFamily", "dynamics", "dynamics_jacobian", "clip_state", "cast", "TAU", "GRAVITY", "BOUNDS"]
+__all__ = [
+    "QuadrotorFamily",
+    "dynamics",
+    "dynamics_jacobian",
+    "clip_state",
+    "cast",
+    "TAU",
+    "GRAVITY",
+    "BOUNDS",
+]

@@ -1,0 +1,98 @@
+"""EKF, UKF and particle filter: on a linear-Gaussian system they must match the Kalman filter (filterpy)."""
+
+import numpy as np
+import torch
+from filterpy.kalman import KalmanFilter
+
+from mop.config import SystemConfig
+from mop.filters.ekf import EKFPredictor, ekf_predict
+from mop.filters.particle import ParticleFilterPredictor
+from mop.filters.ukf import UKFPredictor
+from mop.predictors import Predictor
+from mop.systems import generator, make_family
+
+
+def filterpy_predictions(traj, b):
+    """Per-system filterpy Kalman filter: yhat_t = H x_{t|t-1}."""
+    p = {k: v[b].numpy() for k, v in traj.params.items()}
+    kf = KalmanFilter(dim_x=p["A"].shape[0], dim_z=p["C"].shape[0])
+    kf.F, kf.H, kf.Q, kf.R, kf.P = p["A"], p["C"], p["Q"], p["R"], p["P0"].copy()
+    kf.x = np.zeros(p["A"].shape[0])
+    out = []
+    for y in traj.y[b].numpy():
+        out.append(kf.H @ kf.x)
+        kf.update(y)
+        kf.predict()
+    return np.array(out)
+
+
+def linear_traj(num_systems=6, horizon=30, seed=0, **kw):
+    return make_family(
+        SystemConfig(family="linear", state_dim=4, output_dim=2, **kw), torch.float64
+    ).generate(num_systems, horizon, generator=generator(seed))
+
+
+def test_ekf_on_linear_system_equals_kalman_filter():
+    traj = linear_traj()
+    yhat = EKFPredictor().predict(traj).numpy()
+    for b in range(traj.num_systems):
+        np.testing.assert_allclose(yhat[b], filterpy_predictions(traj, b), atol=1e-9)
+
+
+def test_ukf_on_linear_system_equals_kalman_filter():
+    traj = linear_traj(seed=1)
+    for predictor in (UKFPredictor(), UKFPredictor(alpha=0.5, beta=2.0, kappa=1.0)):
+        yhat = predictor.predict(traj).numpy()
+        for b in range(traj.num_systems):
+            np.testing.assert_allclose(yhat[b], filterpy_predictions(traj, b), atol=1e-8)
+
+
+def test_particle_filter_approaches_kalman_filter():
+    """Monte Carlo error of the PF mean shrinks like 1/sqrt(N): many particles -> close to the KF."""
+    traj = linear_traj(num_systems=4, horizon=15, seed=2, noise_var_w=0.1, noise_var_v=0.1)
+    kf = np.stack([filterpy_predictions(traj, b) for b in range(4)])
+    gap = lambda n: np.abs(ParticleFilterPredictor(n, seed=0).predict(traj).numpy() - kf).mean()  # noqa: E731
+    scale = np.abs(traj.y.numpy() - kf).mean()  # the KF's own one-step error, for scale
+    small, large = gap(100), gap(20000)
+    assert large < 0.05 * scale and large < small / 3
+
+
+def test_particle_filter_is_seeded():
+    traj = linear_traj(num_systems=2, horizon=5)
+    a, b = (ParticleFilterPredictor(200, seed=3).predict(traj) for _ in range(2))
+    c = ParticleFilterPredictor(200, seed=4).predict(traj)
+    assert torch.equal(a, b) and not torch.equal(a, c)
+
+
+def test_quadrotor_filters_run_and_beat_the_prior():
+    traj = make_family(SystemConfig(family="quadrotor"), torch.float64).generate(
+        50, 30, generator=generator(4)
+    )
+    prior_err = (traj.y - traj.y.mean()).norm(dim=-1)[:, 5:].mean()
+    C, P0 = traj.params["C"], traj.params["P0"]
+    prior_mean = (C @ traj.params["x0_mean"][..., None])[..., 0]  # (B, m), yhat_0 uses no data
+    pf_sd = (
+        torch.diagonal(C @ P0 @ C.mT, dim1=-2, dim2=-1).sqrt() / 300**0.5
+    )  # Monte Carlo sd of the PF's mean
+    for predictor, tol in (
+        (EKFPredictor(), 1e-12),
+        (UKFPredictor(), 1e-12),
+        (ParticleFilterPredictor(300, clip=True), 5 * pf_sd),
+    ):
+        assert isinstance(predictor, Predictor)
+        yhat = predictor.predict(traj)
+        assert yhat.shape == traj.y.shape and yhat.dtype == traj.y.dtype and torch.isfinite(yhat).all()
+        assert ((yhat[:, 0] - prior_mean).abs() <= tol).all()
+        assert (yhat - traj.y).norm(dim=-1)[:, 5:].mean() < prior_err
+
+
+def test_ekf_linearizes_the_quadrotor_step():
+    """One EKF step from a known state: yhat_1 = C f(m_0, u_0) with the posterior mean m_0 (no clipping)."""
+    traj = make_family(SystemConfig(family="quadrotor"), torch.float64).generate(5, 2, generator=generator(5))
+    p = dict(traj.params)
+    p["P0"] = p["P0"] * 0 + 1e-12 * torch.eye(6, dtype=torch.float64)  # x_0 known = x0_mean
+    yhat = ekf_predict(p, traj.y, traj.u)
+    from mop.systems.quadrotor import dynamics
+
+    x1 = dynamics(p["x0_mean"], traj.u[:, 0], p["mass"], p["length"], p["inertia"])
+    torch.testing.assert_close(yhat[:, 1], (p["C"] @ x1[..., None])[..., 0], atol=1e-8, rtol=0)
