@@ -28,7 +28,18 @@ examples:
 """
 
 
+class _OverridesAnywhere(argparse.ArgumentParser):
+    """argparse reads a nargs="*" positional in one chunk; also take key=value words after the options."""
+
+    def parse_known_args(self, args=None, namespace=None):
+        namespace, extras = super().parse_known_args(args, namespace)
+        late = [a for a in extras if "=" in a and not a.startswith("-")]
+        namespace.overrides = [*(namespace.overrides or []), *late]
+        return namespace, [a for a in extras if a not in late]
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.__class__ = _OverridesAnywhere  # the subparser the dispatcher made for us
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = EPILOG
     parser.add_argument("family", choices=FAMILIES, help="system family to sample from")
