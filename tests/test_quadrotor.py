@@ -73,3 +73,12 @@ def test_jacobian_matches_autograd():
         args = (u[b], m[b], l[b], J[b])
         ref = torch.autograd.functional.jacobian(lambda s, args=args: dynamics(s, *args), x[b])
         torch.testing.assert_close(F[b], ref)
+
+
+def test_dynamics_matches_numpy_on_random_states():
+    """Unclipped f against the paper's equations at random states (the clip masks e.g. vz along trajectories)."""
+    rng = np.random.default_rng(0)
+    x, u, mlJ = rng.normal(size=(20, 6)), rng.uniform(-0.5, 0.5, (20, 2)), rng.uniform(0.5, 2, (3, 20))
+    got = dynamics(*(torch.from_numpy(a) for a in (x, u, *mlJ))).numpy()
+    ref = np.stack([numpy_step(x[b], u[b], *mlJ[:, b]) for b in range(20)])
+    np.testing.assert_allclose(got, ref, atol=1e-12)
