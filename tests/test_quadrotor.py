@@ -76,7 +76,7 @@ def test_jacobian_matches_autograd():
 
 
 def test_dynamics_matches_numpy_on_random_states():
-    """Unclipped f against the paper's equations at random states (the clip masks e.g. vz along trajectories)."""
+    """Unclipped f against the paper's equations at random states (the clip masks vz on trajectories)."""
     rng = np.random.default_rng(0)
     x, u, mlJ = rng.normal(size=(20, 6)), rng.uniform(-0.5, 0.5, (20, 2)), rng.uniform(0.5, 2, (3, 20))
     got = dynamics(*(torch.from_numpy(a) for a in (x, u, *mlJ))).numpy()
