@@ -96,3 +96,17 @@ def test_ekf_linearizes_the_quadrotor_step():
 
     x1 = dynamics(p["x0_mean"], traj.u[:, 0], p["mass"], p["length"], p["inertia"])
     torch.testing.assert_close(yhat[:, 1], (p["C"] @ x1[..., None])[..., 0], atol=1e-8, rtol=0)
+
+
+def test_unscented_time_update_closed_form():
+    """f(x) = x^2 for x ~ N(mu, s^2): E f = mu^2 + s^2, Var f = 2 s^4 + 4 mu^2 s^2; the UT with n = 1,
+    alpha = 1, beta = 0, kappa = 2 (points mu, mu +- sqrt(3) s) reproduces both exactly."""
+    from mop.filters.ukf import _predict
+
+    mu, s2, q = torch.tensor([[0.7], [-1.3]], dtype=torch.float64), torch.tensor([0.2, 0.5]), 0.03
+    P = s2.double()[:, None, None]  # (B, 1, 1)
+    Q = torch.full((2, 1, 1), q, dtype=torch.float64)
+    m, P_next = _predict(mu, P, None, lambda x, u: x**2, Q, alpha=1.0, beta=0.0, kappa=2.0)
+    mu, s2 = mu[:, 0], s2.double()
+    torch.testing.assert_close(m[:, 0], mu**2 + s2)
+    torch.testing.assert_close(P_next[:, 0, 0], 2 * s2**2 + 4 * mu**2 * s2 + q)
