@@ -42,6 +42,25 @@ def test_unobservable_C_is_redrawn():
     assert is_observable(A, C).tolist() == [False, True]
 
 
+def test_is_observable_matches_numpy_rank():
+    """Includes a case the first ceil(n/m) blocks miss: a cyclic shift read through x_1 is observable."""
+    from mop.systems.linear import is_observable
+
+    g = generator(8)
+    A = torch.rand(40, 4, 4, generator=g, dtype=torch.float64)
+    C = torch.rand(40, 2, 4, generator=g, dtype=torch.float64)
+    shift = torch.roll(torch.eye(4, dtype=torch.float64), 1, dims=0)  # e_i -> e_{i+1}
+    A[:3] = torch.stack([shift, torch.diag(torch.tensor([0.9, 0.5, 0.3, 0.1])), shift]).double()
+    C[:3] = 0
+    C[:2, :, 0] = 1.0  # both outputs read x_1
+    C[2, 0, 1] = C[2, 1, 1] = 1.0  # shift observed via x_2 only
+    ref = [
+        np.linalg.matrix_rank(np.vstack([c @ np.linalg.matrix_power(a, k) for k in range(4)])) == 4
+        for a, c in zip(A.numpy(), C.numpy(), strict=True)
+    ]
+    assert is_observable(A, C).tolist() == ref and ref[:3] == [True, False, True]
+
+
 def test_upper_triangular_entries():
     A = family("upper-triangular").generate(200, 5, generator=generator(2)).params["A"].numpy()
     diag = np.diagonal(A, axis1=1, axis2=2)
