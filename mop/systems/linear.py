@@ -140,9 +140,11 @@ def moving_sum_noise(
     dtype: torch.dtype = torch.float64,
 ) -> Tensor:
     """(B, T+1, d) noise e_t = sum_{j=0}^{window-1} eps_{t-j}, eps i.i.d. N(0, var I); window 1: white."""
-    eps = normal((num_systems, horizon + window, dim), generator, dtype) * var**0.5  # (B, T+window, d)
-    csum = torch.cat([torch.zeros_like(eps[:, :1]), eps.cumsum(1)], dim=1)  # (B, T+window+1, d)
-    return csum[:, window : window + horizon + 1] - csum[:, : horizon + 1]
+    eps = normal((num_systems, horizon + window, dim), generator, dtype).mul_(var**0.5)  # (B, T+window, d)
+    e = eps[:, : horizon + 1]
+    for j in range(1, window):  # a sum of shifted slices: exact, unlike differences of a cumsum
+        e = e + eps[:, j : j + horizon + 1]
+    return e
 
 
 def simulate_linear(
@@ -164,11 +166,11 @@ def simulate_linear(
     xs, x = [x0], x0
     for t in range(num_steps - 1):
         At = A if A2 is None or t < switch_time else A2
-        x = (At @ x[..., None])[..., 0] + w[:, t]
+        x = torch.baddbmm(w[:, t, :, None], At, x[..., None])[..., 0]  # (B, n)
         xs.append(x)
     x = torch.stack(xs, dim=1)  # (B, T+1, n)
     if A2 is None:
-        return x, x @ C.mT + v
+        return x, torch.baddbmm(v, x, C.mT)
     y = torch.cat([x[:, :switch_time] @ C.mT, x[:, switch_time:] @ C2.mT], dim=1)
     return x, y + v
 
