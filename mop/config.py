@@ -133,8 +133,10 @@ class ModelConfig:
     output_dim: int = 0
     readout: str = "mean"  # "mean" (MSE) or "gaussian" (mean and variance, NLL)
     dropout: float = 0.0
+    position: str = "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact relative streaming)
 
     def __post_init__(self) -> None:
+        check(self.position in ("learned", "rope"), f"model.position must be 'learned' or 'rope', got {self.position!r}")
         check(self.arch in ("gpt", "gru"), f"model.arch must be 'gpt' or 'gru', got {self.arch!r}")
         for name in ("num_layers", "num_heads", "width", "context"):
             value = getattr(self, name)

@@ -1,0 +1,77 @@
+"""GRU baseline with the transformer's read-in / read-out and the same forward / loss / streaming API.
+
+    h_t = GRU(W_in z_t, h_{t-1}),  yhat_{t+1} = W_out LN(h_t)   (num_layers stacked GRU layers of width d)
+
+No context limit: forward takes any T, and streaming carries the hidden state (B, L, d) step by step, which
+equals the full forward exactly.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from mop.config import ModelConfig
+from mop.errors import MopError
+from mop.model import _check_dims, prediction_loss
+
+
+class GRUCache:
+    """Hidden state h (L, B, d) and the number of inputs consumed."""
+
+    def __init__(self, h: Tensor) -> None:
+        self.h = h
+        self.t = 0
+
+
+class GRUModel(nn.Module):
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        _check_dims(cfg)
+        self.cfg = cfg
+        self.read_in = nn.Linear(cfg.input_dim, cfg.width)
+        self.gru = nn.GRU(cfg.width, cfg.width, num_layers=cfg.num_layers, batch_first=True,
+                          dropout=cfg.dropout if cfg.num_layers > 1 else 0.0)
+        self.ln_f = nn.LayerNorm(cfg.width)
+        self.read_out = nn.Linear(cfg.width, cfg.output_dim * (2 if cfg.readout == "gaussian" else 1))
+
+    def _split(self, raw: Tensor) -> tuple[Tensor, Tensor | None]:
+        if self.cfg.readout == "mean":
+            return raw, None
+        mu, s = raw.chunk(2, dim=-1)
+        return mu, nn.functional.softplus(s) + 1e-6
+
+    def _run(self, inputs: Tensor, h0: Tensor | None = None) -> tuple[Tensor, Tensor | None, Tensor]:
+        """inputs (B, T, d_in) -> mean (B, T, m), var (B, T, m)|None, final hidden (L, B, d)."""
+        out, h = self.gru(self.read_in(inputs), h0)  # (B, T, d), (L, B, d)
+        mu, var = self._split(self.read_out(self.ln_f(out)))
+        return mu, var, h
+
+    def forward(self, inputs: Tensor) -> Tensor:
+        """inputs (B, T, d_in) -> mean predictions (B, T, m); position t predicts y_{t+1}."""
+        return self._run(inputs)[0]
+
+    def predict_distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor]:
+        if self.cfg.readout != "gaussian":
+            raise MopError("predict_distribution needs model.readout='gaussian'; "
+                           "this model predicts only the mean")
+        mu, var, _ = self._run(inputs)
+        return mu, var
+
+    def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
+        mu, var, _ = self._run(inputs)
+        return prediction_loss(mu, var, targets)
+
+    def init_cache(self, batch_size: int) -> GRUCache:
+        p = self.read_in.weight
+        h = torch.zeros(self.cfg.num_layers, batch_size, self.cfg.width, device=p.device, dtype=p.dtype)
+        return GRUCache(h)  # h (L, B, d)
+
+    def step_distribution(self, z: Tensor, cache: GRUCache) -> tuple[Tensor, Tensor | None]:
+        """z_t (B, d_in) -> (mean, var|None) of y_{t+1}, each (B, m); updates the cache."""
+        mu, var, cache.h = self._run(z[:, None, :], cache.h)  # (B, 1, m)
+        cache.t += 1
+        return mu[:, 0], None if var is None else var[:, 0]
+
+    def step(self, z: Tensor, cache: GRUCache) -> Tensor:
+        return self.step_distribution(z, cache)[0]

@@ -1,0 +1,251 @@
+"""The paper's model: a GPT-2-style causal transformer on real-valued inputs (nanoGPT-style, top to bottom).
+
+    config -> rotary helper -> attention -> MLP -> block -> model -> KV cache
+
+Inputs are z_t = [y_t, u_t] (B, T, d_in). A linear read-in maps them to width d, GPT-2 adds learned
+absolute position embeddings, L pre-LayerNorm blocks (causal self-attention + GELU MLP 4x) follow, a final
+LayerNorm and a linear read-out give the prediction. Output position t predicts y_{t+1} from z_0..z_t:
+
+    mean readout:      yhat_{t+1} = W_out h_t                          loss = MSE
+    gaussian readout:  [mu, s] = W_out h_t, var = softplus(s) + 1e-6
+                       loss = mean_{t,i} 0.5 [log(2 pi var) + (y - mu)^2 / var]
+
+`predict_distribution` raises MopError for the mean readout (it has no variance).
+
+Streaming (`init_cache` / `step`): one new input per call, keys and values of past inputs kept in a
+circular cache of `context` slots per layer, so every step costs O(context) however long the stream runs.
+- Inside the context (t < context) `step` equals `forward` on the prefix (to float rounding).
+- Beyond it the oldest slot is overwritten (a rolling window of the last `context` keys/values). The cached
+  keys were computed when older inputs were still visible in the layers below, so this approximates the
+  paper's sliding window and is not equal to it.
+  * position="rope": positions enter only as relative distances (all <= context-1, the range seen in
+    training); the recommended setting for long streams.
+  * position="learned": the new input gets the last learned embedding, index min(t, context-1); the cached
+    keys keep the positions they were written with.
+  Use LearnedPredictor(mode="window") for the paper's exact semantics.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from mop.config import ModelConfig
+from mop.errors import MopError
+
+
+def _check_dims(cfg: ModelConfig) -> None:
+    if cfg.input_dim <= 0 or cfg.output_dim <= 0:
+        raise MopError(f"model.input_dim and model.output_dim must be > 0 to build a model, got "
+                       f"{cfg.input_dim} and {cfg.output_dim}; set them from the system family first")
+
+
+def rope_angles(positions: Tensor, head_dim: int, base: float = 10000.0) -> tuple[Tensor, Tensor]:
+    """cos, sin of theta_{p,i} = p / base^(2i/head_dim) for positions (T,) -> each (T, head_dim/2)."""
+    i2 = torch.arange(0, head_dim, 2, dtype=torch.float32, device=positions.device)  # 2i
+    inv_freq = base ** (-i2 / head_dim)  # (hd/2,)
+    theta = positions.float()[:, None] * inv_freq[None, :]  # (T, hd/2)
+    return theta.cos(), theta.sin()
+
+
+def apply_rope(x: Tensor, cos: Tensor, sin: Tensor) -> Tensor:
+    """Rotate pairs (x_{2i}, x_{2i+1}) of x (B, H, T, hd) by theta_{p,i}; cos/sin (T, hd/2)."""
+    x1, x2 = x[..., 0::2], x[..., 1::2]  # (B, H, T, hd/2)
+    out = torch.stack((x1 * cos - x2 * sin, x1 * sin + x2 * cos), dim=-1)  # (B, H, T, hd/2, 2)
+    return out.flatten(-2).type_as(x)  # (B, H, T, hd)
+
+
+class CausalSelfAttention(nn.Module):
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.num_heads, self.head_dim = cfg.num_heads, cfg.width // cfg.num_heads
+        self.qkv = nn.Linear(cfg.width, 3 * cfg.width)  # fused Q, K, V
+        self.proj = nn.Linear(cfg.width, cfg.width)
+        self.proj.residual = True  # scaled init
+        self.dropout = cfg.dropout
+        self.rope = cfg.position == "rope"
+
+    def _heads(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        B, T, d = x.shape
+        q, k, v = self.qkv(x).split(d, dim=2)  # each (B, T, d)
+        # (B, T, d) -> (B, T, H, hd) -> (B, H, T, hd)
+        return tuple(z.view(B, T, self.num_heads, self.head_dim).transpose(1, 2) for z in (q, k, v))
+
+    def _merge(self, y: Tensor) -> Tensor:
+        B, H, T, hd = y.shape
+        return self.proj(y.transpose(1, 2).reshape(B, T, H * hd))  # (B, H, T, hd) -> (B, T, d)
+
+    def forward(self, x: Tensor, rope: tuple[Tensor, Tensor] | None = None) -> Tensor:
+        """x (B, T, d) -> (B, T, d), position t attends to 0..t."""
+        q, k, v = self._heads(x)  # (B, H, T, hd)
+        if rope is not None:
+            q, k = apply_rope(q, *rope), apply_rope(k, *rope)
+        drop = self.dropout if self.training else 0.0
+        y = F.scaled_dot_product_attention(q, k, v, dropout_p=drop, is_causal=True)  # (B, H, T, hd)
+        return self._merge(y)
+
+    def step(self, x: Tensor, cache_k: Tensor, cache_v: Tensor, slot: int, filled: int,
+             rope: tuple[Tensor, Tensor] | None = None) -> Tensor:
+        """New position x (B, 1, d): write its key/value into `slot`, attend over `filled` cached slots."""
+        q, k, v = self._heads(x)  # (B, H, 1, hd)
+        if rope is not None:
+            q, k = apply_rope(q, *rope), apply_rope(k, *rope)
+        cache_k[:, :, slot] = k[:, :, 0]
+        cache_v[:, :, slot] = v[:, :, 0]
+        # every cached key is in the past, so no mask; softmax does not depend on the slot order
+        y = F.scaled_dot_product_attention(q, cache_k[:, :, :filled], cache_v[:, :, :filled])  # (B, H, 1, hd)
+        return self._merge(y)
+
+
+class MLP(nn.Module):
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.fc = nn.Linear(cfg.width, 4 * cfg.width)
+        self.proj = nn.Linear(4 * cfg.width, cfg.width)
+        self.proj.residual = True
+        self.drop = nn.Dropout(cfg.dropout)
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.drop(self.proj(F.gelu(self.fc(x))))  # (B, T, d)
+
+
+class Block(nn.Module):
+    """Pre-LayerNorm residual block: x + attn(ln(x)), then x + mlp(ln(x))."""
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.ln_1, self.attn = nn.LayerNorm(cfg.width), CausalSelfAttention(cfg)
+        self.ln_2, self.mlp = nn.LayerNorm(cfg.width), MLP(cfg)
+
+    def forward(self, x: Tensor, rope: tuple[Tensor, Tensor] | None = None) -> Tensor:
+        x = x + self.attn(self.ln_1(x), rope)
+        return x + self.mlp(self.ln_2(x))
+
+    def step(self, x: Tensor, cache_k: Tensor, cache_v: Tensor, slot: int, filled: int,
+             rope: tuple[Tensor, Tensor] | None = None) -> Tensor:
+        x = x + self.attn.step(self.ln_1(x), cache_k, cache_v, slot, filled, rope)
+        return x + self.mlp(self.ln_2(x))
+
+
+class KVCache:
+    """Per-layer circular key/value buffers (L, B, H, context, hd) and the number of inputs seen so far."""
+
+    def __init__(self, cfg: ModelConfig, batch_size: int, device: torch.device, dtype: torch.dtype) -> None:
+        shape = (cfg.num_layers, batch_size, cfg.num_heads, cfg.context, cfg.width // cfg.num_heads)
+        self.k = torch.zeros(shape, device=device, dtype=dtype)
+        self.v = torch.zeros(shape, device=device, dtype=dtype)
+        self.context = cfg.context
+        self.t = 0  # inputs consumed
+
+
+class Transformer(nn.Module):
+    """GPT-2 body with a linear read-in (d_in -> d) and read-out (d -> m, or 2m for the Gaussian readout)."""
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        _check_dims(cfg)
+        self.cfg = cfg
+        self.read_in = nn.Linear(cfg.input_dim, cfg.width)
+        self.wpe = nn.Embedding(cfg.context, cfg.width) if cfg.position == "learned" else None
+        self.drop = nn.Dropout(cfg.dropout)
+        self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.num_layers))
+        self.ln_f = nn.LayerNorm(cfg.width)
+        out = cfg.output_dim * (2 if cfg.readout == "gaussian" else 1)
+        self.read_out = nn.Linear(cfg.width, out)
+        self.apply(self._init_weights)
+
+    def _init_weights(self, module: nn.Module) -> None:
+        """GPT-2 init: N(0, 0.02), residual projections N(0, 0.02 / sqrt(2 L)), zero biases."""
+        if isinstance(module, nn.Linear):
+            std = 0.02 / math.sqrt(2 * self.cfg.num_layers) if getattr(module, "residual", False) else 0.02
+            nn.init.normal_(module.weight, mean=0.0, std=std)
+            nn.init.zeros_(module.bias)
+        elif isinstance(module, nn.Embedding):
+            nn.init.normal_(module.weight, mean=0.0, std=0.02)
+
+    def _rope(self, positions: Tensor) -> tuple[Tensor, Tensor] | None:
+        if self.wpe is not None:
+            return None
+        return rope_angles(positions, self.cfg.width // self.cfg.num_heads)
+
+    def hidden(self, inputs: Tensor) -> Tensor:
+        """inputs (B, T, d_in) -> final hidden states (B, T, d)."""
+        B, T, _ = inputs.shape
+        if T > self.cfg.context:
+            raise MopError(f"sequence of length {T} exceeds model.context={self.cfg.context}; "
+                           "use LearnedPredictor(mode='window' or 'stream') for longer trajectories")
+        positions = torch.arange(T, device=inputs.device)
+        h = self.read_in(inputs)  # (B, T, d)
+        if self.wpe is not None:
+            h = h + self.wpe(positions)  # (T, d) broadcast over B
+        h = self.drop(h)
+        rope = self._rope(positions)
+        for block in self.blocks:
+            h = block(h, rope)
+        return self.ln_f(h)  # (B, T, d)
+
+    def _split(self, raw: Tensor) -> tuple[Tensor, Tensor | None]:
+        """Read-out (B, T, m or 2m) -> mean (B, T, m), var (B, T, m) or None."""
+        if self.cfg.readout == "mean":
+            return raw, None
+        mu, s = raw.chunk(2, dim=-1)
+        return mu, F.softplus(s) + 1e-6
+
+    def forward(self, inputs: Tensor) -> Tensor:
+        """inputs (B, T, d_in) -> mean predictions (B, T, m); position t predicts y_{t+1}."""
+        return self._split(self.read_out(self.hidden(inputs)))[0]
+
+    def predict_distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor]:
+        """Gaussian readout only: (mean, var) each (B, T, m). MopError for readout 'mean'."""
+        if self.cfg.readout != "gaussian":
+            raise MopError("predict_distribution needs model.readout='gaussian'; "
+                           "this model predicts only the mean")
+        return self._split(self.read_out(self.hidden(inputs)))
+
+    def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
+        """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m)."""
+        mu, var = self._split(self.read_out(self.hidden(inputs)))
+        return prediction_loss(mu, var, targets)
+
+    # ---- streaming ----
+    def init_cache(self, batch_size: int) -> KVCache:
+        p = self.read_in.weight
+        return KVCache(self.cfg, batch_size, p.device, p.dtype)
+
+    def step_distribution(self, z: Tensor, cache: KVCache) -> tuple[Tensor, Tensor | None]:
+        """One input z_t (B, d_in) -> (mean, var|None) of y_{t+1}, each (B, m); updates `cache` in place."""
+        t, C = cache.t, self.cfg.context
+        slot, filled = t % C, min(t + 1, C)
+        h = self.read_in(z[:, None, :])  # (B, 1, d)
+        position = torch.tensor([t], device=z.device)
+        if self.wpe is not None:
+            h = h + self.wpe(position.clamp_max(C - 1))  # (1, d)
+        rope = self._rope(position)
+        for layer, block in enumerate(self.blocks):
+            h = block.step(h, cache.k[layer], cache.v[layer], slot, filled, rope)
+        cache.t = t + 1
+        mu, var = self._split(self.read_out(self.ln_f(h)))  # (B, 1, m)
+        return mu[:, 0], None if var is None else var[:, 0]
+
+    def step(self, z: Tensor, cache: KVCache) -> Tensor:
+        """One input z_t (B, d_in) -> mean prediction of y_{t+1} (B, m)."""
+        return self.step_distribution(z, cache)[0]
+
+
+def prediction_loss(mu: Tensor, var: Tensor | None, targets: Tensor) -> Tensor:
+    """MSE when var is None, else mean over all entries of 0.5 [log(2 pi var) + (y - mu)^2 / var]."""
+    if var is None:
+        return F.mse_loss(mu, targets)
+    return 0.5 * (torch.log(2 * math.pi * var) + (targets - mu) ** 2 / var).mean()
+
+
+def build_model(cfg: ModelConfig) -> nn.Module:
+    """The transformer of the paper, or the GRU baseline for cfg.arch == 'gru'."""
+    _check_dims(cfg)
+    if cfg.arch == "gru":
+        from mop.gru import GRUModel
+        return GRUModel(cfg)
+    return Transformer(cfg)
