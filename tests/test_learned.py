@@ -1,0 +1,88 @@
+"""LearnedPredictor: protocol, indexing, window mode vs an explicit loop, stream mode, chunking."""
+
+import pytest
+import torch
+
+from mop.config import ModelConfig
+from mop.errors import MopError
+from mop.learned import LearnedPredictor
+from mop.model import build_model
+from mop.predictors import Predictor
+from mop.systems.base import Trajectories
+
+C = 8
+
+
+def setup(T=20, readout="mean", position="learned", arch="gpt"):
+    cfg = ModelConfig(arch=arch, num_layers=2, num_heads=2, width=16, context=C, input_dim=3, output_dim=2,
+                      readout=readout, position=position)
+    g = torch.Generator().manual_seed(0)
+    traj = Trajectories(y=torch.randn(5, T + 1, 2, generator=g), u=torch.randn(5, T + 1, 1, generator=g))
+    return build_model(cfg), traj
+
+
+def explicit_window(model, traj):
+    """yhat_t = last output of a forward on the last <= C inputs before t; yhat_0 = 0."""
+    z = traj.model_inputs()
+    out = torch.zeros_like(traj.y)
+    with torch.no_grad():
+        for t in range(1, traj.y.shape[1]):
+            out[:, t] = model(z[:, max(0, t - C):t])[:, -1]
+    return out
+
+
+def test_protocol_and_indexing():
+    model, traj = setup(T=6)
+    pred = LearnedPredictor(model)
+    assert isinstance(pred, Predictor) and pred.name == "mop"
+    yhat = pred.predict(traj)
+    assert yhat.shape == traj.y.shape
+    assert torch.equal(yhat[:, 0], torch.zeros(5, 2))
+    # the last observation y_T must not influence any prediction
+    later = Trajectories(y=traj.y.clone(), u=traj.u.clone())
+    later.y[:, -1] += 5.0
+    assert torch.equal(pred.predict(later), yhat)
+
+
+@pytest.mark.parametrize("mode", ["window", "stream"])
+def test_inside_context_equals_plain_forward(mode):
+    model, traj = setup(T=C)
+    with torch.no_grad():
+        expected = model.eval()(traj.model_inputs()[:, :-1])
+    assert torch.allclose(LearnedPredictor(model, mode=mode).predict(traj)[:, 1:], expected, atol=1e-6)
+
+
+@pytest.mark.parametrize("position", ["learned", "rope"])
+def test_window_beyond_context_matches_explicit_loop(position):
+    model, traj = setup(T=20, position=position)
+    assert torch.allclose(LearnedPredictor(model, chunk_size=2).predict(traj), explicit_window(model, traj),
+                          atol=1e-5)
+
+
+@pytest.mark.parametrize("position", ["learned", "rope"])
+def test_stream_beyond_context(position):
+    """Stream equals the window up to t = C and stays finite and close-ish (rolling-cache approximation)."""
+    model, traj = setup(T=20, position=position)
+    streamed = LearnedPredictor(model, mode="stream", chunk_size=3).predict(traj)
+    window = explicit_window(model, traj)
+    assert torch.allclose(streamed[:, :C + 1], window[:, :C + 1], atol=1e-5)
+    assert torch.isfinite(streamed).all()
+
+
+def test_gaussian_distribution_and_gru():
+    model, traj = setup(T=20, readout="gaussian", arch="gru")
+    mu, var = LearnedPredictor(model, mode="stream").predict_distribution(traj)
+    with torch.no_grad():
+        mu_ref, var_ref = model.predict_distribution(traj.model_inputs()[:, :-1])
+    assert torch.allclose(mu[:, 1:], mu_ref, atol=1e-5) and torch.allclose(var[:, 1:], var_ref, atol=1e-5)
+    assert torch.equal(LearnedPredictor(model).predict(traj), mu)
+
+
+def test_errors():
+    model, traj = setup()
+    with pytest.raises(MopError):
+        LearnedPredictor(model, mode="rolling")
+    with pytest.raises(MopError):
+        LearnedPredictor(model).predict_distribution(traj)
+    with pytest.raises(MopError, match="output_dim"):
+        LearnedPredictor(model).predict(Trajectories(y=torch.zeros(2, 5, 2)))
