@@ -1,0 +1,28 @@
+"""Classical predictors, batched over systems: Kalman (and steady-state), RLS, subspace identification,
+simple baselines; the quadrotor EKF / UKF / particle filter live in ekf.py, ukf.py, particle.py."""
+
+from mop.filters.kalman import (
+    KalmanPredictor,
+    KalmanResult,
+    kalman_filter,
+    kalman_predict,
+    solve_filter_dare,
+    steady_state_gain,
+)
+from mop.filters.rls import AdaptiveOrderRLSPredictor, RLSPredictor, adaptive_order_rls_predict, rls_predict
+from mop.filters.simple import LastValuePredictor, ZeroPredictor
+
+__all__ = [
+    "KalmanPredictor",
+    "KalmanResult",
+    "kalman_filter",
+    "kalman_predict",
+    "solve_filter_dare",
+    "steady_state_gain",
+    "RLSPredictor",
+    "AdaptiveOrderRLSPredictor",
+    "rls_predict",
+    "adaptive_order_rls_predict",
+    "ZeroPredictor",
+    "LastValuePredictor",
+]

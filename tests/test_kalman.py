@@ -1,0 +1,169 @@
+"""Kalman filter against filterpy step by step, DARE against scipy, calibration, switching variants."""
+
+import numpy as np
+import pytest
+import scipy.linalg
+import torch
+from filterpy.kalman import KalmanFilter
+
+from mop.filters.kalman import (
+    KalmanPredictor,
+    kalman_filter,
+    kalman_predict,
+    solve_filter_dare,
+    steady_state_gain,
+    steady_state_predict,
+)
+from mop.systems.base import Trajectories
+
+
+def random_spd(rng, B, d, scale=0.1):
+    M = rng.normal(size=(B, d, d))
+    return scale * (M @ M.transpose(0, 2, 1) / d + 0.5 * np.eye(d))
+
+
+def random_system(rng, B, n, m, rho=0.9):
+    A = rng.normal(size=(B, n, n))
+    A *= rho / np.abs(np.linalg.eigvals(A)).max(-1)[:, None, None]
+    return A, rng.normal(size=(B, m, n)), random_spd(rng, B, n), random_spd(rng, B, m)
+
+
+def simulate(rng, A, C, Q, R, T, P0=None):
+    B, n, m = A.shape[0], A.shape[-1], C.shape[1]
+    P0 = np.broadcast_to(np.eye(n), (B, n, n)) if P0 is None else P0
+    x = np.einsum("bij,bj->bi", np.linalg.cholesky(P0), rng.normal(size=(B, n)))
+    Lq, Lr, ys = np.linalg.cholesky(Q), np.linalg.cholesky(R), []
+    for _ in range(T):
+        ys.append(np.einsum("bij,bj->bi", C, x) + np.einsum("bij,bj->bi", Lr, rng.normal(size=(B, m))))
+        x = np.einsum("bij,bj->bi", A, x) + np.einsum("bij,bj->bi", Lq, rng.normal(size=(B, n)))
+    return np.stack(ys, axis=1)
+
+
+def filterpy_predict(A, C, Q, R, y, x0, P0):
+    """Reference: one filterpy KalmanFilter per system, predictions H x before each update."""
+    out = np.zeros_like(y)
+    for b in range(A.shape[0]):
+        kf = KalmanFilter(dim_x=A.shape[-1], dim_z=C.shape[1])
+        kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = A[b], C[b], Q[b], R[b], x0[b].copy(), P0[b].copy()
+        for t in range(y.shape[1]):
+            out[b, t] = C[b] @ kf.x
+            kf.update(y[b, t])
+            kf.predict()
+    return out
+
+
+@pytest.mark.parametrize("n,m", [(1, 1), (3, 2), (4, 4), (2, 5)])
+@pytest.mark.parametrize("as_torch", [False, True])
+def test_kalman_matches_filterpy(n, m, as_torch):
+    rng = np.random.default_rng(n * 10 + m)
+    A, C, Q, R = random_system(rng, 3, n, m)
+    y = simulate(rng, A, C, Q, R, 20)
+    x0, P0 = rng.normal(size=(3, n)), random_spd(rng, 3, n, scale=1.0)
+    ref = filterpy_predict(A, C, Q, R, y, x0, P0)
+    args = [torch.from_numpy(a) for a in (A, C, Q, R, y, x0, P0)] if as_torch else [A, C, Q, R, y, x0, P0]
+    yhat = kalman_predict(*args)
+    assert isinstance(yhat, torch.Tensor) == as_torch
+    np.testing.assert_allclose(np.asarray(yhat), ref, atol=1e-6, rtol=0)
+
+
+def test_kalman_defaults_zero_mean_identity_cov():
+    rng = np.random.default_rng(1)
+    A, C, Q, R = random_system(rng, 2, 3, 2)
+    y = simulate(rng, A, C, Q, R, 10)
+    ref = filterpy_predict(A, C, Q, R, y, np.zeros((2, 3)), np.broadcast_to(np.eye(3), (2, 3, 3)).copy())
+    np.testing.assert_allclose(kalman_predict(A, C, Q, R, y), ref, atol=1e-6)
+
+
+@pytest.mark.parametrize("n,m", [(2, 1), (4, 2), (6, 3)])
+def test_dare_matches_scipy(n, m):
+    rng = np.random.default_rng(n)
+    A, C, Q, R = random_system(rng, 4, n, m, rho=1.05)  # unstable A still has a stabilizing solution
+    P = solve_filter_dare(*(torch.from_numpy(a) for a in (A, C, Q, R))).numpy()
+    K, _ = steady_state_gain(*(torch.from_numpy(a) for a in (A, C, Q, R)))
+    for b in range(4):
+        ref = scipy.linalg.solve_discrete_are(A[b].T, C[b].T, Q[b], R[b])
+        np.testing.assert_allclose(P[b], ref, rtol=1e-8, atol=1e-10)
+        K_ref = A[b] @ ref @ C[b].T @ np.linalg.inv(C[b] @ ref @ C[b].T + R[b])
+        np.testing.assert_allclose(K[b].numpy(), K_ref, rtol=1e-8, atol=1e-10)
+
+
+def test_time_varying_covariance_converges_to_dare():
+    rng = np.random.default_rng(3)
+    A, C, Q, R = random_system(rng, 3, 3, 2)
+    res = kalman_filter(A, C, Q, R, simulate(rng, A, C, Q, R, 200))
+    P = solve_filter_dare(*(torch.from_numpy(a) for a in (A, C, Q, R))).numpy()
+    np.testing.assert_allclose(res.S[:, -1], C @ P @ C.transpose(0, 2, 1) + R, rtol=1e-8)
+    # and the steady-state predictor agrees with the time-varying filter once converged (same data)
+    y = torch.from_numpy(simulate(rng, A, C, Q, R, 300))
+    K, _ = steady_state_gain(*(torch.from_numpy(a) for a in (A, C, Q, R)))
+    ss = steady_state_predict(torch.from_numpy(A), torch.from_numpy(C), K, y)
+    np.testing.assert_allclose(ss[:, -50:], kalman_predict(A, C, Q, R, y.numpy())[:, -50:], atol=1e-6)
+
+
+def test_innovation_covariance_is_calibrated():
+    """Innovations e_t = y_t - yhat_t have covariance S_t: whitened e has identity covariance.
+    2000 systems x 30 steps x m=2 -> 120000 whitened samples; each entry of the sample covariance
+    has standard error about 1/sqrt(60000) ~ 0.004, so a tolerance of 0.03 is about 7 standard errors."""
+    rng = np.random.default_rng(4)
+    A, C, Q, R = random_system(rng, 2000, 3, 2)
+    P0 = random_spd(rng, 2000, 3, scale=1.0)
+    y = simulate(rng, A, C, Q, R, 30, P0)
+    res = kalman_filter(A, C, Q, R, y, P0=P0)
+    white = np.linalg.solve(np.linalg.cholesky(res.S), (y - res.yhat)[..., None])[..., 0].reshape(-1, 2)
+    np.testing.assert_allclose(white.T @ white / len(white), np.eye(2), atol=0.03)
+    np.testing.assert_allclose(white.mean(0), 0, atol=0.02)
+
+
+def _switching_traj(rng, B=4, n=3, m=2, T=30, s=12):
+    A, C, Q, R = random_system(rng, B, n, m)
+    A2, C2, _, _ = random_system(rng, B, n, m)
+    y = simulate(rng, A, C, Q, R, T + 1)
+    params = {k: torch.from_numpy(v) for k, v in dict(A=A, C=C, Q=Q, R=R, A2=A2, C2=C2).items()}
+    params["P0"] = torch.eye(n, dtype=torch.float64).expand(B, n, n)
+    params["switch_time"] = torch.full((B,), s, dtype=torch.long)
+    return Trajectories(y=torch.from_numpy(y), params=params, family="switching")
+
+
+def test_switch_aware_kalman_equals_kf_with_system2_after_switch():
+    """Before s: a KF on system 1. From s: a KF on system 2 whose prior is system 1's prediction of x_s."""
+    rng, s = np.random.default_rng(5), 12
+    traj = _switching_traj(rng, s=s)
+    p = {k: v.numpy() for k, v in traj.params.items()}
+    y = traj.y.numpy()
+    yhat = KalmanPredictor("kalman-switch", knows_switch=True).predict(traj).numpy()
+    keep = KalmanPredictor().predict(traj).numpy()
+    np.testing.assert_allclose(
+        yhat[:, :s],
+        filterpy_predict(p["A"], p["C"], p["Q"], p["R"], y[:, :s], np.zeros((4, 3)), p["P0"]),
+        atol=1e-6,
+    )
+    np.testing.assert_allclose(
+        keep, filterpy_predict(p["A"], p["C"], p["Q"], p["R"], y, np.zeros((4, 3)), p["P0"]), atol=1e-6
+    )
+    # system 1's prior for x_s, built with filterpy on the first s outputs
+    x_s, P_s = np.zeros((4, 3)), np.zeros((4, 3, 3))
+    for b in range(4):
+        kf = KalmanFilter(dim_x=3, dim_z=2)
+        kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = (
+            p["A"][b],
+            p["C"][b],
+            p["Q"][b],
+            p["R"][b],
+            np.zeros(3),
+            np.eye(3),
+        )
+        for t in range(s):
+            kf.update(y[b, t])
+            kf.predict()
+        x_s[b], P_s[b] = kf.x, kf.P
+    ref = filterpy_predict(p["A2"], p["C2"], p["Q"], p["R"], y[:, s:], x_s, P_s)
+    np.testing.assert_allclose(yhat[:, s:], ref, atol=1e-6)
+
+
+def test_bad_shapes_raise_moperror():
+    from mop.errors import MopError
+
+    with pytest.raises(MopError, match="C has shape"):
+        kalman_predict(
+            np.eye(2)[None], np.ones((1, 2, 3)), np.eye(2)[None], np.eye(2)[None], np.zeros((1, 5, 2))
+        )
