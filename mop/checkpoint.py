@@ -1,0 +1,111 @@
+"""Checkpoints and weights in safetensors + JSON metadata: loading never unpickles (issue 6).
+
+A checkpoint is one file, written atomically (mop.atomic), so a crash mid-write leaves the previous one whole:
+    tensors   "model.<name>"               model parameters and buffers
+              "optim.<index>.<key>"        AdamW state (step, exp_avg, exp_avg_sq) per parameter
+              "rng.<name>"                 torch.Generator / global RNG states (uint8)
+    metadata  "mop": JSON {"step", "param_groups", "extra"}
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+from torch import Tensor, nn
+
+from mop.atomic import atomic_path
+from mop.errors import MopError
+
+
+def _contiguous(tensors: dict[str, Tensor]) -> dict[str, Tensor]:
+    return {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
+
+
+def save_tensors(path: str | Path, tensors: dict[str, Tensor],
+                 metadata: dict[str, str] | None = None) -> None:
+    """Atomically write `tensors` to a safetensors file."""
+    with atomic_path(path) as tmp:
+        save_file(_contiguous(tensors), str(tmp), metadata=metadata)
+
+
+def load_tensors(path: str | Path,
+                 device: str | torch.device = "cpu") -> tuple[dict[str, Tensor], dict[str, str]]:
+    """Read a safetensors file; a missing, truncated, corrupted or pickled file raises MopError."""
+    path = Path(path)
+    if not path.is_file():
+        raise MopError(f"{path} does not exist; train a model first (mop train) or check the run directory")
+    with open(path, "rb") as handle:
+        head = handle.read(2)
+    if head[:1] == b"\x80" or head == b"PK":  # pickle protocol 2+ or a torch.save zip archive
+        raise MopError(f"{path} is a pickle/torch.save file, which mop refuses to load; "
+                       "only safetensors is accepted")
+    try:
+        from safetensors import safe_open
+        with safe_open(str(path), framework="pt") as handle:
+            metadata = handle.metadata() or {}
+        tensors = load_file(str(path), device=str(device))
+    except (SafetensorError, OSError, ValueError, RuntimeError) as err:
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise MopError(f"{path} is not a valid safetensors file ({first}); "
+                       "it may be truncated or corrupted") from None
+    return tensors, metadata
+
+
+def save_model(path: str | Path, model: nn.Module) -> None:
+    save_tensors(path, model.state_dict(), {"format": "pt"})
+
+
+def load_model_weights(path: str | Path, model: nn.Module) -> None:
+    tensors, _ = load_tensors(path)
+    _load_state(model, tensors, path)
+
+
+def _load_state(model: nn.Module, tensors: dict[str, Tensor], path: str | Path) -> None:
+    expected = set(model.state_dict())
+    if set(tensors) != expected:
+        missing, extra = sorted(expected - set(tensors)), sorted(set(tensors) - expected)
+        raise MopError(f"{path} does not match the model in config.json "
+                       f"(missing {missing[:3]}, unexpected {extra[:3]})")
+    try:
+        model.load_state_dict(tensors)
+    except RuntimeError as err:
+        last = str(err).splitlines()[-1].strip()
+        raise MopError(f"{path} does not match the model in config.json ({last})") from None
+
+
+def save_checkpoint(path: str | Path, step: int, model: nn.Module, optimizer: torch.optim.Optimizer,
+                    rng: dict[str, Tensor], extra: dict[str, Any] | None = None) -> None:
+    """Model + optimizer state + RNG states + step in one atomically written safetensors file."""
+    tensors = {f"model.{k}": v for k, v in model.state_dict().items()}
+    state = optimizer.state_dict()
+    for index, slots in state["state"].items():
+        for key, value in slots.items():
+            tensors[f"optim.{index}.{key}"] = value if torch.is_tensor(value) else torch.tensor(value)
+    tensors.update({f"rng.{k}": v for k, v in rng.items()})
+    meta = {"step": step, "param_groups": state["param_groups"], "extra": extra or {}}
+    save_tensors(path, tensors, {"mop": json.dumps(meta)})
+
+
+def load_checkpoint(path: str | Path, model: nn.Module,
+                    optimizer: torch.optim.Optimizer) -> tuple[int, dict[str, Tensor], dict[str, Any]]:
+    """Restore model and optimizer from `path`; returns (step, rng states, extra)."""
+    tensors, metadata = load_tensors(path)
+    if "mop" not in metadata:
+        raise MopError(f"{path} is not a mop checkpoint (no metadata); delete it to start over")
+    meta = json.loads(metadata["mop"])
+    _load_state(model, {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}, path)
+    slots: dict[int, dict[str, Tensor]] = {}
+    for key, value in tensors.items():
+        if key.startswith("optim."):
+            _, index, name = key.split(".", 2)
+            slots.setdefault(int(index), {})[name] = value
+    device = next(model.parameters()).device
+    slots = {i: {k: (v if k == "step" else v.to(device)) for k, v in s.items()} for i, s in slots.items()}
+    optimizer.load_state_dict({"state": slots, "param_groups": meta["param_groups"]})
+    rng = {k[4:]: v for k, v in tensors.items() if k.startswith("rng.")}
+    return int(meta["step"]), rng, meta.get("extra", {})
