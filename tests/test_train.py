@@ -1,0 +1,161 @@
+"""The trainer: resume equals not stopping (bit for bit on CPU), SIGKILL + resume, NaN stop, reuse, config."""
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+import mop.train as mt
+from mop.checkpoint import load_checkpoint, load_tensors
+from mop.config import RunConfig, apply_overrides, from_dict
+from mop.errors import MopError
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """Tiny models run ~100x faster on one thread when the 2 cores are shared (OpenMP spin-waits)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def tiny_config(steps: int = 6, **train) -> RunConfig:
+    items = {"steps": steps, "batch_size": 4, "num_source_systems": 16, "horizon": 8, "log_every": 2,
+             "checkpoint_every": 2, "device": "cpu", "compile": "off", "deterministic": True, **train}
+    overrides = ["model.num_layers=2", "model.width=32", "model.num_heads=2", "model.context=8",
+                 "system.state_dim=3", "system.output_dim=2"]
+    return apply_overrides(RunConfig(), overrides + [f"train.{k}={json.dumps(v)}" for k, v in items.items()])
+
+
+def weights(run_dir: Path) -> dict:
+    return load_tensors(run_dir / "model.safetensors")[0]
+
+
+def assert_same_weights(a: Path, b: Path) -> None:
+    wa, wb = weights(a), weights(b)
+    assert wa.keys() == wb.keys()
+    for key in wa:
+        assert torch.equal(wa[key], wb[key]), key
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    return mt.train(tiny_config(), tmp_path_factory.mktemp("ref"), progress=False)
+
+
+@pytest.mark.parametrize("num_source_systems", [16, 0])
+def test_resume_equals_uninterrupted(tmp_path, monkeypatch, num_source_systems, reference):
+    config = tiny_config(num_source_systems=num_source_systems)
+    ref = reference if num_source_systems else mt.train(config, tmp_path / "ref", progress=False)
+    batch, calls = mt.TrainingData.batch, []
+
+    def interrupting_batch(self):  # Ctrl-C arrives during the 4th step
+        calls.append(1)
+        if len(calls) == 4:
+            os.kill(os.getpid(), signal.SIGINT)
+        return batch(self)
+
+    monkeypatch.setattr(mt.TrainingData, "batch", interrupting_batch)
+    with pytest.raises(MopError, match="stopped by SIGINT at step 4"):
+        mt.train(config, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run" / "done.json").exists()
+    assert load_checkpoint(tmp_path / "run" / "checkpoint.safetensors", *_fresh(config))[0] == 4
+    monkeypatch.setattr(mt.TrainingData, "batch", batch)
+    mt.train(config, tmp_path / "run", progress=False)
+    assert_same_weights(ref, tmp_path / "run")
+    steps = [r["step"] for r in map(json.loads, (tmp_path / "run" / "metrics.jsonl").read_text().splitlines())
+             if "loss" in r]
+    assert steps == [2, 4, 6]
+
+
+def _fresh(config):
+    config = mt.resolve_config(config)
+    model = mt.build_model(config.model)
+    return model, mt.make_optimizer(model, config.train, torch.device("cpu"))
+
+
+def test_sigkill_three_times_then_resume(tmp_path, reference):
+    config = tiny_config(checkpoint_every=1)
+    (tmp_path / "config.json").write_text(json.dumps(mt.to_dict(config)))
+    run = tmp_path / "run"
+    code = ("import json,sys; from mop.config import RunConfig, from_dict; from mop.train import train; "
+            "train(from_dict(RunConfig, json.load(open(sys.argv[1]))), sys.argv[2], progress=False)")
+    command = [sys.executable, "-c", code, str(tmp_path / "config.json"), str(run)]
+    rand, killed = random.Random(0), 0
+    for _ in range(3):
+        proc = subprocess.Popen(command, cwd=ROOT, env=ENV, stderr=subprocess.DEVNULL)
+        start, deadline = _mtime(run / "checkpoint.safetensors"), time.time() + 60
+        while time.time() < deadline and proc.poll() is None:  # new checkpoint, then kill at random
+            if _mtime(run / "checkpoint.safetensors") > start:
+                break
+            time.sleep(0.005)
+        time.sleep(rand.uniform(0.0, 0.05))
+        proc.kill()
+        killed += proc.wait() == -signal.SIGKILL
+    assert killed == 3, "every run should have been killed mid-training"
+    assert subprocess.run(command, cwd=ROOT, env=ENV).returncode == 0
+    assert_same_weights(reference, run)
+
+
+def _mtime(path: Path) -> int:
+    return path.stat().st_mtime_ns if path.exists() else 0
+
+
+def test_nan_loss_stops_and_keeps_last_good_checkpoint(tmp_path, monkeypatch):
+    batch, calls = mt.TrainingData.batch, []
+
+    def poisoned_batch(self):
+        calls.append(1)
+        inputs, targets = batch(self)
+        return (inputs * float("nan"), targets) if len(calls) == 3 else (inputs, targets)
+
+    monkeypatch.setattr(mt.TrainingData, "batch", poisoned_batch)
+    with pytest.raises(MopError, match="loss became nan.*step 2"):
+        mt.train(tiny_config(), tmp_path, progress=False)
+    step, _, _ = load_checkpoint(tmp_path / "checkpoint.safetensors", *_fresh(tiny_config()))
+    assert step == 2
+    assert all(torch.isfinite(v).all() for v in weights(tmp_path).values())
+    assert not (tmp_path / "done.json").exists()
+
+
+def test_finished_run_is_reused_and_other_config_refused(reference, monkeypatch):
+    before = (reference / "model.safetensors").stat().st_mtime_ns
+    monkeypatch.setattr(mt, "build_model", lambda cfg: pytest.fail("a finished run must not train again"))
+    assert mt.train(tiny_config(), reference, progress=False) == reference
+    assert (reference / "model.safetensors").stat().st_mtime_ns == before
+    with pytest.raises(MopError, match="different config.*train.lr"):
+        mt.train(tiny_config(lr=1e-3), reference, progress=False)
+
+
+def test_config_json_rebuilds_model(reference):
+    config = from_dict(RunConfig, json.loads((reference / "config.json").read_text()))
+    assert (config.model.input_dim, config.model.output_dim) == (2, 2)
+    predictor = mt.load_predictor(reference)
+    assert predictor.cfg == config.model
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"train": {"stepz": 3}}, "unknown config key 'train.stepz'"),
+    ({"train": {"batch_size": -4}}, "train.batch_size must be a positive integer"),
+    ({"model": {"width": -32}}, "model.width must be a positive integer"),
+    ({"train": {"num_source_systems": -1}}, "num_source_systems must be >= 0"),
+])
+def test_config_validation(bad, message):
+    with pytest.raises(MopError, match=message):
+        from_dict(RunConfig, bad)
+
+
+def test_model_dims_must_match_family():
+    with pytest.raises(MopError, match="does not match"):
+        mt.resolve_config(apply_overrides(tiny_config(), ["model.output_dim=7"]))
