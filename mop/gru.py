@@ -36,6 +36,7 @@ class GRUModel(nn.Module):
         self.read_out = nn.Linear(cfg.width, cfg.output_dim * (2 if cfg.readout == "gaussian" else 1))
 
     def _split(self, raw: Tensor) -> tuple[Tensor, Tensor | None]:
+        raw = raw.float()  # loss and variance in float32 also under bf16 autocast
         if self.cfg.readout == "mean":
             return raw, None
         mu, s = raw.chunk(2, dim=-1)

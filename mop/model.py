@@ -189,6 +189,7 @@ class Transformer(nn.Module):
 
     def _split(self, raw: Tensor) -> tuple[Tensor, Tensor | None]:
         """Read-out (B, T, m or 2m) -> mean (B, T, m), var (B, T, m) or None."""
+        raw = raw.float()  # loss and variance in float32 also under bf16 autocast
         if self.cfg.readout == "mean":
             return raw, None
         mu, s = raw.chunk(2, dim=-1)
