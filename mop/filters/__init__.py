@@ -11,6 +11,7 @@ from mop.filters.kalman import (
 )
 from mop.filters.rls import AdaptiveOrderRLSPredictor, RLSPredictor, adaptive_order_rls_predict, rls_predict
 from mop.filters.simple import LastValuePredictor, ZeroPredictor
+from mop.filters.subspace import N4SIDKalmanPredictor, identify, n4sid_kalman_predict
 
 __all__ = [
     "KalmanPredictor",
@@ -25,4 +26,7 @@ __all__ = [
     "adaptive_order_rls_predict",
     "ZeroPredictor",
     "LastValuePredictor",
+    "N4SIDKalmanPredictor",
+    "identify",
+    "n4sid_kalman_predict",
 ]
