@@ -1,0 +1,89 @@
+"""Figures in the paper's style (matplotlib Agg): log-scale error against t with +-1 std bands.
+
+Also the Fig. 4 panels, Fig. 5 and the scaling plots.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from mop.atomic import atomic_path  # noqa: E402
+
+
+def save(fig, out_dir: Path, stem: str) -> list[Path]:
+    """Write `stem`.png and `stem`.pdf atomically; returns the paths."""
+    paths = []
+    for ext in ("png", "pdf"):
+        path = Path(out_dir) / f"{stem}.{ext}"
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format=ext, dpi=150, bbox_inches="tight")
+        paths.append(path)
+    plt.close(fig)
+    return paths
+
+
+def error_figure(predictors: dict[str, dict], title: str):
+    """Mean error ||yhat_t - y_t|| against t (log scale) with a +-1 std band (floored above 0)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name, c in predictors.items():
+        mean, std = np.asarray(c["error"]), np.asarray(c["std"])
+        t = np.arange(len(mean))
+        ax.plot(t, mean, label=name, lw=2 if name == "mop" else 1.2)
+        ax.fill_between(t, np.maximum(mean - std, mean * 0.05), mean + std, alpha=0.15)
+    ax.set(yscale="log", xlabel="t", ylabel=r"$\|\hat y_t - y_t\|_2$", title=title)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, which="both")
+    return fig
+
+
+def ratio_figure(curves: dict[str, tuple[list[float], list[float]]], title: str):
+    """MSE ratio model/KF against t for each family: {label: (mop squared_error, kf squared_error)}."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, (num, den) in curves.items():
+        ratio = np.asarray(num[1:]) / np.asarray(den[1:])
+        ax.plot(np.arange(1, len(num)), ratio, label=label)
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set(yscale="log", xlabel="t", ylabel="MSE ratio MOP / KF", title=title)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def matrix_power_figure(curves: dict[str, list[float]], title: str):
+    """Average over systems of ||A^k|| / rho(A)^k against k for each family (Fig. 4b)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, values in curves.items():
+        ax.plot(np.arange(len(values)), values, label=label)
+    ax.set(yscale="log", xlabel="k", ylabel=r"mean $\|A^k\| / \rho(A)^k$", title=title)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def noise_level_figure(levels: list[float], errors: dict[str, list[float]], train_level: float, title: str):
+    """Mean error over t >= 1 against the test noise level sigma^2 (Fig. 5)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name, values in errors.items():
+        ax.plot(levels, values, marker="o", label=name)
+    ax.axvline(train_level, color="k", lw=0.8, ls="--", label="training level")
+    ax.set(
+        xscale="log", yscale="log", xlabel=r"test noise variance $\sigma^2$", ylabel="mean error", title=title
+    )
+    ax.legend(fontsize=8)
+    return fig
+
+
+def loglog_figure(x: list[float], y: list[float], slope: float, intercept: float, xlabel: str, title: str):
+    """Excess risk against M or T on log-log axes with the fitted line."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    ax.plot(x, y, "o", label="measured")
+    ax.plot(x, np.exp(intercept) * x**slope, "-", label=f"fit, slope {slope:.2f}")
+    ax.plot(x, y[0] * (x / x[0]) ** -0.5, ":", label="slope -1/2")
+    ax.set(xscale="log", yscale="log", xlabel=xlabel, ylabel="excess MSE over KF", title=title)
+    ax.legend(fontsize=8)
+    return fig
