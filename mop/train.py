@@ -272,7 +272,7 @@ def train(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = Tru
     if cfg.batch_size % world:
         raise MopError(f"train.batch_size ({cfg.batch_size}) must be divisible by the number of processes "
                        f"({world})")
-    if rank == 0 and _check_run_dir(out_dir, config):
+    if _check_run_dir(out_dir, config):  # every rank reads it, so all return together
         return out_dir
     if cfg.deterministic:
         torch.use_deterministic_algorithms(True)
