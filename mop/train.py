@@ -129,9 +129,13 @@ def autocast(cfg, device: torch.device):
     return torch.autocast(device_type=device.type, dtype=torch.bfloat16)
 
 
+COMPILE_MIN_STEPS_CPU = 500  # compiling takes ~1 min on 2 cores, then halves the paper step (mop bench train)
+
+
 def maybe_compile(model: nn.Module, cfg, device: torch.device) -> nn.Module:
-    """torch.compile on CUDA for compile=auto (on CPU it measured no faster on 2 cores: mop bench train)."""
-    if cfg.compile == "on" or (cfg.compile == "auto" and device.type == "cuda"):
+    """torch.compile for compile=on, and for auto on CUDA or on CPU runs long enough to repay compiling."""
+    auto = device.type == "cuda" or cfg.steps >= COMPILE_MIN_STEPS_CPU
+    if cfg.compile == "on" or (cfg.compile == "auto" and auto):
         return torch.compile(model)
     return model
 
