@@ -174,6 +174,16 @@ def _standard_claims(exp: Experiment, s: dict) -> list[str]:
             )
         )
     preds = s["predictors"]
+    if exp.name == "switching":
+        after = {n: np.mean(preds[n]["error"][70:]) for n in ("mop", "kalman", "kalman-switch")}
+        text = ", ".join(f"{n} {v:.4f}" for n, v in after.items())
+        claims.append(
+            claim_line(
+                "after the switch MOP re-adapts, while the KF that keeps system 1 does not",
+                f"mean error over t in [70,100]: {text}",
+                bool(after["mop"] < after["kalman"]),
+            )
+        )
     for other in ("n4sid-kf", "rls-best"):
         if other in preds:
             m = np.mean(preds["mop"]["error"][1:20])

@@ -109,6 +109,7 @@ EXPERIMENTS: dict[str, Experiment] = {
             LINEAR,
             SystemConfig(family="switching", switch_time=50),
             ("kalman", "kalman-switch", "rls", "zero", "last"),
+            reference="kalman-switch",
             test_horizon=100,
         ),
         Experiment(
