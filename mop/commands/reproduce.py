@@ -363,7 +363,7 @@ def _calibration(exp: Experiment, preset: str, out: Path, seed: int, progress: b
 
 
 SCALING_GRID = {
-    "smoke": ((64, 256), (20, 50), 30),
+    "smoke": ((32, 128, 512), (20, 35, 50), 30),
     "small": ((250, 1000, 4000), (20, 50, 100), 600),
     "paper": ((1000, 4000, 16000), (20, 50, 100), 10000),
 }
@@ -407,7 +407,9 @@ def _scaling(preset: str, out: Path, seed: int, progress: bool):
         )
         ci = (slope - 1.96 * se, slope + 1.96 * se)
         sections.append(
-            f"## against {axis}\n\n| {axis} | excess MSE |\n|---|---|\n"
+            f"## against {axis}\n\nExcess MSE = test MSE of MOP minus the oracle KF's, averaged over t in [1,T]; "
+            "the theorem's bound predicts a slope of -1/2.\n\n"
+            f"| {axis} | excess MSE |\n|---|---|\n"
             + "\n".join(f"| {v} | {e:.5f} |" for v, e in zip(values, excess, strict=True))
             + f"\n\nslope {slope:.3f} (OLS s.e. {se:.3f}, 95% CI [{ci[0]:.3f}, {ci[1]:.3f}])\n\n"
             + "\n".join(f"![{f.name}]({f.name})" for f in figs if f.suffix == ".png")
@@ -416,7 +418,7 @@ def _scaling(preset: str, out: Path, seed: int, progress: bool):
             claim_line(
                 f"excess risk decays like (M T)^(-1/2) in {axis}",
                 f"fitted slope {slope:.3f} [{ci[0]:.3f}, {ci[1]:.3f}]",
-                ci[0] <= -0.5 <= ci[1],
+                ci[0] <= -0.5 <= ci[1] if len(values) > 2 else None,
             )
         )
     summary = {"num_systems": p.num_test_systems, "horizon": 50, "predictors": {}, "scaling": results}
