@@ -407,7 +407,7 @@ def _scaling(preset: str, out: Path, seed: int, progress: bool):
         )
         ci = (slope - 1.96 * se, slope + 1.96 * se)
         sections.append(
-            f"## against {axis}\n\nExcess MSE = test MSE of MOP minus the oracle KF's, averaged over t in [1,T]; "
+            f"## against {axis}\n\nExcess MSE = test MSE of MOP minus the oracle KF's, over t in [1,T]; "
             "the theorem's bound predicts a slope of -1/2.\n\n"
             f"| {axis} | excess MSE |\n|---|---|\n"
             + "\n".join(f"| {v} | {e:.5f} |" for v, e in zip(values, excess, strict=True))
