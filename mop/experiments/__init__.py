@@ -36,7 +36,9 @@ PRESETS: dict[str, Preset] = {
         TrainConfig(steps=10000, batch_size=64, num_source_systems=20000, horizon=50),
         num_test_systems=1000,
     ),
-    # laptop CPU (2 cores, <= 15 min): fresh systems every batch, 4 x 128 model, cosine schedule
+    # laptop CPU (2 cores, <= 15 min): fresh systems every batch, 4 x 128 model, cosine schedule.
+    # Measured on a 2-core CPU: ~7 steps/s uncontended (MOP ~6 min, GRU ~4.5 min, evaluation ~5 s);
+    # linear MOP/KF MSE ratio over t in [20,50] = 1.029 [1.025, 1.033] (target <= 1.05).
     "small": Preset(
         ModelConfig(num_layers=4, num_heads=4, width=128),
         TrainConfig(
