@@ -1,0 +1,109 @@
+"""Reading users' measured trajectories (.csv long format or .npz as `mop simulate` writes).
+
+CSV: a header, one row per (trajectory, time step): columns `trajectory, t, y0..y{m-1}[, u0..u{k-1}]`.
+Trajectories may have different lengths; t runs 0..T_i within each trajectory (rows in any order).
+NPZ: arrays y (B, T+1, m) and optionally u (B, T+1, k).
+Every problem raises MopError with a one-line message.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from mop.errors import MopError
+
+MAX_ABS = 1e6  # larger magnitudes are refused: a model trained on O(1) data cannot use them
+
+
+def _check_values(name: str, a: np.ndarray, where: str) -> None:
+    if not np.all(np.isfinite(a)):
+        raise MopError(f"{where}: {name} holds NaN or Inf; remove or fill those values")
+    if a.size and np.abs(a).max() > MAX_ABS:
+        raise MopError(f"{where}: {name} holds values up to {np.abs(a).max():.3g} (limit {MAX_ABS:.0e}); "
+                       "rescale the data")
+
+
+def read_npz(path: Path) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            if "y" not in d:
+                raise MopError(f"{path}: no array 'y' (expected y (B, T+1, m), optional u)")
+            y = np.asarray(d["y"], dtype=np.float64)
+            u = np.asarray(d["u"], dtype=np.float64) if "u" in d else None
+    except MopError:
+        raise
+    except Exception as e:
+        raise MopError(f"{path}: not a readable .npz file ({type(e).__name__})") from None
+    if y.ndim != 3 or y.shape[1] < 2 or y.shape[0] < 1:
+        raise MopError(f"{path}: y has shape {y.shape}; need (B, T+1, m) with at least 2 time steps")
+    if u is not None and (u.ndim != 3 or u.shape[:2] != y.shape[:2]):
+        raise MopError(f"{path}: u has shape {u.shape}; need (B, T+1, k) matching y {y.shape}")
+    _check_values("y", y, str(path))
+    if u is not None:
+        _check_values("u", u, str(path))
+    return [(y[b], None if u is None else u[b]) for b in range(y.shape[0])]
+
+
+def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray | None]]]:
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))
+    except (OSError, UnicodeDecodeError) as e:
+        raise MopError(f"{path}: cannot read ({type(e).__name__})") from None
+    rows = [r for r in rows if any(c.strip() for c in r)]
+    if not rows:
+        raise MopError(f"{path}: file is empty; expected a header `trajectory,t,y0,...` and rows")
+    header = [c.strip() for c in rows[0]]
+    ycols = [i for i, c in enumerate(header) if re.fullmatch(r"y\d+", c)]
+    ucols = [i for i, c in enumerate(header) if re.fullmatch(r"u\d+", c)]
+    if header[:2] != ["trajectory", "t"] or not ycols or len(ycols) + len(ucols) + 2 != len(header):
+        raise MopError(f"{path}: header {','.join(header)!r} is not "
+                       "`trajectory,t,y0..y{m-1}[,u0..u{k-1}]`")
+    trajs: dict[str, dict[int, list[float]]] = {}
+    for n, r in enumerate(rows[1:], start=2):
+        if len(r) != len(header):
+            raise MopError(f"{path}: line {n} has {len(r)} columns, the header has {len(header)}")
+        try:
+            t = int(r[1])
+            vals = [float(c) for c in r[2:]]
+        except ValueError:
+            raise MopError(f"{path}: line {n} has a non-numeric value") from None
+        steps = trajs.setdefault(r[0].strip(), {})
+        if t in steps:
+            raise MopError(f"{path}: line {n}: trajectory {r[0]!r} has time step {t} twice")
+        steps[t] = vals
+    if not trajs:
+        raise MopError(f"{path}: no data rows below the header")
+    out = []
+    m = len(ycols)
+    for name, steps in trajs.items():
+        ts = sorted(steps)
+        if ts != list(range(len(ts))):
+            raise MopError(f"{path}: trajectory {name!r} time steps must be 0..T without gaps")
+        if len(ts) < 2:
+            raise MopError(f"{path}: trajectory {name!r} has one row; need at least 2 time steps")
+        a = np.array([steps[t] for t in ts])  # (T+1, m+k)
+        _check_values(f"trajectory {name!r}", a, str(path))
+        out.append((a[:, :m], a[:, m:] if ucols else None))
+    return list(trajs), out
+
+
+Data = list[tuple[np.ndarray, np.ndarray | None]]
+
+
+def read_trajectories(path: str | os.PathLike) -> tuple[list[str], Data]:
+    """(names, [(y (T_i+1, m), u (T_i+1, k) | None)]) from a .csv or .npz file."""
+    path = Path(path)
+    if not path.is_file():
+        raise MopError(f"data file {path} does not exist")
+    if path.suffix == ".npz":
+        data = read_npz(path)
+        return [str(i) for i in range(len(data))], data
+    if path.suffix == ".csv":
+        return read_csv(path)
+    raise MopError(f"{path}: unknown data format {path.suffix!r}; use .csv or .npz")

@@ -1,0 +1,47 @@
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mop.cli import main
+
+
+def _run_fails(argv, capsys, out, word):
+    assert main(argv) != 0
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and word in err, err
+    assert not out.exists() and not list(out.parent.glob(f".{out.name}*"))
+
+
+CASES = {
+    "nan": ("d.npz", lambda p: np.savez(p, y=np.full((1, 5, 2), np.nan)), "NaN"),
+    "huge": ("d.npz", lambda p: np.savez(p, y=np.full((1, 5, 2), 1e30)), "values up to"),
+    "columns": ("d.npz", lambda p: np.savez(p, y=np.zeros((1, 5, 3))), "output_dim"),
+    "empty": ("d.csv", lambda p: p.write_text(""), "empty"),
+    "one_row": ("d.csv", lambda p: p.write_text("trajectory,t,y0,y1\na,0,1,2\n"), "one row"),
+    "malformed": ("d.csv", lambda p: p.write_text("trajectory,t,y0,y1\na,0,1\n"), "columns"),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_data(case, tiny_run, tmp_path, capsys):
+    name, make, word = CASES[case]
+    make(tmp_path / name)
+    out = tmp_path / "p.csv"
+    _run_fails(["predict", str(tiny_run), str(tmp_path / name), "--out", str(out)], capsys, out, word)
+
+
+def test_missing_run_dir(tmp_path, capsys):
+    np.savez(tmp_path / "d.npz", y=np.zeros((1, 5, 2)))
+    out = tmp_path / "p.csv"
+    _run_fails(["predict", str(tmp_path / "nope"), str(tmp_path / "d.npz"), "--out", str(out)], capsys, out,
+               "does not exist")
+
+
+def test_unstable_system_subprocess(tmp_path):
+    out = tmp_path / "s.npz"
+    r = subprocess.run([sys.executable, "-m", "mop.cli", "simulate", "linear", "spectral_radius=1.2",
+                        "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode != 0 and "Traceback" not in r.stderr and "spectral" in r.stderr, r.stderr
+    assert not out.exists()
