@@ -45,3 +45,32 @@ def test_unstable_system_subprocess(tmp_path):
                         "--out", str(out)], capture_output=True, text=True)
     assert r.returncode != 0 and "Traceback" not in r.stderr and "spectral" in r.stderr, r.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("kind", ["truncated", "pickle"])
+def test_bad_weights(kind, tiny_run, tmp_path, capsys):
+    import pickle
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    w = run / "model.safetensors"
+    if kind == "truncated":
+        w.write_bytes(w.read_bytes()[:300])
+    else:
+        w.write_bytes(pickle.dumps({"weight": np.zeros(3)}))
+    np.savez(tmp_path / "d.npz", y=np.zeros((1, 5, 2)))
+    out = tmp_path / "p.csv"
+    word = "safetensors" if kind == "truncated" else "pickle"
+    _run_fails(["predict", str(run), str(tmp_path / "d.npz"), "--out", str(out)], capsys, out, word)
+
+
+@pytest.mark.parametrize("override,word", [("model.bogus=1", "unknown"), ("model.width=-4", "positive"),
+                                           ("model.num_heads=4", "divide")])
+def test_bad_train_config(override, word, tmp_path, capsys):
+    out = tmp_path / "run"
+    extra = ["model.width=30"] if "heads" in override else []
+    assert main(["train", "--out", str(out), *extra, override]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and word in err.splitlines()[-1], err
+    assert not (out / "model.safetensors").exists()
