@@ -26,15 +26,17 @@ def _contiguous(tensors: dict[str, Tensor]) -> dict[str, Tensor]:
     return {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
 
 
-def save_tensors(path: str | Path, tensors: dict[str, Tensor],
-                 metadata: dict[str, str] | None = None) -> None:
+def save_tensors(
+    path: str | Path, tensors: dict[str, Tensor], metadata: dict[str, str] | None = None
+) -> None:
     """Atomically write `tensors` to a safetensors file."""
     with atomic_path(path) as tmp:
         save_file(_contiguous(tensors), str(tmp), metadata=metadata)
 
 
-def load_tensors(path: str | Path,
-                 device: str | torch.device = "cpu") -> tuple[dict[str, Tensor], dict[str, str]]:
+def load_tensors(
+    path: str | Path, device: str | torch.device = "cpu"
+) -> tuple[dict[str, Tensor], dict[str, str]]:
     """Read a safetensors file; a missing, truncated, corrupted or pickled file raises MopError."""
     path = Path(path)
     if not path.is_file():
@@ -42,17 +44,20 @@ def load_tensors(path: str | Path,
     with open(path, "rb") as handle:
         head = handle.read(2)
     if head[:1] == b"\x80" or head == b"PK":  # pickle protocol 2+ or a torch.save zip archive
-        raise MopError(f"{path} is a pickle/torch.save file, which mop refuses to load; "
-                       "only safetensors is accepted")
+        raise MopError(
+            f"{path} is a pickle/torch.save file, which mop refuses to load; only safetensors is accepted"
+        )
     try:
         from safetensors import safe_open
+
         with safe_open(str(path), framework="pt") as handle:
             metadata = handle.metadata() or {}
         tensors = load_file(str(path), device=str(device))
     except (SafetensorError, OSError, ValueError, RuntimeError) as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise MopError(f"{path} is not a valid safetensors file ({first}); "
-                       "it may be truncated or corrupted") from None
+        raise MopError(
+            f"{path} is not a valid safetensors file ({first}); it may be truncated or corrupted"
+        ) from None
     return tensors, metadata
 
 
@@ -69,8 +74,9 @@ def _load_state(model: nn.Module, tensors: dict[str, Tensor], path: str | Path) 
     expected = set(model.state_dict())
     if set(tensors) != expected:
         missing, extra = sorted(expected - set(tensors)), sorted(set(tensors) - expected)
-        raise MopError(f"{path} does not match the model in config.json "
-                       f"(missing {missing[:3]}, unexpected {extra[:3]})")
+        raise MopError(
+            f"{path} does not match the model in config.json (missing {missing[:3]}, unexpected {extra[:3]})"
+        )
     try:
         model.load_state_dict(tensors)
     except RuntimeError as err:
@@ -78,8 +84,14 @@ def _load_state(model: nn.Module, tensors: dict[str, Tensor], path: str | Path) 
         raise MopError(f"{path} does not match the model in config.json ({last})") from None
 
 
-def save_checkpoint(path: str | Path, step: int, model: nn.Module, optimizer: torch.optim.Optimizer,
-                    rng: dict[str, Tensor], extra: dict[str, Any] | None = None) -> None:
+def save_checkpoint(
+    path: str | Path,
+    step: int,
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    rng: dict[str, Tensor],
+    extra: dict[str, Any] | None = None,
+) -> None:
     """Model + optimizer state + RNG states + step in one atomically written safetensors file."""
     tensors = {f"model.{k}": v for k, v in model.state_dict().items()}
     state = optimizer.state_dict()
@@ -91,8 +103,9 @@ def save_checkpoint(path: str | Path, step: int, model: nn.Module, optimizer: to
     save_tensors(path, tensors, {"mop": json.dumps(meta)})
 
 
-def load_checkpoint(path: str | Path, model: nn.Module,
-                    optimizer: torch.optim.Optimizer) -> tuple[int, dict[str, Tensor], dict[str, Any]]:
+def load_checkpoint(
+    path: str | Path, model: nn.Module, optimizer: torch.optim.Optimizer
+) -> tuple[int, dict[str, Tensor], dict[str, Any]]:
     """Restore model and optimizer from `path`; returns (step, rng states, extra)."""
     tensors, metadata = load_tensors(path)
     if "mop" not in metadata:

@@ -20,7 +20,9 @@ COMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mop", description="mop: meta-learned output prediction of dynamical systems.")
+    parser = argparse.ArgumentParser(
+        prog="mop", description="mop: meta-learned output prediction of dynamical systems."
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         cmd = sub.add_parser(name, help=help_text, description=help_text)

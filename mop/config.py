@@ -25,8 +25,10 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
     hints = typing.get_type_hints(cls)
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise MopError(f"unknown config key{'s' if len(unknown) > 1 else ''} "
-                       f"{', '.join(repr(where + k) for k in unknown)}; known keys: {', '.join(fields)}")
+        raise MopError(
+            f"unknown config key{'s' if len(unknown) > 1 else ''} "
+            f"{', '.join(repr(where + k) for k in unknown)}; known keys: {', '.join(fields)}"
+        )
     kwargs = {}
     for name, value in data.items():
         sub = _dataclass_type(hints[name])
@@ -42,7 +44,10 @@ def to_dict(config: Any) -> dict[str, Any]:
 
 
 def apply_overrides(config: T, overrides: list[str]) -> T:
-    """Return a copy of `config` with dotted `key=value` overrides applied (values parsed as JSON if possible)."""
+    """Return a copy of `config` with dotted `key=value` overrides applied.
+
+    Values are parsed as JSON where possible, else kept as strings.
+    """
     data = to_dict(config)
     for item in overrides:
         if "=" not in item:
@@ -105,15 +110,24 @@ class SystemConfig:
     max_abs: float = 50.0
 
     def __post_init__(self) -> None:
-        check(self.family in FAMILIES, f"unknown system family {self.family!r}; choose one of {', '.join(FAMILIES)}")
+        check(
+            self.family in FAMILIES,
+            f"unknown system family {self.family!r}; choose one of {', '.join(FAMILIES)}",
+        )
         for name in ("state_dim", "output_dim"):
             value = getattr(self, name)
-            check(value is None or (isinstance(value, int) and value > 0),
-                  f"system.{name} must be a positive integer, got {value!r}")
-        check(self.noise_var_w >= 0 and self.noise_var_v >= 0,
-              f"noise variances must be >= 0, got w={self.noise_var_w}, v={self.noise_var_v}")
-        check(0 < self.spectral_radius < 1,
-              f"system.spectral_radius must be in (0, 1) for a stable system, got {self.spectral_radius}")
+            check(
+                value is None or (isinstance(value, int) and value > 0),
+                f"system.{name} must be a positive integer, got {value!r}",
+            )
+        check(
+            self.noise_var_w >= 0 and self.noise_var_v >= 0,
+            f"noise variances must be >= 0, got w={self.noise_var_w}, v={self.noise_var_v}",
+        )
+        check(
+            0 < self.spectral_radius < 1,
+            f"system.spectral_radius must be in (0, 1) for a stable system, got {self.spectral_radius}",
+        )
         check(self.x0_std >= 0, f"system.x0_std must be >= 0, got {self.x0_std}")
         check(self.color_window >= 1, f"system.color_window must be >= 1, got {self.color_window}")
         check(self.switch_time >= 1, f"system.switch_time must be >= 1, got {self.switch_time}")
@@ -133,18 +147,31 @@ class ModelConfig:
     output_dim: int = 0
     readout: str = "mean"  # "mean" (MSE) or "gaussian" (mean and variance, NLL)
     dropout: float = 0.0
-    position: str = "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact relative streaming)
+    position: str = (
+        "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact relative streaming)
+    )
 
     def __post_init__(self) -> None:
-        check(self.position in ("learned", "rope"), f"model.position must be 'learned' or 'rope', got {self.position!r}")
+        check(
+            self.position in ("learned", "rope"),
+            f"model.position must be 'learned' or 'rope', got {self.position!r}",
+        )
         check(self.arch in ("gpt", "gru"), f"model.arch must be 'gpt' or 'gru', got {self.arch!r}")
         for name in ("num_layers", "num_heads", "width", "context"):
             value = getattr(self, name)
-            check(isinstance(value, int) and value > 0, f"model.{name} must be a positive integer, got {value!r}")
-        check(self.width % self.num_heads == 0,
-              f"model.num_heads ({self.num_heads}) must divide model.width ({self.width})")
+            check(
+                isinstance(value, int) and value > 0,
+                f"model.{name} must be a positive integer, got {value!r}",
+            )
+        check(
+            self.width % self.num_heads == 0,
+            f"model.num_heads ({self.num_heads}) must divide model.width ({self.width})",
+        )
         check(self.input_dim >= 0 and self.output_dim >= 0, "model.input_dim/output_dim must be >= 0")
-        check(self.readout in ("mean", "gaussian"), f"model.readout must be 'mean' or 'gaussian', got {self.readout!r}")
+        check(
+            self.readout in ("mean", "gaussian"),
+            f"model.readout must be 'mean' or 'gaussian', got {self.readout!r}",
+        )
         check(0 <= self.dropout < 1, f"model.dropout must be in [0, 1), got {self.dropout}")
 
 
@@ -176,18 +203,37 @@ class TrainConfig:
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "horizon", "log_every", "checkpoint_every"):
             value = getattr(self, name)
-            check(isinstance(value, int) and value > 0, f"train.{name} must be a positive integer, got {value!r}")
-        check(self.num_source_systems >= 0, f"train.num_source_systems must be >= 0, got {self.num_source_systems}")
+            check(
+                isinstance(value, int) and value > 0,
+                f"train.{name} must be a positive integer, got {value!r}",
+            )
+        check(
+            self.num_source_systems >= 0,
+            f"train.num_source_systems must be >= 0, got {self.num_source_systems}",
+        )
         check(self.lr > 0, f"train.lr must be > 0, got {self.lr}")
-        check(self.weight_decay >= 0 and self.grad_clip > 0, "train.weight_decay must be >= 0 and grad_clip > 0")
-        check(self.lr_schedule in ("constant", "cosine"), f"train.lr_schedule must be constant|cosine, got {self.lr_schedule!r}")
-        check(self.precision in ("auto", "fp32", "bf16"), f"train.precision must be auto|fp32|bf16, got {self.precision!r}")
-        check(self.compile in ("auto", "on", "off"), f"train.compile must be auto|on|off, got {self.compile!r}")
+        check(
+            self.weight_decay >= 0 and self.grad_clip > 0, "train.weight_decay must be >= 0 and grad_clip > 0"
+        )
+        check(
+            self.lr_schedule in ("constant", "cosine"),
+            f"train.lr_schedule must be constant|cosine, got {self.lr_schedule!r}",
+        )
+        check(
+            self.precision in ("auto", "fp32", "bf16"),
+            f"train.precision must be auto|fp32|bf16, got {self.precision!r}",
+        )
+        check(
+            self.compile in ("auto", "on", "off"), f"train.compile must be auto|on|off, got {self.compile!r}"
+        )
 
 
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
-    """Everything `mop train` needs; saved as config.json in the run directory and enough to rebuild the model."""
+    """Everything `mop train` needs; saved as config.json in the run directory.
+
+    Enough on its own to rebuild the model.
+    """
 
     system: SystemConfig = dataclasses.field(default_factory=SystemConfig)
     model: ModelConfig = dataclasses.field(default_factory=ModelConfig)

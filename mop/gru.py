@@ -30,8 +30,13 @@ class GRUModel(nn.Module):
         _check_dims(cfg)
         self.cfg = cfg
         self.read_in = nn.Linear(cfg.input_dim, cfg.width)
-        self.gru = nn.GRU(cfg.width, cfg.width, num_layers=cfg.num_layers, batch_first=True,
-                          dropout=cfg.dropout if cfg.num_layers > 1 else 0.0)
+        self.gru = nn.GRU(
+            cfg.width,
+            cfg.width,
+            num_layers=cfg.num_layers,
+            batch_first=True,
+            dropout=cfg.dropout if cfg.num_layers > 1 else 0.0,
+        )
         self.ln_f = nn.LayerNorm(cfg.width)
         self.read_out = nn.Linear(cfg.width, cfg.output_dim * (2 if cfg.readout == "gaussian" else 1))
 
@@ -54,8 +59,9 @@ class GRUModel(nn.Module):
 
     def predict_distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor]:
         if self.cfg.readout != "gaussian":
-            raise MopError("predict_distribution needs model.readout='gaussian'; "
-                           "this model predicts only the mean")
+            raise MopError(
+                "predict_distribution needs model.readout='gaussian'; this model predicts only the mean"
+            )
         mu, var, _ = self._run(inputs)
         return mu, var
 

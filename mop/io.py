@@ -24,8 +24,10 @@ def _check_values(name: str, a: np.ndarray, where: str) -> None:
     if not np.all(np.isfinite(a)):
         raise MopError(f"{where}: {name} holds NaN or Inf; remove or fill those values")
     if a.size and np.abs(a).max() > MAX_ABS:
-        raise MopError(f"{where}: {name} holds values up to {np.abs(a).max():.3g} (limit {MAX_ABS:.0e}); "
-                       "rescale the data")
+        raise MopError(
+            f"{where}: {name} holds values up to {np.abs(a).max():.3g} (limit {MAX_ABS:.0e}); "
+            "rescale the data"
+        )
 
 
 def read_npz(path: Path) -> list[tuple[np.ndarray, np.ndarray | None]]:
@@ -62,8 +64,9 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
     ycols = [i for i, c in enumerate(header) if re.fullmatch(r"y\d+", c)]
     ucols = [i for i, c in enumerate(header) if re.fullmatch(r"u\d+", c)]
     if header[:2] != ["trajectory", "t"] or not ycols or len(ycols) + len(ucols) + 2 != len(header):
-        raise MopError(f"{path}: header {','.join(header)!r} is not "
-                       "`trajectory,t,y0..y{m-1}[,u0..u{k-1}]`")
+        raise MopError(
+            f"{path}: header {','.join(header)!r} is not `trajectory,t,y0..y{{m-1}}[,u0..u{{k-1}}]`"
+        )
     trajs: dict[str, dict[int, list[float]]] = {}
     for n, r in enumerate(rows[1:], start=2):
         if len(r) != len(header):

@@ -22,8 +22,9 @@ from mop.systems.base import Trajectories
 class LearnedPredictor:
     """Predictor protocol around a model from mop.model.build_model (run in eval mode, no grad, in chunks)."""
 
-    def __init__(self, model: nn.Module, name: str = "mop", mode: str = "window",
-                 chunk_size: int = 256) -> None:
+    def __init__(
+        self, model: nn.Module, name: str = "mop", mode: str = "window", chunk_size: int = 256
+    ) -> None:
         if mode not in ("window", "stream"):
             raise MopError(f"predictor mode must be 'window' or 'stream', got {mode!r}")
         if chunk_size <= 0:
@@ -34,9 +35,11 @@ class LearnedPredictor:
     def _inputs(self, traj: Trajectories) -> Tensor:
         z = traj.model_inputs()  # (B, T+1, d_in)
         if z.shape[-1] != self.cfg.input_dim or traj.output_dim != self.cfg.output_dim:
-            raise MopError(f"trajectories have output_dim={traj.output_dim}, input width {z.shape[-1]}, "
-                           f"but the model expects output_dim={self.cfg.output_dim}, "
-                           f"input width {self.cfg.input_dim}; use a model trained on this family")
+            raise MopError(
+                f"trajectories have output_dim={traj.output_dim}, input width {z.shape[-1]}, "
+                f"but the model expects output_dim={self.cfg.output_dim}, "
+                f"input width {self.cfg.input_dim}; use a model trained on this family"
+            )
         p = next(self.model.parameters())
         return z[:, :-1].to(device=p.device, dtype=p.dtype)  # (B, T, d_in): z_0..z_{T-1}
 
@@ -47,7 +50,7 @@ class LearnedPredictor:
         self.model.eval()
         try:
             starts = range(0, z.shape[0], self.chunk_size)
-            parts = [self._chunk(z[i:i + self.chunk_size], gaussian) for i in starts]
+            parts = [self._chunk(z[i : i + self.chunk_size], gaussian) for i in starts]
         finally:
             self.model.train(was_training)
         mu = torch.cat([p[0] for p in parts])
@@ -94,8 +97,9 @@ def stream(model: nn.Module, z: Tensor, gaussian: bool = False) -> tuple[Tensor,
     return mu, var
 
 
-def sliding_window(model: nn.Module, z: Tensor, gaussian: bool, context: int,
-                   windows_per_batch: int = 256) -> tuple[Tensor, Tensor | None]:
+def sliding_window(
+    model: nn.Module, z: Tensor, gaussian: bool, context: int, windows_per_batch: int = 256
+) -> tuple[Tensor, Tensor | None]:
     """The paper's sliding window: output t (t >= C) is the last output of a forward on z_{t-C+1}..z_t.
 
     Outputs 0..C-1 come from one forward on z_0..z_{C-1}. z (B, T, d_in) -> mean, var|None each (B, T, m).
@@ -107,7 +111,7 @@ def sliding_window(model: nn.Module, z: Tensor, gaussian: bool, context: int,
     windows = windows.permute(0, 1, 3, 2).reshape(-1, context, d_in)  # (B*(T-C), C, d_in)
     mus, vars_ = [], []
     for i in range(0, windows.shape[0], windows_per_batch):
-        mu, var = run(windows[i:i + windows_per_batch])  # (b, C, m)
+        mu, var = run(windows[i : i + windows_per_batch])  # (b, C, m)
         mus.append(mu[:, -1])
         vars_.append(None if var is None else var[:, -1])
     mu = torch.cat([mu0, torch.cat(mus).view(B, T - context, -1)], dim=1)  # (B, T, m)

@@ -39,8 +39,10 @@ from mop.errors import MopError
 
 def _check_dims(cfg: ModelConfig) -> None:
     if cfg.input_dim <= 0 or cfg.output_dim <= 0:
-        raise MopError(f"model.input_dim and model.output_dim must be > 0 to build a model, got "
-                       f"{cfg.input_dim} and {cfg.output_dim}; set them from the system family first")
+        raise MopError(
+            f"model.input_dim and model.output_dim must be > 0 to build a model, got "
+            f"{cfg.input_dim} and {cfg.output_dim}; set them from the system family first"
+        )
 
 
 def rope_angles(positions: Tensor, head_dim: int, base: float = 10000.0) -> tuple[Tensor, Tensor]:
@@ -87,8 +89,15 @@ class CausalSelfAttention(nn.Module):
         y = F.scaled_dot_product_attention(q, k, v, dropout_p=drop, is_causal=True)  # (B, H, T, hd)
         return self._merge(y)
 
-    def step(self, x: Tensor, cache_k: Tensor, cache_v: Tensor, slot: int, filled: int,
-             rope: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    def step(
+        self,
+        x: Tensor,
+        cache_k: Tensor,
+        cache_v: Tensor,
+        slot: int,
+        filled: int,
+        rope: tuple[Tensor, Tensor] | None = None,
+    ) -> Tensor:
         """New position x (B, 1, d): write its key/value into `slot`, attend over `filled` cached slots."""
         q, k, v = self._heads(x)  # (B, H, 1, hd)
         if rope is not None:
@@ -124,8 +133,15 @@ class Block(nn.Module):
         x = x + self.attn(self.ln_1(x), rope)
         return x + self.mlp(self.ln_2(x))
 
-    def step(self, x: Tensor, cache_k: Tensor, cache_v: Tensor, slot: int, filled: int,
-             rope: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    def step(
+        self,
+        x: Tensor,
+        cache_k: Tensor,
+        cache_v: Tensor,
+        slot: int,
+        filled: int,
+        rope: tuple[Tensor, Tensor] | None = None,
+    ) -> Tensor:
         x = x + self.attn.step(self.ln_1(x), cache_k, cache_v, slot, filled, rope)
         return x + self.mlp(self.ln_2(x))
 
@@ -175,8 +191,10 @@ class Transformer(nn.Module):
         """inputs (B, T, d_in) -> final hidden states (B, T, d)."""
         B, T, _ = inputs.shape
         if T > self.cfg.context:
-            raise MopError(f"sequence of length {T} exceeds model.context={self.cfg.context}; "
-                           "use LearnedPredictor(mode='window' or 'stream') for longer trajectories")
+            raise MopError(
+                f"sequence of length {T} exceeds model.context={self.cfg.context}; "
+                "use LearnedPredictor(mode='window' or 'stream') for longer trajectories"
+            )
         positions = torch.arange(T, device=inputs.device)
         h = self.read_in(inputs)  # (B, T, d)
         if self.wpe is not None:
@@ -202,8 +220,9 @@ class Transformer(nn.Module):
     def predict_distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor]:
         """Gaussian readout only: (mean, var) each (B, T, m). MopError for readout 'mean'."""
         if self.cfg.readout != "gaussian":
-            raise MopError("predict_distribution needs model.readout='gaussian'; "
-                           "this model predicts only the mean")
+            raise MopError(
+                "predict_distribution needs model.readout='gaussian'; this model predicts only the mean"
+            )
         return self._split(self.read_out(self.hidden(inputs)))
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
@@ -248,5 +267,6 @@ def build_model(cfg: ModelConfig) -> nn.Module:
     _check_dims(cfg)
     if cfg.arch == "gru":
         from mop.gru import GRUModel
+
         return GRUModel(cfg)
     return Transformer(cfg)

@@ -53,8 +53,10 @@ def resolve_config(config: RunConfig) -> RunConfig:
     model = config.model
     for name, value in (("input_dim", d_in), ("output_dim", m)):
         if getattr(model, name) not in (0, value):
-            raise MopError(f"model.{name}={getattr(model, name)} does not match the "
-                           f"{config.system.family} family ({value}); leave it at 0")
+            raise MopError(
+                f"model.{name}={getattr(model, name)} does not match the "
+                f"{config.system.family} family ({value}); leave it at 0"
+            )
     return dataclasses.replace(config, model=dataclasses.replace(model, input_dim=d_in, output_dim=m))
 
 
@@ -87,8 +89,13 @@ class TrainingData:
     def batch(self) -> tuple[Tensor, Tensor]:
         if self.inputs is None:
             return self._draw(self.cfg.batch_size)
-        index = torch.randint(0, self.inputs.shape[0], (self.cfg.batch_size,), generator=self.generator,
-                              device=self.generator.device)
+        index = torch.randint(
+            0,
+            self.inputs.shape[0],
+            (self.cfg.batch_size,),
+            generator=self.generator,
+            device=self.generator.device,
+        )
         return self.inputs[index], self.targets[index]
 
 
@@ -140,8 +147,15 @@ def maybe_compile(model: nn.Module, cfg, device: torch.device) -> nn.Module:
     return model
 
 
-def train_step(model: nn.Module, loss_fn, optimizer: torch.optim.Optimizer, inputs: Tensor, targets: Tensor,
-               cfg, device: torch.device) -> Tensor:
+def train_step(
+    model: nn.Module,
+    loss_fn,
+    optimizer: torch.optim.Optimizer,
+    inputs: Tensor,
+    targets: Tensor,
+    cfg,
+    device: torch.device,
+) -> Tensor:
     """One AdamW step on MSE over every position; returns the (detached) loss."""
     with autocast(cfg, device):
         loss = loss_fn(inputs, targets)
@@ -197,6 +211,7 @@ class MetricsLog:
                     if record.get("step", 0) <= resume_step:
                         kept.append(line)
         from mop.atomic import write_text
+
         write_text(self.path, "".join(line + "\n" for line in kept))
         self.writer = SummaryWriter(str(out_dir / "tb"), purge_step=resume_step + 1 if resume_step else None)
 
@@ -235,6 +250,7 @@ def stop_signals():
 
 def _main_thread() -> bool:
     import threading
+
     return threading.current_thread() is threading.main_thread()
 
 
@@ -274,8 +290,9 @@ def train(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = Tru
     cfg = config.train
     rank, world = _distributed()
     if cfg.batch_size % world:
-        raise MopError(f"train.batch_size ({cfg.batch_size}) must be divisible by the number of processes "
-                       f"({world})")
+        raise MopError(
+            f"train.batch_size ({cfg.batch_size}) must be divisible by the number of processes ({world})"
+        )
     if _check_run_dir(out_dir, config):  # every rank reads it, so all return together
         return out_dir
     if cfg.deterministic:
@@ -308,8 +325,7 @@ def train(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = Tru
     val = validation_batch(config, device) if rank == 0 else None
     log = MetricsLog(out_dir, step) if rank == 0 else None
     try:
-        _loop(config, model, loss_fn, optimizer, data, val, log, step, out_dir, device,
-              rank, world, progress)
+        _loop(config, model, loss_fn, optimizer, data, val, log, step, out_dir, device, rank, world, progress)
     finally:
         if log is not None:
             log.close()
@@ -327,13 +343,15 @@ class LossModule(nn.Module):
         return self.model.loss(inputs, targets)
 
 
-def _loop(config, model, loss_fn, optimizer, data, val, log, step, out_dir, device, rank, world,
-          progress) -> None:
+def _loop(
+    config, model, loss_fn, optimizer, data, val, log, step, out_dir, device, rank, world, progress
+) -> None:
     cfg = config.train
     model.train()
     bar = None
     if rank == 0 and progress:
         from tqdm import tqdm
+
         bar = tqdm(total=cfg.steps, initial=step, desc="train", dynamic_ncols=True)
     loss_sum = torch.zeros((), device=device)
     last_good, since, t0 = step, 0, time.perf_counter()
@@ -343,7 +361,7 @@ def _loop(config, model, loss_fn, optimizer, data, val, log, step, out_dir, devi
                 group["lr"] = learning_rate(cfg, step)
             inputs, targets = data.batch()  # (B, T, d_in), (B, T, m): the global batch
             b = cfg.batch_size // world
-            inputs, targets = inputs[rank * b:(rank + 1) * b], targets[rank * b:(rank + 1) * b]
+            inputs, targets = inputs[rank * b : (rank + 1) * b], targets[rank * b : (rank + 1) * b]
             loss_sum += train_step(model, loss_fn, optimizer, inputs, targets, cfg, device)
             step, since = step + 1, since + 1
             if bar is not None:
@@ -354,13 +372,19 @@ def _loop(config, model, loss_fn, optimizer, data, val, log, step, out_dir, devi
                 continue
             mean_loss = float(loss_sum) / since
             if not math.isfinite(mean_loss):
-                raise MopError(f"training loss became {mean_loss} between steps {step - since} and {step}; "
-                               f"the last good checkpoint (step {last_good}) is kept in {out_dir}; "
-                               f"try a lower train.lr")
+                raise MopError(
+                    f"training loss became {mean_loss} between steps {step - since} and {step}; "
+                    f"the last good checkpoint (step {last_good}) is kept in {out_dir}; "
+                    f"try a lower train.lr"
+                )
             if rank == 0 and at_log:
                 rate = since / (time.perf_counter() - t0)
-                record = {"step": step, "loss": mean_loss, "lr": learning_rate(cfg, step - 1),
-                          "steps_per_s": rate}
+                record = {
+                    "step": step,
+                    "loss": mean_loss,
+                    "lr": learning_rate(cfg, step - 1),
+                    "steps_per_s": rate,
+                }
                 log.log(record)
                 if bar is not None:
                     bar.set_postfix(loss=f"{mean_loss:.4g}", steps_per_s=f"{rate:.1f}")
@@ -370,15 +394,18 @@ def _loop(config, model, loss_fn, optimizer, data, val, log, step, out_dir, devi
                 if rank == 0:
                     if step % (cfg.checkpoint_every) == 0 or step == cfg.steps:
                         log.log({"step": step, "val_loss": validation_loss(model, val, cfg, device)})
-                    save_checkpoint(out_dir / "checkpoint.safetensors", step, model, optimizer,
-                                    _rng_state(data, device))
+                    save_checkpoint(
+                        out_dir / "checkpoint.safetensors", step, model, optimizer, _rng_state(data, device)
+                    )
                     save_model(out_dir / "model.safetensors", model)
                 last_good = step
                 if world > 1:
                     dist.barrier()
             if flag["stop"]:
-                raise MopError(f"stopped by {flag['stop']} at step {step}; checkpoint saved in {out_dir}, "
-                               f"run the same command to resume")
+                raise MopError(
+                    f"stopped by {flag['stop']} at step {step}; checkpoint saved in {out_dir}, "
+                    f"run the same command to resume"
+                )
     if bar is not None:
         bar.close()
     if rank == 0:
@@ -411,8 +438,9 @@ def load_config(run_dir: str | os.PathLike) -> RunConfig:
         raise MopError(f"{path} is not valid JSON; the run directory is damaged") from None
 
 
-def load_model(run_dir: str | os.PathLike,
-               device: str | torch.device = "cpu") -> tuple[nn.Module, ModelConfig]:
+def load_model(
+    run_dir: str | os.PathLike, device: str | torch.device = "cpu"
+) -> tuple[nn.Module, ModelConfig]:
     """The model of a run directory (config.json + model.safetensors), in eval mode on `device`."""
     config = load_config(run_dir)
     model = build_model(config.model)

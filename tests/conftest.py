@@ -8,7 +8,17 @@ def tiny_run(tmp_path_factory):
     """A tiny trained run dir (2 layers, width 32, 20 steps, m=2, context 10), once per session."""
     from mop.train import train
 
-    cfg = apply_overrides(RunConfig(), [
-        "system.output_dim=2", "system.state_dim=2", "model.num_layers=2", "model.width=32",
-        "model.num_heads=2", "model.context=10", "train.steps=20", "train.horizon=10"])
+    cfg = apply_overrides(
+        RunConfig(),
+        [
+            "system.output_dim=2",
+            "system.state_dim=2",
+            "model.num_layers=2",
+            "model.width=32",
+            "model.num_heads=2",
+            "model.context=10",
+            "train.steps=20",
+            "train.horizon=10",
+        ],
+    )
     return train(cfg, tmp_path_factory.mktemp("run") / "tiny", progress=False)

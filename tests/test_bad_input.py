@@ -35,14 +35,21 @@ def test_bad_data(case, tiny_run, tmp_path, capsys):
 def test_missing_run_dir(tmp_path, capsys):
     np.savez(tmp_path / "d.npz", y=np.zeros((1, 5, 2)))
     out = tmp_path / "p.csv"
-    _run_fails(["predict", str(tmp_path / "nope"), str(tmp_path / "d.npz"), "--out", str(out)], capsys, out,
-               "does not exist")
+    _run_fails(
+        ["predict", str(tmp_path / "nope"), str(tmp_path / "d.npz"), "--out", str(out)],
+        capsys,
+        out,
+        "does not exist",
+    )
 
 
 def test_unstable_system_subprocess(tmp_path):
     out = tmp_path / "s.npz"
-    r = subprocess.run([sys.executable, "-m", "mop.cli", "simulate", "linear", "spectral_radius=1.2",
-                        "--out", str(out)], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "mop.cli", "simulate", "linear", "spectral_radius=1.2", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode != 0 and "Traceback" not in r.stderr and "spectral" in r.stderr, r.stderr
     assert not out.exists()
 
@@ -65,8 +72,10 @@ def test_bad_weights(kind, tiny_run, tmp_path, capsys):
     _run_fails(["predict", str(run), str(tmp_path / "d.npz"), "--out", str(out)], capsys, out, word)
 
 
-@pytest.mark.parametrize("override,word", [("model.bogus=1", "unknown"), ("model.width=-4", "positive"),
-                                           ("model.num_heads=4", "divide")])
+@pytest.mark.parametrize(
+    "override,word",
+    [("model.bogus=1", "unknown"), ("model.width=-4", "positive"), ("model.num_heads=4", "divide")],
+)
 def test_bad_train_config(override, word, tmp_path, capsys):
     out = tmp_path / "run"
     extra = ["model.width=30"] if "heads" in override else []

@@ -19,8 +19,14 @@ def _free_port() -> int:
 
 
 def _worker(rank: int, world: int, port: int, out_dir: str) -> None:
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), WORLD_SIZE=str(world), RANK=str(rank),
-                      LOCAL_RANK=str(rank), OMP_NUM_THREADS="1")
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1",
+        MASTER_PORT=str(port),
+        WORLD_SIZE=str(world),
+        RANK=str(rank),
+        LOCAL_RANK=str(rank),
+        OMP_NUM_THREADS="1",
+    )
     torch.set_num_threads(1)
     assert mt._distributed() == (rank, world)
     config = mt.resolve_config(tiny_config())
@@ -29,7 +35,7 @@ def _worker(rank: int, world: int, port: int, out_dir: str) -> None:
     ddp = nn.parallel.DistributedDataParallel(mt.LossModule(model))
     inputs, targets = mt.TrainingData(config, torch.device("cpu")).batch()  # global batch, same on all ranks
     b = config.train.batch_size // world
-    ddp(inputs[rank * b:(rank + 1) * b], targets[rank * b:(rank + 1) * b]).backward()
+    ddp(inputs[rank * b : (rank + 1) * b], targets[rank * b : (rank + 1) * b]).backward()
     torch.save({n: p.grad for n, p in model.named_parameters()}, f"{out_dir}/grad{rank}.pt")
     mt.train(tiny_config(steps=2), f"{out_dir}/run", progress=False)  # the trainer itself under DDP
     dist.destroy_process_group()

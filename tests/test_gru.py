@@ -7,8 +7,12 @@ from mop.model import build_model
 
 
 def tiny(**kw) -> ModelConfig:
-    return ModelConfig(**{**dict(arch="gru", num_layers=2, width=16, num_heads=2, context=10,
-                                 input_dim=3, output_dim=2), **kw})
+    return ModelConfig(
+        **{
+            **dict(arch="gru", num_layers=2, width=16, num_heads=2, context=10, input_dim=3, output_dim=2),
+            **kw,
+        }
+    )
 
 
 def test_stream_equals_forward_beyond_context():

@@ -14,8 +14,17 @@ C = 8
 
 
 def setup(T=20, readout="mean", position="learned", arch="gpt"):
-    cfg = ModelConfig(arch=arch, num_layers=2, num_heads=2, width=16, context=C, input_dim=3, output_dim=2,
-                      readout=readout, position=position)
+    cfg = ModelConfig(
+        arch=arch,
+        num_layers=2,
+        num_heads=2,
+        width=16,
+        context=C,
+        input_dim=3,
+        output_dim=2,
+        readout=readout,
+        position=position,
+    )
     g = torch.Generator().manual_seed(0)
     traj = Trajectories(y=torch.randn(5, T + 1, 2, generator=g), u=torch.randn(5, T + 1, 1, generator=g))
     return build_model(cfg), traj
@@ -27,7 +36,7 @@ def explicit_window(model, traj):
     out = torch.zeros_like(traj.y)
     with torch.no_grad():
         for t in range(1, traj.y.shape[1]):
-            out[:, t] = model(z[:, max(0, t - C):t])[:, -1]
+            out[:, t] = model(z[:, max(0, t - C) : t])[:, -1]
     return out
 
 
@@ -55,8 +64,9 @@ def test_inside_context_equals_plain_forward(mode):
 @pytest.mark.parametrize("position", ["learned", "rope"])
 def test_window_beyond_context_matches_explicit_loop(position):
     model, traj = setup(T=20, position=position)
-    assert torch.allclose(LearnedPredictor(model, chunk_size=2).predict(traj), explicit_window(model, traj),
-                          atol=1e-5)
+    assert torch.allclose(
+        LearnedPredictor(model, chunk_size=2).predict(traj), explicit_window(model, traj), atol=1e-5
+    )
 
 
 @pytest.mark.parametrize("position", ["learned", "rope"])
@@ -65,7 +75,7 @@ def test_stream_beyond_context(position):
     model, traj = setup(T=20, position=position)
     streamed = LearnedPredictor(model, mode="stream", chunk_size=3).predict(traj)
     window = explicit_window(model, traj)
-    assert torch.allclose(streamed[:, :C + 1], window[:, :C + 1], atol=1e-5)
+    assert torch.allclose(streamed[:, : C + 1], window[:, : C + 1], atol=1e-5)
     assert torch.isfinite(streamed).all()
 
 

@@ -57,7 +57,7 @@ def test_stream_equals_forward_inside_context(position, readout):
     model = build_model(tiny(position=position, readout=readout)).eval()
     z = inputs()
     with torch.no_grad():
-        mu, var = (model.predict_distribution(z) if readout == "gaussian" else (model(z), None))
+        mu, var = model.predict_distribution(z) if readout == "gaussian" else (model(z), None)
         cache = model.init_cache(4)
         steps = [model.step_distribution(z[:, t], cache) for t in range(12)]
     assert torch.allclose(torch.stack([s[0] for s in steps], 1), mu, atol=1e-5, rtol=0)
@@ -75,7 +75,7 @@ def test_rope_stream_beyond_context_is_shift_invariant():
         cache = model.init_cache(4)
         streamed = torch.stack([model.step(z[:, t], cache) for t in range(20)], 1)  # (B, T, m)
         for t in range(C, 20):
-            window = model(z[:, t - C + 1:t + 1])[:, -1]
+            window = model(z[:, t - C + 1 : t + 1])[:, -1]
             assert torch.allclose(streamed[:, t], window, atol=1e-5, rtol=0)
 
 

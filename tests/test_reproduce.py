@@ -12,9 +12,11 @@ from mop import cli, experiments
 def tiny_smoke(monkeypatch):
     """The smoke preset cut further (fewer steps and test systems) to keep the test suite fast."""
     p = experiments.PRESETS["smoke"]
-    tiny = dataclasses.replace(p, train=dataclasses.replace(p.train, steps=3, batch_size=8, log_every=1,
-                                                            checkpoint_every=3),
-                               num_test_systems=6)
+    tiny = dataclasses.replace(
+        p,
+        train=dataclasses.replace(p.train, steps=3, batch_size=8, log_every=1, checkpoint_every=3),
+        num_test_systems=6,
+    )
     monkeypatch.setitem(experiments.PRESETS, "smoke", tiny)
 
 

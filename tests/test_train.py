@@ -31,10 +31,26 @@ def one_thread():
 
 
 def tiny_config(steps: int = 6, **train) -> RunConfig:
-    items = {"steps": steps, "batch_size": 4, "num_source_systems": 16, "horizon": 8, "log_every": 2,
-             "checkpoint_every": 2, "device": "cpu", "compile": "off", "deterministic": True, **train}
-    overrides = ["model.num_layers=2", "model.width=32", "model.num_heads=2", "model.context=8",
-                 "system.state_dim=3", "system.output_dim=2"]
+    items = {
+        "steps": steps,
+        "batch_size": 4,
+        "num_source_systems": 16,
+        "horizon": 8,
+        "log_every": 2,
+        "checkpoint_every": 2,
+        "device": "cpu",
+        "compile": "off",
+        "deterministic": True,
+        **train,
+    }
+    overrides = [
+        "model.num_layers=2",
+        "model.width=32",
+        "model.num_heads=2",
+        "model.context=8",
+        "system.state_dim=3",
+        "system.output_dim=2",
+    ]
     return apply_overrides(RunConfig(), overrides + [f"train.{k}={json.dumps(v)}" for k, v in items.items()])
 
 
@@ -74,8 +90,11 @@ def test_resume_equals_uninterrupted(tmp_path, monkeypatch, num_source_systems, 
     monkeypatch.setattr(mt.TrainingData, "batch", batch)
     mt.train(config, tmp_path / "run", progress=False)
     assert_same_weights(ref, tmp_path / "run")
-    steps = [r["step"] for r in map(json.loads, (tmp_path / "run" / "metrics.jsonl").read_text().splitlines())
-             if "loss" in r]
+    steps = [
+        r["step"]
+        for r in map(json.loads, (tmp_path / "run" / "metrics.jsonl").read_text().splitlines())
+        if "loss" in r
+    ]
     assert steps == [2, 4, 6]
 
 
@@ -85,12 +104,15 @@ def _fresh(config):
     return model, mt.make_optimizer(model, config.train, torch.device("cpu"))
 
 
-def test_sigkill_three_times_then_resume(tmp_path, reference):
-    config = tiny_config(checkpoint_every=1)
+def test_sigkill_three_times_then_resume(tmp_path):
+    config = tiny_config(steps=80, checkpoint_every=1)  # long enough that no run finishes before its kill
+    reference = mt.train(config, tmp_path / "reference", progress=False)
     (tmp_path / "config.json").write_text(json.dumps(mt.to_dict(config)))
     run = tmp_path / "run"
-    code = ("import json,sys; from mop.config import RunConfig, from_dict; from mop.train import train; "
-            "train(from_dict(RunConfig, json.load(open(sys.argv[1]))), sys.argv[2], progress=False)")
+    code = (
+        "import json,sys; from mop.config import RunConfig, from_dict; from mop.train import train; "
+        "train(from_dict(RunConfig, json.load(open(sys.argv[1]))), sys.argv[2], progress=False)"
+    )
     command = [sys.executable, "-c", code, str(tmp_path / "config.json"), str(run)]
     rand, killed = random.Random(0), 0
     for _ in range(3):
@@ -145,12 +167,15 @@ def test_config_json_rebuilds_model(reference):
     assert predictor.cfg == config.model
 
 
-@pytest.mark.parametrize("bad, message", [
-    ({"train": {"stepz": 3}}, "unknown config key 'train.stepz'"),
-    ({"train": {"batch_size": -4}}, "train.batch_size must be a positive integer"),
-    ({"model": {"width": -32}}, "model.width must be a positive integer"),
-    ({"train": {"num_source_systems": -1}}, "num_source_systems must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ({"train": {"stepz": 3}}, "unknown config key 'train.stepz'"),
+        ({"train": {"batch_size": -4}}, "train.batch_size must be a positive integer"),
+        ({"model": {"width": -32}}, "model.width must be a positive integer"),
+        ({"train": {"num_source_systems": -1}}, "num_source_systems must be >= 0"),
+    ],
+)
 def test_config_validation(bad, message):
     with pytest.raises(MopError, match=message):
         from_dict(RunConfig, bad)

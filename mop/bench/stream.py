@@ -48,7 +48,7 @@ def measure(cfg: ModelConfig, num_systems: int, num_steps: int, window_steps: in
     steps = range(C, min(num_steps, C + window_steps))
     start = time.perf_counter()
     for t in steps:
-        model(z[:, t - C + 1:t + 1])[:, -1]  # (S, m): y_{t+1} from the last C inputs
+        model(z[:, t - C + 1 : t + 1])[:, -1]  # (S, m): y_{t+1} from the last C inputs
     window_time = time.perf_counter() - start
 
     stream_rate = num_systems * num_steps / stream_time
@@ -69,8 +69,12 @@ def measure(cfg: ModelConfig, num_systems: int, num_steps: int, window_steps: in
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--systems", type=int, default=1000, help="systems streamed in parallel (1000)")
     parser.add_argument("--steps", type=int, default=1000, help="time steps per system (1000)")
-    parser.add_argument("--window-steps", type=int, default=100,
-                        help="steps past the context on which the window baseline is timed (100)")
+    parser.add_argument(
+        "--window-steps",
+        type=int,
+        default=100,
+        help="steps past the context on which the window baseline is timed (100)",
+    )
     parser.add_argument("--paper", action="store_true", help="the paper's 12-layer, 8-head, width-256 model")
 
 
@@ -81,11 +85,17 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(r, indent=2))
         return 0
-    print(f"online prediction, {r['num_systems']} systems x {r['num_steps']} steps, model: {r['model']}, "
-          f"float32, {r['torch_threads']} torch threads")
+    print(
+        f"online prediction, {r['num_systems']} systems x {r['num_steps']} steps, model: {r['model']}, "
+        f"float32, {r['torch_threads']} torch threads"
+    )
     print(f"stream (KV cache):  {r['stream_predictions_per_s']:>12,.0f} predictions/s")
-    print(f"window (recompute): {r['window_predictions_per_s']:>12,.0f} predictions/s "
-          f"(timed on {r['window_steps_timed']} steps)")
-    print(f"speedup {r['speedup']:.1f}x, "
-          f"max |stream - forward| inside the context {r['max_abs_diff_in_context']:.1e}")
+    print(
+        f"window (recompute): {r['window_predictions_per_s']:>12,.0f} predictions/s "
+        f"(timed on {r['window_steps_timed']} steps)"
+    )
+    print(
+        f"speedup {r['speedup']:.1f}x, "
+        f"max |stream - forward| inside the context {r['max_abs_diff_in_context']:.1e}"
+    )
     return 0

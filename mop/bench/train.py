@@ -30,8 +30,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--width", type=int, default=256, help="model width (256)")
     parser.add_argument("--heads", type=int, default=8, help="attention heads (8)")
     parser.add_argument("--batch-size", type=int, default=64, help="batch size (64)")
-    parser.add_argument("--compile", choices=("auto", "on", "off"), default="auto",
-                        help="torch.compile for mop (auto: on for CUDA)")
+    parser.add_argument(
+        "--compile",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="torch.compile for mop (auto: on for CUDA)",
+    )
     parser.add_argument("--skip-hf", action="store_true", help="time mop only")
 
 
@@ -71,9 +75,16 @@ class HFModel(nn.Module):
         from transformers import GPT2Config, GPT2Model
 
         super().__init__()
-        gpt = GPT2Config(n_positions=cfg.context, n_embd=cfg.width, n_layer=cfg.num_layers,
-                         n_head=cfg.num_heads, resid_pdrop=0.0, embd_pdrop=0.0, attn_pdrop=0.0,
-                         use_cache=False)
+        gpt = GPT2Config(
+            n_positions=cfg.context,
+            n_embd=cfg.width,
+            n_layer=cfg.num_layers,
+            n_head=cfg.num_heads,
+            resid_pdrop=0.0,
+            embd_pdrop=0.0,
+            attn_pdrop=0.0,
+            use_cache=False,
+        )
         self.read_in = nn.Linear(cfg.input_dim, cfg.width)
         self.read_out = nn.Linear(cfg.width, cfg.output_dim)
         self.backbone = GPT2Model(gpt)
@@ -110,19 +121,27 @@ def run(args: argparse.Namespace) -> int:
     steps = args.steps or (5 if device.type == "cpu" else 100)
     warmup = args.warmup if args.warmup is not None else (2 if device.type == "cpu" else 20)
     model = dataclasses.replace(ModelConfig(), num_layers=args.layers, width=args.width, num_heads=args.heads)
-    train = TrainConfig(batch_size=args.batch_size, num_source_systems=1024, device=str(device),
-                        compile=args.compile)
+    train = TrainConfig(
+        batch_size=args.batch_size, num_source_systems=1024, device=str(device), compile=args.compile
+    )
     config = RunConfig(model=model, train=train)
-    result = {"device": str(device), "threads": torch.get_num_threads(), "steps": steps, "warmup": warmup,
-              "ms_per_step": _time(mop_step(config, device), device, warmup, steps)}
+    result = {
+        "device": str(device),
+        "threads": torch.get_num_threads(),
+        "steps": steps,
+        "warmup": warmup,
+        "ms_per_step": _time(mop_step(config, device), device, warmup, steps),
+    }
     if not args.skip_hf:
         result["hf_gpt2_ms_per_step"] = _time(hf_step(config, device), device, warmup, steps)
         result["speedup"] = result["hf_gpt2_ms_per_step"] / result["ms_per_step"]
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"device {result['device']} ({result['threads']} threads), "
-              f"{steps} timed steps after {warmup} warm-up")
+        print(
+            f"device {result['device']} ({result['threads']} threads), "
+            f"{steps} timed steps after {warmup} warm-up"
+        )
         print(f"mop      {result['ms_per_step']:9.1f} ms/step")
         if "speedup" in result:
             print(f"hf gpt2  {result['hf_gpt2_ms_per_step']:9.1f} ms/step   speedup {result['speedup']:.2f}x")

@@ -30,8 +30,10 @@ def predict_all(predictor, data) -> list[np.ndarray]:
     """[(T_i+1, m)] predictions, one forward per trajectory."""
     out = []
     for y, u in data:
-        traj = Trajectories(y=torch.tensor(y[None], dtype=torch.float32),
-                            u=None if u is None else torch.tensor(u[None], dtype=torch.float32))
+        traj = Trajectories(
+            y=torch.tensor(y[None], dtype=torch.float32),
+            u=None if u is None else torch.tensor(u[None], dtype=torch.float32),
+        )
         out.append(predictor.predict(traj)[0].double().numpy())
     return out
 
@@ -69,11 +71,15 @@ def run(args: argparse.Namespace) -> int:
     for name, (y, _), p in zip(names, data, yhat, strict=True):
         e = y[1:] - p[1:]  # (T, m), skip t=0 (no data)
         errs.append(e)
-        print(f"{name:>12} {len(e):>6} {np.sqrt((e ** 2).mean()):>10.4g} "
-              f"{np.linalg.norm(e, axis=-1).mean():>10.4g}")
+        print(
+            f"{name:>12} {len(e):>6} {np.sqrt((e**2).mean()):>10.4g} "
+            f"{np.linalg.norm(e, axis=-1).mean():>10.4g}"
+        )
     e = np.concatenate(errs)
-    print(f"{'overall':>12} {len(e):>6} {np.sqrt((e ** 2).mean()):>10.4g} "
-          f"{np.linalg.norm(e, axis=-1).mean():>10.4g}")
+    print(
+        f"{'overall':>12} {len(e):>6} {np.sqrt((e**2).mean()):>10.4g} "
+        f"{np.linalg.norm(e, axis=-1).mean():>10.4g}"
+    )
     write_output(out, names, yhat)
     print(f"wrote {out}")
     return 0

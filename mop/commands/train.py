@@ -65,6 +65,7 @@ def base_config(source: str | None, preset: str | None) -> RunConfig:
 def _experiment_config(name: str, preset: str | None) -> RunConfig:
     try:
         import mop.experiments as experiments
+
         exp = experiments.get_experiment(name)
     except (ImportError, AttributeError):
         raise MopError(f"{name!r} is neither a config file nor a known experiment") from None

@@ -56,14 +56,24 @@ class Trajectories:
 
     def to(self, device: torch.device | str) -> Trajectories:
         move = lambda t: None if t is None else t.to(device)  # noqa: E731
-        return Trajectories(move(self.y), move(self.u), move(self.x),
-                            {k: v.to(device) for k, v in self.params.items()}, self.family)
+        return Trajectories(
+            move(self.y),
+            move(self.u),
+            move(self.x),
+            {k: v.to(device) for k, v in self.params.items()},
+            self.family,
+        )
 
     def select(self, index: slice | Tensor) -> Trajectories:
         """The subset of systems picked by `index` along the batch dimension."""
         pick = lambda t: None if t is None else t[index]  # noqa: E731
-        return Trajectories(pick(self.y), pick(self.u), pick(self.x),
-                            {k: v[index] for k, v in self.params.items()}, self.family)
+        return Trajectories(
+            pick(self.y),
+            pick(self.u),
+            pick(self.x),
+            {k: v[index] for k, v in self.params.items()},
+            self.family,
+        )
 
     def to_numpy_dict(self) -> dict[str, np.ndarray]:
         """Flat dict for np.savez: y, u (if any), x (if any), and params as param_<name>."""
@@ -92,11 +102,15 @@ class SystemFamily(Protocol):
         """Parameters of `num_systems` systems, each tensor with leading dim B."""
         ...
 
-    def simulate(self, params: dict[str, Tensor], horizon: int, *,
-                 generator: torch.Generator) -> Trajectories:
+    def simulate(
+        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
+    ) -> Trajectories:
         """One trajectory of `horizon` steps (horizon + 1 outputs) per system."""
         ...
 
     def generate(self, num_systems: int, horizon: int, *, generator: torch.Generator) -> Trajectories:
-        """sample + simulate, redrawing systems whose trajectory leaves the bound (DESIGN.md: |x|,|y| <= 50)."""
+        """sample + simulate, redrawing systems whose trajectory leaves the bound.
+
+        DESIGN.md: every |x|, |y| <= 50.
+        """
         ...
