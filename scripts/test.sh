@@ -5,4 +5,5 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh test
 . .venv/bin/activate
 ruff check mop tests
+ruff format --check mop tests
 python -m pytest -n 2 -q --durations=15 "$@"

@@ -15,7 +15,6 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
-from filterpy.kalman import KalmanFilter
 
 from mop.config import SystemConfig
 from mop.filters.kalman import KalmanPredictor
@@ -39,6 +38,8 @@ def best_time(fn: Callable[[], object], repeats: int) -> float:
 
 def loop_kalman(traj: Trajectories) -> np.ndarray:
     """filterpy KalmanFilter, one system at a time."""
+    from filterpy.kalman import KalmanFilter
+
     p, y = {k: v.numpy() for k, v in traj.params.items()}, traj.y.numpy()
     out = np.zeros_like(y)
     for b in range(y.shape[0]):
@@ -180,7 +181,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mop.errors import MopError
+    from mop.errors import MopError, require
+
+    require("filterpy", "mop bench filters (the per-system reference loop)")
 
     if args.systems < 1 or not 1 <= args.loop_systems <= args.systems or args.repeats < 1:
         raise MopError("bench filters: need --systems >= 1, 1 <= --loop-systems <= --systems, --repeats >= 1")

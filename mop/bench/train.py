@@ -115,7 +115,11 @@ def hf_step(config: RunConfig, device: torch.device):
 
 
 def run(args: argparse.Namespace) -> int:
+    from mop.errors import require
     from mop.train import resolve_device
+
+    if not args.skip_hf:
+        require("transformers", "mop bench train (the Hugging Face GPT2Model loop; or pass --skip-hf)")
 
     device = resolve_device(args.device or "auto")
     steps = args.steps or (5 if device.type == "cpu" else 100)
