@@ -87,3 +87,16 @@ def loglog_figure(x: list[float], y: list[float], slope: float, intercept: float
     ax.set(xscale="log", yscale="log", xlabel=xlabel, ylabel="excess MSE over KF", title=title)
     ax.legend(fontsize=8)
     return fig
+
+
+def calibration_figure(levels: list[float], coverages: dict[str, list[float]], title: str):
+    """Reliability diagram: empirical coverage of the central interval against its nominal level."""
+    fig, ax = plt.subplots(figsize=(4.5, 4.5))
+    ax.plot([0, 1], [0, 1], color="k", lw=0.8, ls="--", label="calibrated")
+    for name, values in coverages.items():
+        ax.plot(levels, values, marker=".", label=name)
+    ax.set(xlabel="nominal level of the central interval", ylabel="empirical coverage", title=title)
+    ax.set(xlim=(0, 1), ylim=(0, 1))
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return fig

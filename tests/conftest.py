@@ -1,3 +1,5 @@
+import dataclasses
+
 import pytest
 
 from mop.config import RunConfig, apply_overrides
@@ -22,3 +24,17 @@ def tiny_run(tmp_path_factory):
         ],
     )
     return train(cfg, tmp_path_factory.mktemp("run") / "tiny", progress=False)
+
+
+@pytest.fixture
+def tiny_smoke(monkeypatch):
+    """The smoke preset cut further (fewer steps and test systems) to keep the test suite fast."""
+    from mop import experiments
+
+    p = experiments.PRESETS["smoke"]
+    tiny = dataclasses.replace(
+        p,
+        train=dataclasses.replace(p.train, steps=3, batch_size=8, log_every=1, checkpoint_every=3),
+        num_test_systems=6,
+    )
+    monkeypatch.setitem(experiments.PRESETS, "smoke", tiny)

@@ -1,23 +1,10 @@
 """End to end: `mop reproduce linear --preset smoke` through mop.cli.main, then reuse of the finished run."""
 
-import dataclasses
 import json
 
 import pytest
 
-from mop import cli, experiments
-
-
-@pytest.fixture
-def tiny_smoke(monkeypatch):
-    """The smoke preset cut further (fewer steps and test systems) to keep the test suite fast."""
-    p = experiments.PRESETS["smoke"]
-    tiny = dataclasses.replace(
-        p,
-        train=dataclasses.replace(p.train, steps=3, batch_size=8, log_every=1, checkpoint_every=3),
-        num_test_systems=6,
-    )
-    monkeypatch.setitem(experiments.PRESETS, "smoke", tiny)
+from mop import cli
 
 
 def test_reproduce_linear_smoke_and_reuse(tmp_path, tiny_smoke, capsys):

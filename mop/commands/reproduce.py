@@ -3,7 +3,9 @@
 Train (or reuse), evaluate, report.
 
 DIR holds run/ (the trained MOP; a finished run is reused), run-gru/ (the GRU baseline), eval.json, figures
-(PNG + PDF) and report.md. `all` runs every experiment into DIR/<experiment>/.
+(PNG + PDF) and report.md. `all` runs every experiment into DIR/<experiment>/. `switching` (the paper tests
+the plain linear model there) and `upper-triangular` (dense panel of Fig. 4a) train or reuse the linear model
+in the sibling directory DIR/../linear/.
 """
 
 from __future__ import annotations
@@ -14,11 +16,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+import scipy.stats
 import torch
 
 from mop.atomic import write_json, write_text
 from mop.config import SystemConfig, to_dict
-from mop.errors import MopError
 from mop.evaluate import evaluate, make_baseline, summarize
 from mop.experiments import (
     EXPERIMENTS,
@@ -30,7 +32,15 @@ from mop.experiments import (
     run_config,
 )
 from mop.metrics import coverage, gaussian_nll, loglog_slope, matrix_power_ratio
-from mop.plots import error_figure, loglog_figure, matrix_power_figure, noise_level_figure, ratio_figure, save
+from mop.plots import (
+    calibration_figure,
+    error_figure,
+    loglog_figure,
+    matrix_power_figure,
+    noise_level_figure,
+    ratio_figure,
+    save,
+)
 from mop.report import build_report, claim_line, ratio, summary_section
 
 LINEAR_FAMILIES = ("linear", "upper-triangular", "colored-noise", "switching")
@@ -119,11 +129,13 @@ def _learned(run_dir: Path, name: str, mode: str):
 
 
 def _predictors(exp: Experiment, preset: str, out: Path, seed: int, progress: bool) -> list:
+    """MOP (and the GRU) trained in `out`, or in the sibling experiment's directory, plus the baselines."""
     p = get_preset(preset)
-    predictors = [_learned(_train(exp, preset, out / "run", seed, progress), "mop", exp.model_mode)]
+    runs = out.parent / exp.shares_runs_with if exp.shares_runs_with else out
+    predictors = [_learned(_train(exp, preset, runs / "run", seed, progress), "mop", exp.model_mode)]
     if p.train_gru:
         predictors.append(
-            _learned(_train(exp, preset, out / "run-gru", seed, progress, "gru"), "gru", "window")
+            _learned(_train(exp, preset, runs / "run-gru", seed, progress, "gru"), "gru", "window")
         )
     return predictors + [make_baseline(b, n4sid_every=p.n4sid_every, seed=seed) for b in exp.baselines]
 
@@ -331,6 +343,14 @@ def _calibration(exp: Experiment, preset: str, out: Path, seed: int, progress: b
                 **{f"coverage_{int(q * 100)}": coverage(y, mu, v, q) for q in (0.5, 0.9, 0.95)},
             }
         results[family] = row
+        levels = [round(q, 2) for q in np.arange(0.05, 1.0, 0.05)]
+        curves = {
+            name: [coverage(y, mu[:, 1:], v[:, 1:], q) for q in levels]
+            for name, (mu, v) in {"mop": (mean, var), "kalman": (kf.yhat, kf_var)}.items()
+        }
+        figs = save(
+            calibration_figure(levels, curves, f"{family}: interval coverage"), out, f"calibration_{family}"
+        )
         lines = [
             f"## {family}",
             "",
@@ -342,6 +362,7 @@ def _calibration(exp: Experiment, preset: str, out: Path, seed: int, progress: b
             f"{r['coverage_95']:.3f} |"
             for n, r in row.items()
         ]
+        lines += ["", *(f"![{f.name}]({f.name})" for f in figs if f.suffix == ".png")]
         sections.append("\n".join(lines))
         cov = row["mop"]["coverage_90"]
         claims.append(
@@ -399,19 +420,27 @@ def _scaling(preset: str, out: Path, seed: int, progress: bool):
             mse = {k: float((r[k]["e"][:, 1:] ** 2).mean()) for k in r}
             excess.append(max(mse["mop"] - mse["kalman"], 1e-12))
         slope, intercept, se = loglog_slope(values, excess)
-        results[axis] = {"values": list(values), "excess_mse": excess, "slope": slope, "slope_stderr": se}
+        half = scipy.stats.t.ppf(0.975, max(len(values) - 2, 1)) * se  # Student t, n - 2 dof
+        ci = (slope - half, slope + half)
+        results[axis] = {
+            "values": list(values),
+            "excess_mse": excess,
+            "slope": slope,
+            "slope_stderr": se,
+            "slope_ci95": list(ci),
+        }
         figs = save(
             loglog_figure(values, excess, slope, intercept, axis, f"excess risk vs {axis}"),
             out,
             f"scaling_{axis}",
         )
-        ci = (slope - 1.96 * se, slope + 1.96 * se)
         sections.append(
             f"## against {axis}\n\nExcess MSE = test MSE of MOP minus the oracle KF's, over t in [1,T]; "
             "the theorem's bound predicts a slope of -1/2.\n\n"
             f"| {axis} | excess MSE |\n|---|---|\n"
             + "\n".join(f"| {v} | {e:.5f} |" for v, e in zip(values, excess, strict=True))
-            + f"\n\nslope {slope:.3f} (OLS s.e. {se:.3f}, 95% CI [{ci[0]:.3f}, {ci[1]:.3f}])\n\n"
+            + f"\n\nslope {slope:.3f} (OLS s.e. {se:.3f}, 95% t-interval [{ci[0]:.3f}, {ci[1]:.3f}], "
+            f"{len(values) - 2} dof)\n\n"
             + "\n".join(f"![{f.name}]({f.name})" for f in figs if f.suffix == ".png")
         )
         claims.append(
@@ -423,7 +452,3 @@ def _scaling(preset: str, out: Path, seed: int, progress: bool):
         )
     summary = {"num_systems": p.num_test_systems, "horizon": 50, "predictors": {}, "scaling": results}
     return summary, sections, claims, {"grid": {"M": list(M_values), "T": list(T_values), "steps": steps}}
-
-
-def _unused() -> None:  # keep MopError imported for callers that catch it from this module
-    raise MopError("unreachable")

@@ -89,6 +89,7 @@ class Experiment:
     model_mode: str = "window"
     test_noise_levels: tuple[float, ...] = ()  # Fig. 5: test at these sigma^2 (w and v)
     model_overrides: dict = dataclasses.field(default_factory=dict)
+    shares_runs_with: str | None = None  # train in the sibling experiment's directory (same training config)
 
 
 LINEAR_BASELINES = ("kalman", "rls", "rls-best", "n4sid-kf", "zero", "last")
@@ -113,6 +114,7 @@ EXPERIMENTS: dict[str, Experiment] = {
             ("kalman", "kalman-switch", "rls", "zero", "last"),
             reference="kalman-switch",
             test_horizon=100,
+            shares_runs_with="linear",  # the paper tests the plain linear model on switching systems
         ),
         Experiment(
             "quadrotor",

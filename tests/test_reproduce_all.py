@@ -1,0 +1,98 @@
+"""Every experiment of `mop reproduce` end to end on a cut-down smoke preset: eval.json follows the schema of
+issue 4, the report and figures are written, and the experiment-specific results are present and sane."""
+
+import json
+import math
+
+import pytest
+
+from mop import cli
+from mop.experiments import NAMES
+
+
+def _reproduce(tmp_path, name: str) -> tuple[dict, str]:
+    out = tmp_path / name
+    assert cli.main(["reproduce", name, "--preset", "smoke", "--out", str(out), "--quiet"]) == 0
+    assert list(out.glob("*.png")) and list(out.glob("*.pdf")), "figures in PNG and PDF"
+    return json.loads((out / "eval.json").read_text()), (out / "report.md").read_text()
+
+
+def _check_schema(data: dict, names: set[str]) -> None:
+    T = data["horizon"]
+    assert names <= set(data["predictors"])
+    for curves in data["predictors"].values():
+        assert len(curves["error"]) == len(curves["squared_error"]) == T + 1
+        for e, e2 in zip(curves["error"], curves["squared_error"], strict=True):
+            assert 0 <= e and e * e <= e2 + 1e-9  # Jensen: mean(e)^2 <= mean(e^2)
+
+
+@pytest.mark.parametrize(
+    "name, predictors",
+    [
+        ("colored-noise", {"mop", "kalman", "rls", "rls-best", "n4sid-kf"}),
+        ("switching", {"mop", "kalman", "kalman-switch", "rls"}),
+        ("quadrotor", {"mop", "ekf", "ukf", "pf"}),
+        ("upper-triangular", {"mop", "kalman", "rls"}),
+    ],
+)
+def test_standard_experiments(tmp_path, tiny_smoke, name, predictors):
+    data, report = _reproduce(tmp_path, name)
+    assert data["experiment"] == name and data["preset"] == "smoke" and data["num_systems"] == 6
+    _check_schema(data, predictors)
+    assert data["horizon"] == (100 if name == "switching" else 50)
+    assert "| mop |" in report and "MSE ratio" in report
+    if name == "switching":  # the plain linear model, trained in the sibling directory
+        assert (tmp_path / "linear" / "run" / "model.safetensors").exists()
+    if name == "upper-triangular":
+        powers = data["matrix_power_ratio"]
+        assert len(powers["linear"]) == len(powers["upper-triangular"]) == 50  # k = 0..49
+        assert powers["linear"][0] == powers["upper-triangular"][0] == 1.0  # ||A^0|| / rho^0
+        assert (tmp_path / name / "fig4a_ratio.png").exists() and (
+            tmp_path / name / "fig4b_powers.pdf"
+        ).exists()
+
+
+def test_noise_shift_nests_one_eval_per_level(tmp_path, tiny_smoke):
+    data, report = _reproduce(tmp_path, "noise-shift")
+    assert [float(k) for k in data["levels"]] == [0.01, 0.05, 0.1, 0.2, 0.5]
+    for level in data["levels"].values():
+        _check_schema(level, {"mop", "kalman", "rls"})
+    kf = [v["predictors"]["kalman"]["window_error"]["all"] for v in data["levels"].values()]
+    assert kf == sorted(kf), "the KF's error grows with the test noise"
+    assert "test noise variance 0.5" in report
+
+
+def test_calibration_reports_coverage_and_nll(tmp_path, tiny_smoke):
+    data, _ = _reproduce(tmp_path, "calibration")
+    for family in ("linear", "colored-noise"):
+        for row in data["calibration"][family].values():
+            assert 0 <= row["coverage_50"] <= row["coverage_90"] <= row["coverage_95"] <= 1
+            assert math.isfinite(row["nll"])
+    assert (tmp_path / "calibration" / "calibration_colored-noise.png").exists()
+
+
+def test_scaling_fits_a_slope_per_axis(tmp_path, tiny_smoke, monkeypatch):
+    from mop.commands import reproduce
+
+    monkeypatch.setitem(reproduce.SCALING_GRID, "smoke", ((32, 64, 128), (20, 30, 40), 3))
+    data, report = _reproduce(tmp_path, "scaling")
+    for axis in ("M", "T"):
+        r = data["scaling"][axis]
+        assert len(r["values"]) == len(r["excess_mse"]) == 3
+        assert math.isfinite(r["slope"]) and r["slope_stderr"] >= 0
+        half = 12.706 * r["slope_stderr"]  # Student t quantile 0.975 with 1 dof (3 points, 2 parameters)
+        assert r["slope_ci95"] == pytest.approx([r["slope"] - half, r["slope"] + half], rel=1e-3)
+    assert "slope" in report
+
+
+def test_every_experiment_is_covered():
+    assert set(NAMES) == {
+        "linear",
+        "colored-noise",
+        "switching",
+        "quadrotor",
+        "upper-triangular",
+        "noise-shift",
+        "calibration",
+        "scaling",
+    }
