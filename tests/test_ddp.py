@@ -57,3 +57,32 @@ def test_ddp_gradients_equal_single_process(tmp_path):
     for a, b in zip(distributed.parameters(), reference.parameters(), strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-5)  # Adam: two steps of size ~lr = 3e-4
     assert (tmp_path / "run" / "done.json").exists()
+
+
+def test_torchrun_two_ranks_train_like_one_process(tmp_path):
+    """`torchrun --nproc_per_node 2 -m mop train` ends with the weights of a one-process run.
+
+    Both see the same global batch each step.
+    """
+    import json
+    import subprocess
+    import sys
+
+    from mop.checkpoint import load_tensors
+
+    config = tiny_config(steps=4)
+    overrides = [
+        f"{section}.{key}={json.dumps(value)}"
+        for section, values in mt.to_dict(config).items()
+        for key, value in values.items()
+    ]
+    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2"]
+    command += ["-m", "mop", "train", "--out", str(tmp_path / "ddp"), *overrides]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    mt.train(config, tmp_path / "single", progress=False)
+    ddp, single = (load_tensors(tmp_path / d / "model.safetensors")[0] for d in ("ddp", "single"))
+    assert ddp.keys() == single.keys()
+    for name in single:
+        torch.testing.assert_close(ddp[name], single[name], rtol=1e-4, atol=1e-5)

@@ -47,11 +47,12 @@ def check_stable(spectral_radius: float) -> None:
         raise MopError(f"spectral_radius must be in (0, 1) for a stable system, got {spectral_radius}")
 
 
-def perron_radius(A: Tensor, num_iters: int = 40) -> Tensor:
+def perron_radius(A: Tensor, num_iters: int = 25) -> Tensor:
     """(B,) spectral radius of entrywise positive A (B, n, n) by power iteration.
 
     For A > 0 the Perron root is real, simple and strictly dominant (Perron-Frobenius), so ||A v|| / ||v||
-    converges geometrically; ~40 batched mat-vecs are far cheaper than a batched eigendecomposition.
+    converges like |lambda_2 / lambda_1|^k (about 0.2^k for 10 x 10 U[0,1] matrices: 25 steps reach float64
+    rounding); 25 batched mat-vecs are far cheaper than a batched eigendecomposition.
     """
     v = torch.ones(A.shape[:-1], dtype=A.dtype, device=A.device)  # (B, n)
     for _ in range(num_iters):
@@ -90,14 +91,16 @@ def observability_matrix(A: Tensor, C: Tensor, num_blocks: int | None = None) ->
 
 
 def full_column_rank(O: Tensor) -> Tensor:
-    """(B,) bool: O (B, r, n) has rank n.
+    """(B,) bool: O (B, r, n) has rank n, i.e. the Gram G = O^T O has lambda_min(G) > tol.
 
-    Singular values come from the eigenvalues of the Gram O^T O (a batched eigvalsh of n x n, much cheaper
-    than an SVD of O); the Gram resolves them only down to sqrt(eps) * sigma_max: the rank tolerance.
+    tol = trace(G) * max(r, n) * eps (trace(G) bounds sigma_max(O)^2; the Gram resolves singular values
+    only down to sqrt(eps) * sigma_max). lambda_min(G) > tol iff G - tol I is positive definite, which a
+    batched Cholesky decides far faster than an eigendecomposition.
     """
-    gram_eigs = torch.linalg.eigvalsh(O.mT @ O)  # (B, n), ascending, = sigma_i(O)^2
-    tol = gram_eigs[:, -1] * max(O.shape[-2:]) * torch.finfo(O.dtype).eps  # on the squared scale
-    return gram_eigs[:, 0] > tol
+    G = O.mT @ O  # (B, n, n)
+    tol = G.diagonal(dim1=-2, dim2=-1).sum(-1) * max(O.shape[-2:]) * torch.finfo(O.dtype).eps  # (B,)
+    eye = torch.eye(G.shape[-1], dtype=G.dtype, device=G.device)
+    return torch.linalg.cholesky_ex(G - tol[:, None, None] * eye).info == 0
 
 
 def is_observable(A: Tensor, C: Tensor) -> Tensor:
