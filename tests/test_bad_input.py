@@ -16,6 +16,7 @@ def _run_fails(argv, capsys, out, word):
 
 CASES = {
     "nan": ("d.npz", lambda p: np.savez(p, y=np.full((1, 5, 2), np.nan)), "NaN"),
+    "inf": ("d.npz", lambda p: np.savez(p, y=np.full((1, 5, 2), -np.inf)), "Inf"),
     "huge": ("d.npz", lambda p: np.savez(p, y=np.full((1, 5, 2), 1e30)), "values up to"),
     "columns": ("d.npz", lambda p: np.savez(p, y=np.zeros((1, 5, 3))), "output_dim"),
     "empty": ("d.csv", lambda p: p.write_text(""), "empty"),
@@ -30,6 +31,14 @@ def test_bad_data(case, tiny_run, tmp_path, capsys):
     make(tmp_path / name)
     out = tmp_path / "p.csv"
     _run_fails(["predict", str(tiny_run), str(tmp_path / name), "--out", str(out)], capsys, out, word)
+
+
+def test_failed_predict_keeps_the_previous_output(tiny_run, tmp_path, capsys):
+    np.savez(tmp_path / "d.npz", y=np.full((1, 5, 2), np.nan))
+    out = tmp_path / "p.csv"
+    out.write_text("an earlier result\n")
+    assert main(["predict", str(tiny_run), str(tmp_path / "d.npz"), "--out", str(out)]) != 0
+    assert out.read_text() == "an earlier result\n" and "NaN" in capsys.readouterr().err
 
 
 def test_missing_run_dir(tmp_path, capsys):
