@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from mop.atomic import atomic_path
+from mop.commands import OverridesAnywhere
 from mop.config import FAMILIES, SystemConfig, apply_overrides
 from mop.errors import MopError
 from mop.systems import generator, make_family
@@ -28,18 +29,8 @@ examples:
 """
 
 
-class _OverridesAnywhere(argparse.ArgumentParser):
-    """argparse reads a nargs="*" positional in one chunk; also take key=value words after the options."""
-
-    def parse_known_args(self, args=None, namespace=None):
-        namespace, extras = super().parse_known_args(args, namespace)
-        late = [a for a in extras if "=" in a and not a.startswith("-")]
-        namespace.overrides = [*(namespace.overrides or []), *late]
-        return namespace, [a for a in extras if a not in late]
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.__class__ = _OverridesAnywhere  # the subparser the dispatcher made for us
+    parser.__class__ = OverridesAnywhere  # the subparser the dispatcher made for us
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = EPILOG
     parser.add_argument("family", choices=FAMILIES, help="system family to sample from")

@@ -10,6 +10,7 @@ import argparse
 import json
 from pathlib import Path
 
+from mop.commands import OverridesAnywhere
 from mop.config import RunConfig, apply_overrides, from_dict
 from mop.errors import MopError
 
@@ -23,18 +24,8 @@ EPILOG = """examples:
 """
 
 
-class _OverridesAnywhere(argparse.ArgumentParser):
-    """Take key=value words after the options as well."""
-
-    def parse_known_args(self, args=None, namespace=None):
-        namespace, extras = super().parse_known_args(args, namespace)
-        late = [a for a in extras if "=" in a and not a.startswith("-")]
-        namespace.overrides = [*(namespace.overrides or []), *late]
-        return namespace, [a for a in extras if a not in late]
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.__class__ = _OverridesAnywhere
+    parser.__class__ = OverridesAnywhere
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = EPILOG
     parser.add_argument("source", nargs="?", help="a RunConfig JSON file or an experiment name (optional)")
