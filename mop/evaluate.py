@@ -20,7 +20,7 @@ from mop.systems.base import Trajectories
 def make_baseline(name: str, *, n4sid_every: int = 1, seed: int = 0) -> Predictor:
     """A classical predictor by its report name.
 
-    kalman, kalman-switch, rls, rls-best, n4sid-kf, zero, last, ekf, ukf, pf.
+    kalman, kalman-switch, rls, rls-best, n4sid-kf, zero, last, ekf, ukf, pf, pf-clip.
     """
     from mop.filters.ekf import EKFPredictor
     from mop.filters.kalman import KalmanPredictor
@@ -41,6 +41,7 @@ def make_baseline(name: str, *, n4sid_every: int = 1, seed: int = 0) -> Predicto
         "ekf": EKFPredictor,
         "ukf": UKFPredictor,
         "pf": lambda: ParticleFilterPredictor(seed=seed),
+        "pf-clip": lambda: ParticleFilterPredictor(seed=seed, clip=True),
     }
     if name not in makers:
         raise MopError(f"unknown baseline {name!r}; choose one of {', '.join(makers)}")

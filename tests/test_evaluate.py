@@ -62,7 +62,19 @@ def test_summary_schema_and_ratios():
 
 
 def test_baselines_by_name():
-    names = ("kalman", "kalman-switch", "rls", "rls-best", "n4sid-kf", "zero", "last", "ekf", "ukf", "pf")
+    names = (
+        "kalman",
+        "kalman-switch",
+        "rls",
+        "rls-best",
+        "n4sid-kf",
+        "zero",
+        "last",
+        "ekf",
+        "ukf",
+        "pf",
+        "pf-clip",
+    )
     for name in names:
         assert make_baseline(name).name == name
     with pytest.raises(MopError, match="unknown baseline"):

@@ -121,7 +121,7 @@ EXPERIMENTS: dict[str, Experiment] = {
             "Fig. 3",
             SystemConfig(family="quadrotor"),
             SystemConfig(family="quadrotor"),
-            ("ekf", "ukf", "pf", "zero", "last"),
+            ("ekf", "ukf", "pf", "pf-clip", "zero", "last"),  # pf-clip also knows the clipping
             reference="ekf",
         ),
         Experiment(

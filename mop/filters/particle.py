@@ -107,10 +107,9 @@ def pf_predict(
 class ParticleFilterPredictor:
     """Bootstrap particle filter knowing each system's parameters; seeded, `num_particles` per system."""
 
-    name = "pf"
-
     def __init__(self, num_particles: int = 1000, seed: int = 0, clip: bool = False) -> None:
         self.num_particles, self.seed, self.clip = num_particles, seed, clip
+        self.name = "pf-clip" if clip else "pf"  # pf-clip also knows the quadrotor's state clipping
 
     def predict(self, traj: Trajectories) -> Tensor:
         yhat = pf_predict(
