@@ -36,6 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="auto",
         help="torch.compile for mop (auto: on for CUDA)",
     )
+    parser.add_argument(
+        "--precision",
+        choices=("auto", "fp32", "bf16"),
+        default="auto",
+        help="mop's autocast (auto: bf16 on CUDA, fp32 on CPU); the HF loop stays fp32 as the authors ran it",
+    )
     parser.add_argument("--skip-hf", action="store_true", help="time mop only")
 
 
@@ -126,13 +132,18 @@ def run(args: argparse.Namespace) -> int:
     warmup = args.warmup if args.warmup is not None else (2 if device.type == "cpu" else 20)
     model = dataclasses.replace(ModelConfig(), num_layers=args.layers, width=args.width, num_heads=args.heads)
     train = TrainConfig(
-        batch_size=args.batch_size, num_source_systems=1024, device=str(device), compile=args.compile
+        batch_size=args.batch_size,
+        num_source_systems=1024,
+        device=str(device),
+        compile=args.compile,
+        precision=args.precision,
     )
     config = RunConfig(model=model, train=train)
     result = {
         "device": str(device),
         "threads": torch.get_num_threads(),
         "steps": steps,
+        "precision": args.precision,
         "warmup": warmup,
         "ms_per_step": _time(mop_step(config, device), device, warmup, steps),
     }
