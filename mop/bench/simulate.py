@@ -2,7 +2,8 @@
 like the authors' code.
 
 Both sample the systems and simulate one trajectory of T = 50 steps each. The loop is timed on fewer systems
-(it is linear in their number) and reported per second.
+(it is linear in their number) and reported per second. mop: best of 5 runs after a full-size warm-up
+(run-to-run spread on a shared 2-core machine is about +-20%).
 """
 
 from __future__ import annotations
@@ -68,9 +69,9 @@ def loop_quadrotor(num_systems: int, rng: np.random.Generator) -> list:
     return out
 
 
-def measure(family_name: str, num_systems: int, loop_systems: int, repeats: int = 3) -> dict[str, float]:
+def measure(family_name: str, num_systems: int, loop_systems: int, repeats: int = 5) -> dict[str, float]:
     family = make_family(SystemConfig(family=family_name), torch.float32)
-    family.generate(100, HORIZON, generator=generator(0))  # warm-up
+    family.generate(num_systems, HORIZON, generator=generator(0))  # warm-up at full size (allocator, caches)
     best = math.inf
     for r in range(repeats):
         start = time.perf_counter()
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(results, indent=2))
         return 0
-    print(f"generate systems, T={HORIZON}, float32, {results['torch_threads']} torch threads (best of 3)")
+    print(f"generate systems, T={HORIZON}, float32, {results['torch_threads']} torch threads (best of 5)")
     print(f"{'family':<10} {'mop systems/s':>14} {'loop systems/s':>15} {'speedup':>8}")
     for name in ("linear", "quadrotor"):
         r = results[name]
