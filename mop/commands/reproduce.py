@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import scipy.stats
 import torch
 
 from mop.atomic import write_json, write_text
@@ -335,19 +334,17 @@ def _calibration(exp: Experiment, preset: str, out: Path, seed: int, progress: b
         kf = kalman_filter(p["A"], p["C"], p["Q"], p["R"], traj.y, P0=p["P0"])
         kf_var = torch.diagonal(kf.S, dim1=-2, dim2=-1)  # (N, T+1, m)
         y = traj.y[:, 1:]
+        # predictive mean and variance of y_t for t >= 1, (N, T, m) each
+        dists = {"mop": (mean[:, 1:], var[:, 1:]), "kalman": (kf.yhat[:, 1:], kf_var[:, 1:])}
         row = {}
-        for name, (mu, v) in {"mop": (mean, var), "kalman": (kf.yhat, kf_var)}.items():
-            mu, v = mu[:, 1:], v[:, 1:]
+        for name, (mu, v) in dists.items():
             row[name] = {
                 "nll": gaussian_nll(y, mu, v),
                 **{f"coverage_{int(q * 100)}": coverage(y, mu, v, q) for q in (0.5, 0.9, 0.95)},
             }
         results[family] = row
         levels = [round(q, 2) for q in np.arange(0.05, 1.0, 0.05)]
-        curves = {
-            name: [coverage(y, mu[:, 1:], v[:, 1:], q) for q in levels]
-            for name, (mu, v) in {"mop": (mean, var), "kalman": (kf.yhat, kf_var)}.items()
-        }
+        curves = {name: [coverage(y, mu, v, q) for q in levels] for name, (mu, v) in dists.items()}
         figs = save(
             calibration_figure(levels, curves, f"{family}: interval coverage"), out, f"calibration_{family}"
         )
@@ -394,6 +391,9 @@ def _scaling(preset: str, out: Path, seed: int, progress: bool):
     """Excess MSE of MOP over the oracle KF against M (T = 50) and against T (M fixed).
 
     Log-log slope +- OLS standard error."""
+    from scipy.stats.distributions import t as student_t
+
+    t_quantile = student_t.ppf  # scipy.stats imported here, not at `mop` start-up
     M_values, T_values, steps = SCALING_GRID[preset]
     p = get_preset(preset)
     base = get_experiment("linear")
@@ -420,7 +420,7 @@ def _scaling(preset: str, out: Path, seed: int, progress: bool):
             mse = {k: float((r[k]["e"][:, 1:] ** 2).mean()) for k in r}
             excess.append(max(mse["mop"] - mse["kalman"], 1e-12))
         slope, intercept, se = loglog_slope(values, excess)
-        half = scipy.stats.t.ppf(0.975, max(len(values) - 2, 1)) * se  # Student t, n - 2 dof
+        half = t_quantile(0.975, max(len(values) - 2, 1)) * se  # Student t, n - 2 dof
         ci = (slope - half, slope + half)
         results[axis] = {
             "values": list(values),
