@@ -17,11 +17,7 @@ from mop.predictors import Predictor
 from mop.systems.base import Trajectories
 
 
-def make_baseline(name: str, *, n4sid_every: int = 1, seed: int = 0) -> Predictor:
-    """A classical predictor by its report name.
-
-    kalman, kalman-switch, rls, rls-best, n4sid-kf, zero, last, ekf, ukf, pf, pf-clip.
-    """
+def _baselines() -> dict:
     from mop.filters.ekf import EKFPredictor
     from mop.filters.kalman import KalmanPredictor
     from mop.filters.particle import ParticleFilterPredictor
@@ -30,22 +26,23 @@ def make_baseline(name: str, *, n4sid_every: int = 1, seed: int = 0) -> Predicto
     from mop.filters.subspace import N4SIDKalmanPredictor
     from mop.filters.ukf import UKFPredictor
 
-    makers = {
-        "kalman": KalmanPredictor,
-        "kalman-switch": lambda: KalmanPredictor("kalman-switch", knows_switch=True),
-        "rls": RLSPredictor,
-        "rls-best": AdaptiveOrderRLSPredictor,
-        "n4sid-kf": lambda: N4SIDKalmanPredictor(every=n4sid_every),
-        "zero": ZeroPredictor,
-        "last": LastValuePredictor,
-        "ekf": EKFPredictor,
-        "ukf": UKFPredictor,
-        "pf": lambda: ParticleFilterPredictor(seed=seed),
-        "pf-clip": lambda: ParticleFilterPredictor(seed=seed, clip=True),
+    system = {"needs_system": True}
+    return {
+        "kalman": (KalmanPredictor, {**system, "gaussian": True}),
+        "kalman-switch": (lambda: KalmanPredictor("kalman-switch", knows_switch=True), system),
+        "rls": (RLSPredictor, {}),
+        "rls-best": (AdaptiveOrderRLSPredictor, {}),
+        "n4sid-kf": (lambda every=1: N4SIDKalmanPredictor(every=every), {}),
+        "zero": (ZeroPredictor, {}),
+        "last": (LastValuePredictor, {}),
+        "ekf": (EKFPredictor, system),
+        "ukf": (UKFPredictor, system),
+        "pf": (lambda seed=0: ParticleFilterPredictor(seed=seed), system),
+        "pf-clip": (lambda seed=0: ParticleFilterPredictor(seed=seed, clip=True), system),
     }
-    if name not in makers:
-        raise MopError(f"unknown baseline {name!r}; choose one of {', '.join(makers)}")
-    return makers[name]()
+
+
+BASELINES = _baselines()
 
 
 def evaluate(predictors: list[Predictor], traj: Trajectories, progress: bool = True) -> dict[str, dict]:

@@ -28,17 +28,30 @@ def save(fig, out_dir: Path, stem: str) -> list[Path]:
     return paths
 
 
-def error_figure(predictors: dict[str, dict], title: str):
-    """Mean error ||yhat_t - y_t|| against t (log scale) with a +-1 std band (floored above 0)."""
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for name, c in predictors.items():
+def error_figure(predictors: dict[str, dict], panel: list[str], reference: str, title: str):
+    """Two panels. Left, the paper's: mean error ||yhat_t - y_t|| against t (log scale) with +-1 std bands
+    (floored above 0) for the `panel` predictors (those present). Right: every predictor's MSE ratio to the
+    reference against t (log scale), the reference's line at 1."""
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    colors = {name: f"C{i}" for i, name in enumerate(predictors)}
+    for name in dict.fromkeys(n for n in panel if n in predictors):
+        c = predictors[name]
         mean, std = np.asarray(c["error"]), np.asarray(c["std"])
         t = np.arange(len(mean))
-        ax.plot(t, mean, label=name, lw=2 if name == "mop" else 1.2)
-        ax.fill_between(t, np.maximum(mean - std, mean * 0.05), mean + std, alpha=0.15)
-    ax.set(yscale="log", xlabel="t", ylabel=r"$\|\hat y_t - y_t\|_2$", title=title)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, which="both")
+        left.plot(t, mean, label=name, color=colors[name])
+        left.fill_between(t, np.maximum(mean - std, mean * 0.05), mean + std, alpha=0.15, color=colors[name])
+    left.set(yscale="log", xlabel="t", ylabel=r"$\|\hat y_t - y_t\|_2$", title=title)
+    left.legend(fontsize=8)
+    left.grid(alpha=0.3, which="both")
+    if reference in predictors:
+        den = np.asarray(predictors[reference]["squared_error"][1:])
+        for name, c in predictors.items():
+            ratio = np.asarray(c["squared_error"][1:]) / den
+            right.plot(np.arange(1, len(ratio) + 1), ratio, label=name, color=colors[name], lw=1.2)
+        right.set(yscale="log", xlabel="t", ylabel=f"MSE ratio to {reference}", title="every predictor")
+        right.legend(fontsize=7, ncol=2)
+        right.grid(alpha=0.3, which="both")
+    fig.tight_layout()
     return fig
 
 
@@ -64,12 +77,15 @@ def matrix_power_figure(curves: dict[str, list[float]], title: str):
     return fig
 
 
-def noise_level_figure(levels: list[float], errors: dict[str, list[float]], train_level: float, title: str):
+def noise_level_figure(
+    levels: list[float], errors: dict[str, list[float]], train_level: float | None, title: str
+):
     """Mean error over t >= 1 against the test noise level sigma^2 (Fig. 5)."""
     fig, ax = plt.subplots(figsize=(6, 4))
     for name, values in errors.items():
         ax.plot(levels, values, marker="o", label=name)
-    ax.axvline(train_level, color="k", lw=0.8, ls="--", label="training level")
+    if train_level is not None:
+        ax.axvline(train_level, color="k", lw=0.8, ls="--", label="training level")
     ax.set(
         xscale="log", yscale="log", xlabel=r"test noise variance $\sigma^2$", ylabel="mean error", title=title
     )

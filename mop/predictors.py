@@ -1,17 +1,29 @@
-"""The one interface every predictor answers, classical or learned.
+"""The one interface every predictor answers, classical or learned, and the registry that names them.
 
 A predictor maps a batch of trajectories to one-step predictions:
     yhat = predictor.predict(traj)          # (B, T+1, m)
 where yhat[:, t] predicts y[:, t] using only y[:, :t] and u[:, :t] (plus the system's parameters in
 traj.params for predictors that know the system, e.g. the Kalman filter). yhat[:, 0] uses no data.
+Predictors with a Gaussian predictive distribution also answer
+    mean, var = predictor.predict_distribution(traj)      # each (B, T+1, m), var the diagonal
+
+Registering a predictor is one decorator in its own module:
+
+    @PREDICTORS.register("my-filter", needs_system=True, gaussian=True)
+    class MyFilter: ...
+
+Metadata: needs_system (reads traj.params: it knows the system), gaussian (has predict_distribution),
+learned (resolves a trained run directory; the entry's `arch` names the model architecture).
 """
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+import inspect
+from typing import Any, Protocol, runtime_checkable
 
 from torch import Tensor
 
+from mop.registry import Registry
 from mop.systems.base import Trajectories
 
 
@@ -22,3 +34,51 @@ class Predictor(Protocol):
     def predict(self, traj: Trajectories) -> Tensor:
         """(B, T+1, m) one-step predictions, yhat[:, t] from y[:, :t] (and u[:, :t])."""
         ...
+
+
+def _load_builtin() -> None:
+    import mop.filters  # noqa: F401  (each module registers its predictors)
+    from mop.evaluate import BASELINES
+
+    for name, (factory, meta) in BASELINES.items():
+        PREDICTORS.add(name, factory, **meta)
+
+    register_learned("mop", arch="gpt")
+    register_learned("gru", arch="gru")
+
+
+PREDICTORS: Registry = Registry("predictor", loader=_load_builtin)
+
+
+def register_learned(name: str, arch: str) -> None:
+    """Register predictor `name`: a trained run of model architecture `arch` (mop.models), loaded from the
+    run directory given as make_predictor(name, run_dir=...); mode "window" (the paper's) or "stream"."""
+
+    def load(run_dir: str, mode: str = "window", device: str = "cpu") -> Predictor:
+        from mop.train import load_predictor
+
+        return load_predictor(run_dir, device=device, mode=mode)
+
+    PREDICTORS.add(name, load, learned=True, arch=arch, gaussian=True)
+
+
+def make_predictor(name: str, **options: Any) -> Predictor:
+    """The registered predictor `name`, built with the options its constructor accepts (others ignored).
+
+    E.g. make_predictor("pf", seed=3); make_predictor("mop", run_dir="runs/x") for a learned one.
+    """
+    factory = PREDICTORS.get(name)
+    params = inspect.signature(factory).parameters
+    takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
+    kwargs = {k: v for k, v in options.items() if takes_any or k in params}
+    predictor = factory(**kwargs)
+    predictor.name = name
+    return predictor
+
+
+def is_learned(name: str) -> bool:
+    return bool(PREDICTORS.meta(name).get("learned"))
+
+
+def needs_system(name: str) -> bool:
+    return bool(PREDICTORS.meta(name).get("needs_system"))

@@ -37,7 +37,9 @@ def test_tables_hold_every_predictor_and_window():
 
 def test_figures_written_nonempty(tmp_path):
     s = _summary()
-    paths = plots.save(plots.error_figure(s["predictors"], "x"), tmp_path, "err")
+    paths = plots.save(
+        plots.error_figure(s["predictors"], ["mop", "kalman", "absent"], "kalman", "x"), tmp_path, "err"
+    )
     paths += plots.save(plots.ratio_figure({"d": ([1, 2, 3], [1, 1, 2])}, "r"), tmp_path, "ratio")
     paths += plots.save(plots.matrix_power_figure({"d": [1, 2, 3]}, "m"), tmp_path, "pow")
     paths += plots.save(plots.noise_level_figure([0.01, 0.1], {"m": [0.2, 0.5]}, 0.1, "n"), tmp_path, "noise")

@@ -1,8 +1,7 @@
 """End to end: `mop reproduce linear --preset smoke` through mop.cli.main, then reuse of the finished run."""
 
 import json
-
-import pytest
+from pathlib import Path
 
 from mop import cli
 
@@ -21,15 +20,29 @@ def test_reproduce_linear_smoke_and_reuse(tmp_path, tiny_smoke, capsys):
     report = (out / "report.md").read_text()
     assert "| mop |" in report and "| kalman |" in report and "MSE ratio" in report
     assert (out / "linear_error.png").stat().st_size > 0 and (out / "linear_error.pdf").stat().st_size > 0
+    claims = {c["claim"]: c for c in data["claims"]}
+    late = claims["MOP matches the KF after ~20 steps"]
+    assert late["value"] == data["ratios_to_reference"]["ratios"]["mop"]["[20,51)"]["ratio"]
+    assert late["holds"] == (late["value"] <= 1.05)
 
-    weights = out / "run" / "model.safetensors"
+    (run_dir,) = data["runs"].values()
+    assert Path(run_dir).parent == tmp_path / "runs"  # shared runs live beside the experiment directory
+    weights = Path(run_dir) / "model.safetensors"
     stamp = weights.stat().st_mtime_ns
     assert cli.main(["reproduce", "linear", "--preset", "smoke", "--out", str(out), "--quiet"]) == 0
     assert weights.stat().st_mtime_ns == stamp  # the finished run was reused, not retrained
     again = json.loads((out / "eval.json").read_text())["predictors"]["mop"]
     assert again["error"] == data["predictors"]["mop"]["error"]  # same model, same seeded test systems
 
+    # an override changes the training config, hence the run directory
+    assert (
+        cli.main(["reproduce", "linear", "--preset", "smoke", "--out", str(out), "--quiet", "model.width=16"])
+        == 0
+    )
+    (other,) = json.loads((out / "eval.json").read_text())["runs"].values()
+    assert other != run_dir
 
-def test_reproduce_rejects_unknown_experiment():
-    with pytest.raises(SystemExit):
-        cli.main(["reproduce", "nope"])
+
+def test_reproduce_rejects_unknown_experiment(capsys):
+    assert cli.main(["reproduce", "nope"]) == 2
+    assert "unknown experiment 'nope'" in capsys.readouterr().err

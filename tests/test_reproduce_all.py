@@ -1,5 +1,5 @@
-"""Every experiment of `mop reproduce` end to end on a cut-down smoke preset: eval.json follows the schema of
-issue 4, the report and figures are written, and the experiment-specific results are present and sane."""
+"""Every registered experiment end to end on a cut-down smoke preset: eval.json's schema, the report and
+figures, and the experiment-specific results present and sane."""
 
 import json
 import math
@@ -7,12 +7,12 @@ import math
 import pytest
 
 from mop import cli
-from mop.experiments import NAMES
+from mop.experiments import EXPERIMENTS
 
 
-def _reproduce(tmp_path, name: str) -> tuple[dict, str]:
+def _reproduce(tmp_path, name: str, *extra: str) -> tuple[dict, str]:
     out = tmp_path / name
-    assert cli.main(["reproduce", name, "--preset", "smoke", "--out", str(out), "--quiet"]) == 0
+    assert cli.main(["reproduce", name, "--preset", "smoke", "--out", str(out), "--quiet", *extra]) == 0
     assert list(out.glob("*.png")) and list(out.glob("*.pdf")), "figures in PNG and PDF"
     return json.loads((out / "eval.json").read_text()), (out / "report.md").read_text()
 
@@ -31,7 +31,7 @@ def _check_schema(data: dict, names: set[str]) -> None:
     [
         ("colored-noise", {"mop", "kalman", "rls", "rls-best", "n4sid-kf"}),
         ("switching", {"mop", "kalman", "kalman-switch", "rls"}),
-        ("quadrotor", {"mop", "ekf", "ukf", "pf", "pf-clip"}),
+        ("quadrotor", {"mop", "ekf", "ukf", "pf"}),
         ("upper-triangular", {"mop", "kalman", "rls"}),
     ],
 )
@@ -41,52 +41,54 @@ def test_standard_experiments(tmp_path, tiny_smoke, name, predictors):
     _check_schema(data, predictors)
     assert data["horizon"] == (100 if name == "switching" else 50)
     assert "| mop |" in report and "MSE ratio" in report
-    if name == "switching":  # the plain linear model, trained in the sibling directory
-        assert (tmp_path / "linear" / "run" / "model.safetensors").exists()
+    assert all(c["holds"] in (True, False, None) for c in data["claims"]) and len(data["claims"]) >= 2
     if name == "upper-triangular":
-        powers = data["matrix_power_ratio"]
-        assert len(powers["linear"]) == len(powers["upper-triangular"]) == 50  # k = 0..49
-        assert powers["linear"][0] == powers["upper-triangular"][0] == 1.0  # ||A^0|| / rho^0
+        powers = {k: v["matrix_power_ratio"] for k, v in data["conditions"].items()}
+        assert len(powers["test"]) == len(powers["dense"]) == 50  # k = 0..49
+        assert powers["test"][0] == powers["dense"][0] == 1.0  # ||A^0|| / rho^0
         assert (tmp_path / name / "fig4a_ratio.png").exists() and (
             tmp_path / name / "fig4b_powers.pdf"
         ).exists()
+        assert set(data["conditions"]["dense"]["predictors"]) == {"mop", "kalman"}
 
 
-def test_noise_shift_nests_one_eval_per_level(tmp_path, tiny_smoke):
+def test_noise_shift_has_one_condition_per_level(tmp_path, tiny_smoke):
     data, report = _reproduce(tmp_path, "noise-shift")
-    assert [float(k) for k in data["levels"]] == [0.01, 0.05, 0.1, 0.2, 0.5]
-    for level in data["levels"].values():
-        _check_schema(level, {"mop", "kalman", "rls"})
-    kf = [v["predictors"]["kalman"]["window_error"]["all"] for v in data["levels"].values()]
+    levels = [c["system"]["noise_var_w"] for c in data["settings"]["conditions"]]
+    assert levels == [0.01, 0.05, 0.1, 0.2, 0.5]
+    for entry in data["conditions"].values():
+        _check_schema(entry, {"mop", "kalman", "rls"})
+    kf = [v["predictors"]["kalman"]["window_error"]["all"] for v in data["conditions"].values()]
     assert kf == sorted(kf), "the KF's error grows with the test noise"
-    assert "test noise variance 0.5" in report
+    assert (
+        "test noise variance 0.5" in report and (tmp_path / "noise-shift" / "fig5_noise_shift.png").exists()
+    )
 
 
 def test_calibration_reports_coverage_and_nll(tmp_path, tiny_smoke):
     data, _ = _reproduce(tmp_path, "calibration")
     for family in ("linear", "colored-noise"):
-        for row in data["calibration"][family].values():
+        table = data["conditions"][family]["calibration"]
+        assert set(table) == {"mop", "kalman"}
+        for row in table.values():
             assert 0 <= row["coverage_50"] <= row["coverage_90"] <= row["coverage_95"] <= 1
             assert math.isfinite(row["nll"])
     assert (tmp_path / "calibration" / "calibration_colored-noise.png").exists()
 
 
-def test_scaling_fits_a_slope_per_axis(tmp_path, tiny_smoke, monkeypatch):
-    from mop.commands import reproduce
-
-    monkeypatch.setitem(reproduce.SCALING_GRID, "smoke", ((32, 64, 128), (20, 30, 40), 3))
-    data, report = _reproduce(tmp_path, "scaling")
+def test_scaling_fits_a_slope_per_axis(tmp_path, tiny_smoke):
+    data, report = _reproduce(tmp_path, "scaling", "train.steps=3")
     for axis in ("M", "T"):
-        r = data["scaling"][axis]
+        r = data["sweeps"][axis]
         assert len(r["values"]) == len(r["excess_mse"]) == 3
         assert math.isfinite(r["slope"]) and r["slope_stderr"] >= 0
         half = 12.706 * r["slope_stderr"]  # Student t quantile 0.975 with 1 dof (3 points, 2 parameters)
         assert r["slope_ci95"] == pytest.approx([r["slope"] - half, r["slope"] + half], rel=1e-3)
-    assert "slope" in report
+    assert "slope" in report and len(data["runs"]) == 6
 
 
 def test_every_experiment_is_covered():
-    assert set(NAMES) == {
+    assert set(EXPERIMENTS.names()) == {
         "linear",
         "colored-noise",
         "switching",

@@ -186,9 +186,14 @@ class KalmanPredictor:
         if self.steady_state:
             K, _ = steady_state_gain(p["A"], p["C"], p["Q"], p["R"])
             return steady_state_predict(p["A"], p["C"], K, y).to(traj.y.dtype)
+        return self.predict_distribution(traj)[0]
+
+    def predict_distribution(self, traj: Trajectories) -> tuple[Tensor, Tensor]:
+        """(mean, var) each (B, T+1, m): C m_t and diag(S_t) = diag(C P_t C^T + R) of the time-varying KF."""
+        p, y = _linear_params(traj), traj.y.double()
         x0 = torch.zeros(p["A"].shape[:-1], dtype=torch.float64)
-        yhat, _ = kalman_loop(self._matrices(p, traj), p["Q"], p["R"], y, x0, p["P0"])
-        return yhat.to(traj.y.dtype)
+        yhat, S = kalman_loop(self._matrices(p, traj), p["Q"], p["R"], y, x0, p["P0"])
+        return yhat.to(traj.y.dtype), torch.diagonal(S, dim1=-2, dim2=-1).to(traj.y.dtype)
 
     def _matrices(self, p: dict[str, Tensor], traj: Trajectories) -> StepMatrices:
         if not self.knows_switch:

@@ -1,0 +1,100 @@
+"""Figures an experiment asks for by name, each a registered function writing PNG + PDF into `out`.
+
+    paths = FIGURES.get("error")(exp, results, out)
+
+No figure styles a predictor by its name: colours follow the order of the experiment's predictor list.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mop import plots
+from mop.registry import Registry
+
+FIGURES: Registry = Registry("figure")
+
+
+def _stem(exp, results: dict, condition: str, suffix: str) -> str:
+    return (
+        f"{exp.name}_{suffix}" if len(results) == 1 else f"{exp.name}_{condition}_{suffix}".replace(" ", "_")
+    )
+
+
+@FIGURES.register("error")
+def error(exp, results: dict, out: Path) -> list[Path]:
+    """Per condition: the paper's panel (error with +-1 std bands) beside every predictor's MSE ratio."""
+    paths = []
+    for name, r in results.items():
+        panel = [p or exp.reference for p in exp.panel]
+        title = f"{exp.name} ({exp.title})" + ("" if len(results) == 1 else f", {name}")
+        fig = plots.error_figure(r.summary["predictors"], panel, exp.reference, title)
+        paths += plots.save(fig, out, _stem(exp, results, name, "error"))
+    return paths
+
+
+@FIGURES.register("ratio_by_condition")
+def ratio_by_condition(exp, results: dict, out: Path) -> list[Path]:
+    """Fig. 4a: MOP / reference MSE ratio against t, one line per condition."""
+    curves = {
+        name: (
+            r.summary["predictors"]["mop"]["squared_error"],
+            r.summary["predictors"][exp.reference]["squared_error"],
+        )
+        for name, r in results.items()
+    }
+    return plots.save(plots.ratio_figure(curves, f"{exp.title}: MOP / {exp.reference}"), out, "fig4a_ratio")
+
+
+@FIGURES.register("matrix_powers")
+def matrix_powers(exp, results: dict, out: Path) -> list[Path]:
+    """Fig. 4b: mean ||A^k|| / rho(A)^k against k, one line per condition."""
+    curves = {
+        name: r.extras["matrix_power_ratio"]
+        for name, r in results.items()
+        if "matrix_power_ratio" in r.extras
+    }
+    return plots.save(plots.matrix_power_figure(curves, f"{exp.title}b"), out, "fig4b_powers")
+
+
+@FIGURES.register("noise_levels")
+def noise_levels(exp, results: dict, out: Path) -> list[Path]:
+    """Fig. 5: each predictor's mean error over all t against the conditions' sweep value."""
+    points = [r for r in results.values() if r.condition.x]
+    names = list(points[0].summary["predictors"])
+    curves = {n: [r.summary["predictors"][n]["window_error"]["all"] for r in points] for n in names}
+    levels = [r.condition.x[1] for r in points]
+    train_level = exp.train.get("system.noise_var_w")
+    fig = plots.noise_level_figure(levels, curves, train_level, f"{exp.title}: {points[0].condition.x[0]}")
+    return plots.save(fig, out, "fig5_noise_shift")
+
+
+@FIGURES.register("calibration")
+def calibration(exp, results: dict, out: Path) -> list[Path]:
+    """Reliability diagram per condition: empirical against nominal coverage of central intervals."""
+    paths = []
+    for name, r in results.items():
+        table = r.extras.get("calibration", {})
+        if not table:
+            continue
+        levels = next(iter(table.values()))["levels"]
+        curves = {p: row["coverage"] for p, row in table.items()}
+        paths += plots.save(
+            plots.calibration_figure(levels, curves, f"{name}: interval coverage"), out, f"calibration_{name}"
+        )
+    return paths
+
+
+@FIGURES.register("loglog")
+def loglog(exp, results: dict, out: Path) -> list[Path]:
+    """Excess MSE against each sweep axis on log-log axes with the fitted slope."""
+    from mop.experiments.measures import slope_fit
+
+    paths = []
+    for axis in dict.fromkeys(r.condition.x[0] for r in results.values() if r.condition.x):
+        fit = slope_fit(results, axis)
+        fig = plots.loglog_figure(
+            fit["values"], fit["excess_mse"], fit["slope"], fit["intercept"], axis, f"excess risk vs {axis}"
+        )
+        paths += plots.save(fig, out, f"scaling_{axis}")
+    return paths

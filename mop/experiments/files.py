@@ -1,0 +1,121 @@
+"""Experiments written as TOML or JSON files, without Python; the fields are those of Experiment.
+
+    name = "pendulum"
+    title = "a damped pendulum with random parameters"
+    plugins = ["pendulum.py"]            # Python files imported first (relative to this file): they register
+                                         # families / predictors / figures the experiment names
+    predictors = ["mop", "ekf", "ukf", "pf", "last"]
+    reference = "ekf"
+    [train]
+    "system.family" = "pendulum"
+    [[conditions]]
+    name = "test"
+    horizon = 50
+    [[claims]]
+    text = "MOP beats the EKF after 20 steps"
+    measure = { metric = "mse_ratio", window = [20, 51] }
+    op = "<"
+    threshold = 1.0
+
+A threshold is a number, [low, high] with op "between", or a measure table.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from mop.config import from_dict
+from mop.errors import MopError
+from mop.experiments.spec import Claim, Condition, Experiment, Measure
+
+
+def is_experiment_file(name: str) -> bool:
+    return Path(name).suffix in (".toml", ".json")
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Read an experiment file (importing its plugins first); every problem is a one-line MopError."""
+    path = Path(path)
+    if not path.is_file():
+        raise MopError(f"experiment file {path} does not exist")
+    data = _read(path)
+    for plugin in data.pop("plugins", []):
+        import_plugin(path.parent / plugin)
+    return experiment_from_dict(data, str(path))
+
+
+def _read(path: Path) -> dict[str, Any]:
+    try:
+        if path.suffix == ".json":
+            return json.loads(path.read_text())
+        try:
+            import tomllib
+        except ModuleNotFoundError:  # Python 3.10
+            import tomli as tomllib
+        return tomllib.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as err:
+        raise MopError(
+            f"{path} is not valid {path.suffix[1:].upper()} ({str(err).splitlines()[0]})"
+        ) from None
+
+
+def import_plugin(path: Path) -> None:
+    """Import a Python file by path (its registrations run); importing the same file twice is a no-op."""
+    if not path.is_file():
+        raise MopError(f"plugin {path} does not exist; plugins are paths relative to the experiment file")
+    name = f"mop_plugin_{path.stem}_{abs(hash(str(path.resolve())))}"
+    if name in sys.modules:
+        return
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+
+
+def _measure(data: Any, where: str) -> Measure:
+    if not isinstance(data, dict):
+        raise MopError(f'{where}: a measure is a table like {{ metric = "mse_ratio" }}, got {data!r}')
+    data = dict(data)
+    if "window" in data:
+        data["window"] = tuple(data["window"])
+    return from_dict(Measure, data, f"{where}.")
+
+
+def _claim(data: dict, where: str) -> Claim:
+    data = dict(data)
+    data["measure"] = _measure(data.get("measure"), f"{where}.measure")
+    threshold = data.get("threshold")
+    if isinstance(threshold, dict):
+        data["threshold"] = _measure(threshold, f"{where}.threshold")
+    elif isinstance(threshold, list):
+        data["threshold"] = tuple(threshold)
+    return from_dict(Claim, data, f"{where}.")
+
+
+def _condition(data: dict, where: str) -> Condition:
+    data = dict(data)
+    for key in ("x", "predictors"):
+        if key in data:
+            data[key] = tuple(data[key])
+    return from_dict(Condition, data, f"{where}.")
+
+
+def experiment_from_dict(data: dict[str, Any], where: str = "experiment") -> Experiment:
+    data = dict(data)
+    for key in ("predictors", "analyses", "figures", "panel"):
+        if key in data:
+            data[key] = tuple(data[key])
+    if "conditions" in data:
+        data["conditions"] = tuple(
+            _condition(c, f"{where}: conditions[{i}]") for i, c in enumerate(data["conditions"])
+        )
+    if "claims" in data:
+        data["claims"] = tuple(_claim(c, f"{where}: claims[{i}]") for i, c in enumerate(data["claims"]))
+    for key in ("name", "title", "train", "predictors"):
+        if key not in data:
+            raise MopError(f"{where}: missing required field {key!r}")
+    return from_dict(Experiment, data, "")

@@ -1,0 +1,145 @@
+"""An experiment is data: what to train, where to test, which predictors, analyses, figures and claims.
+
+    Experiment(
+        name="linear", title="Fig. 2a",
+        train={"system.family": "linear"},                         # RunConfig overrides on the preset
+        predictors=("mop", "gru", "kalman", "rls"),                 # PREDICTORS names
+        conditions=(Condition("test"),),                            # test settings (sweeps: several)
+        claims=(Claim("MOP matches the KF after ~20 steps", Measure("mse_ratio", window=(20, None)),
+                      "<=", 1.05),),
+    )
+
+One generic runner (mop.experiments.runner) executes any of them; `mop reproduce FILE.toml` reads the same
+fields from a TOML or JSON file (mop.experiments.files), so a user writes an experiment without Python.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from mop.config import check
+
+OPERATORS = ("<", "<=", ">", ">=", "between", "contains", "info")
+
+
+@dataclasses.dataclass(frozen=True)
+class Measure:
+    """A number (or interval) read from an experiment's results; what a claim compares.
+
+    metric: a name in mop.experiments.measures.MEASURES, e.g.
+        "mse_ratio"  MSE of `predictor` / MSE of `reference` over t in `window` (bound: ratio | low | high,
+                     the 95% paired-bootstrap interval ends)
+        "mean_error" mean over systems and t in `window` of ||yhat_t - y_t||
+        "coverage"   fraction of outputs inside the central `level` interval (predictors with a distribution)
+        "matrix_power_max"  max over k of the mean ||A^k|| / rho(A)^k of the test systems
+        "slope"      log-log slope of the excess MSE over the conditions of sweep axis `axis` (its 95% CI)
+    window: [start, stop) in time steps; stop None means T + 1.
+    condition: the test condition's name; "" the first one; "*" every condition, combined by `reduce`.
+    """
+
+    metric: str
+    predictor: str = "mop"
+    reference: str = ""  # "" = the experiment's reference
+    window: tuple[int, int | None] = (20, None)
+    condition: str = ""
+    reduce: str = "max"  # with condition "*": max | min
+    bound: str = "ratio"
+    level: float = 0.9
+    axis: str = ""
+
+    def __post_init__(self) -> None:
+        check(
+            self.bound in ("ratio", "low", "high"),
+            f"measure bound must be ratio|low|high, got {self.bound!r}",
+        )
+        check(self.reduce in ("max", "min"), f"measure reduce must be max|min, got {self.reduce!r}")
+        start, stop = self.window
+        check(
+            start >= 0 and (stop is None or stop > start),
+            f"measure window must be [start, stop), got {self.window}",
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class Claim:
+    """A claim of the paper as data: `measure` `op` `threshold`, e.g. MOP/KF ratio t >= 20 <= 1.05.
+
+    threshold: a number, another Measure (compare two results), (low, high) with op "between", or None with
+    op "info" (reported, no verdict). op "contains": the measure is an interval that must contain the
+    threshold.
+    """
+
+    text: str
+    measure: Measure
+    op: str = "info"
+    threshold: float | tuple[float, float] | Measure | None = None
+
+    def __post_init__(self) -> None:
+        check(
+            self.op in OPERATORS,
+            f"claim {self.text!r}: op must be one of {', '.join(OPERATORS)}, got {self.op!r}",
+        )
+        check(
+            self.op == "info" or self.threshold is not None,
+            f"claim {self.text!r}: op {self.op!r} needs a threshold",
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class Condition:
+    """One test setting: the test system (overrides of the trained family's config), horizon, and,
+    where this condition uses another trained model than the experiment's, its training overrides.
+
+    x: (axis label, value) places the condition on a sweep axis (noise level, M, T) for sweep figures.
+    """
+
+    name: str = "test"
+    system: dict[str, Any] = dataclasses.field(default_factory=dict)
+    horizon: int | None = None  # None: the training horizon
+    train: dict[str, Any] = dataclasses.field(default_factory=dict)
+    x: tuple[str, float] | None = None
+    predictors: tuple[str, ...] = ()  # () = every predictor of the experiment
+
+    def __post_init__(self) -> None:
+        check(bool(self.name), "a condition needs a name")
+        check(self.horizon is None or self.horizon >= 1, f"condition {self.name}: horizon must be >= 1")
+
+
+@dataclasses.dataclass(frozen=True)
+class Experiment:
+    """Everything `mop reproduce NAME` does, as data.
+
+    train: dotted RunConfig overrides applied on top of the preset (e.g. {"system.family": "quadrotor"}).
+    presets: per-preset extra training overrides (e.g. a smaller model for a many-run sweep on the CPU).
+    predictors: PREDICTORS names; learned ones ("mop", "gru") are trained (or reused) per distinct config.
+    reference: the predictor every MSE ratio divides by (the optimal filter where one exists).
+    analyses: extra per-condition results (mop.experiments.analyses: "calibration", "matrix_powers",
+        "excess_mse", "floor").
+    figures: figure names (mop.experiments.figures).
+    panel: predictors of the paper-style panel (error with +-1 std bands); "" stands for the reference.
+    """
+
+    name: str
+    title: str
+    train: dict[str, Any]
+    predictors: tuple[str, ...]
+    reference: str = "kalman"
+    conditions: tuple[Condition, ...] = (Condition(),)
+    claims: tuple[Claim, ...] = ()
+    analyses: tuple[str, ...] = ()
+    figures: tuple[str, ...] = ("error",)
+    panel: tuple[str, ...] = ("mop", "", "rls")
+    presets: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    preset_conditions: dict[str, tuple[Condition, ...]] = dataclasses.field(default_factory=dict)
+    description: str = ""
+
+    def conditions_for(self, preset: str) -> tuple[Condition, ...]:
+        """The test conditions under `preset` (a sweep may use a smaller grid on a small preset)."""
+        return self.preset_conditions.get(preset, self.conditions)
+
+    def __post_init__(self) -> None:
+        check(bool(self.predictors), f"experiment {self.name}: list at least one predictor")
+        names = [c.name for c in self.conditions]
+        check(len(set(names)) == len(names), f"experiment {self.name}: condition names repeat: {names}")
+        check(bool(self.conditions), f"experiment {self.name}: needs at least one condition")

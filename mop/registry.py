@@ -1,0 +1,72 @@
+"""Named registries: families, predictors, experiments and models each register themselves here.
+
+    FAMILIES = Registry("system family")
+
+    @FAMILIES.register("pendulum")
+    class Pendulum: ...
+
+    FAMILIES.get("pendulum")      # the class; MopError naming the known entries for an unknown name
+
+A registry is filled by importing the modules that define its entries. `loader` (called once, on first
+lookup) imports the built-in modules, so `import mop` stays light. A name registered twice is refused,
+which catches two plug-ins choosing the same name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from typing import Any, Generic, TypeVar
+
+from mop.errors import MopError
+
+T = TypeVar("T")
+
+
+class Registry(Generic[T]):
+    """name -> entry, with optional metadata per entry (e.g. what a predictor needs)."""
+
+    def __init__(self, kind: str, loader: Callable[[], None] | None = None) -> None:
+        self.kind = kind
+        self._entries: dict[str, T] = {}
+        self._meta: dict[str, dict[str, Any]] = {}
+        self._loader, self._loaded = loader, loader is None
+
+    def register(self, name: str, **meta: Any) -> Callable[[T], T]:
+        """Decorator: register the decorated object under `name` (MopError if the name is taken)."""
+
+        def decorate(entry: T) -> T:
+            self.add(name, entry, **meta)
+            return entry
+
+        return decorate
+
+    def add(self, name: str, entry: T, **meta: Any) -> None:
+        if name in self._entries and self._entries[name] is not entry:
+            raise MopError(f"{self.kind} {name!r} is already registered; choose another name")
+        self._entries[name], self._meta[name] = entry, meta
+
+    def _load(self) -> None:
+        if not self._loaded:
+            self._loaded = True
+            self._loader()
+
+    def get(self, name: str) -> T:
+        self._load()
+        if name not in self._entries:
+            raise MopError(f"unknown {self.kind} {name!r}; choose one of {', '.join(self.names())}")
+        return self._entries[name]
+
+    def meta(self, name: str) -> dict[str, Any]:
+        self.get(name)
+        return self._meta[name]
+
+    def names(self) -> list[str]:
+        self._load()
+        return list(self._entries)
+
+    def __contains__(self, name: object) -> bool:
+        self._load()
+        return name in self._entries
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
