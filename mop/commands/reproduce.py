@@ -120,7 +120,7 @@ def _train(exp: Experiment, preset: str, run_dir: Path, seed: int, progress: boo
 
 
 def _learned(run_dir: Path, name: str, mode: str):
-    from mop.train import load_predictor
+    from mop.runs import load_predictor
 
     predictor = load_predictor(run_dir, mode=mode)
     predictor.name = name
