@@ -135,14 +135,8 @@ def _loop(state: TrainState, progress: bool) -> None:
                 )
             if state.rank == 0 and at_log:
                 rate = since / (time.perf_counter() - t0)
-                state.log.log(
-                    {
-                        "step": state.step,
-                        "loss": mean_loss,
-                        "lr": learning_rate(cfg, state.step - 1),
-                        "steps_per_s": rate,
-                    }
-                )
+                record = {"step": state.step, "loss": mean_loss, "lr": learning_rate(cfg, state.step - 1)}
+                state.log.log({**record, "steps_per_s": rate})
                 bar.set_postfix(loss=f"{mean_loss:.4g}", steps_per_s=f"{rate:.1f}")
             loss_sum.zero_()
             since, t0 = 0, time.perf_counter()
