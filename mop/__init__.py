@@ -4,7 +4,7 @@ __version__ = "0.1.0"
 
 
 def load(run_dir, device="cpu"):
-    """Load a trained predictor from a run directory (see mop.train)."""
-    from mop.train import load_predictor
+    """Load a trained predictor from a run directory (see mop.runs)."""
+    from mop.runs import load_predictor
 
     return load_predictor(run_dir, device=device)

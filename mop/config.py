@@ -138,7 +138,7 @@ class SystemConfig:
 class ModelConfig:
     """The learned predictor. input_dim / output_dim of 0 mean "take them from the system family"."""
 
-    arch: str = "gpt"  # "gpt" (the paper's GPT-2 body) or "gru" (baseline)
+    arch: str = "gpt"  # a name in mop.models' registry: "gpt" (the paper's GPT-2 body), "gru" (baseline)
     num_layers: int = 12
     num_heads: int = 8
     width: int = 256
@@ -156,7 +156,8 @@ class ModelConfig:
             self.position in ("learned", "rope"),
             f"model.position must be 'learned' or 'rope', got {self.position!r}",
         )
-        check(self.arch in ("gpt", "gru"), f"model.arch must be 'gpt' or 'gru', got {self.arch!r}")
+        # the known names live in mop.models' registry; build_model and the trainer check them
+        check(isinstance(self.arch, str) and self.arch != "", f"model.arch must be a name, got {self.arch!r}")
         for name in ("num_layers", "num_heads", "width", "context"):
             value = getattr(self, name)
             check(

@@ -8,8 +8,9 @@ import torch
 from mop.checkpoint import load_checkpoint, load_tensors, save_checkpoint
 from mop.config import ModelConfig
 from mop.errors import MopError
-from mop.model import build_model
-from mop.train import load_predictor, make_optimizer, train
+from mop.models import build_model
+from mop.runs import load_predictor
+from mop.train import make_optimizer, train
 from tests.test_train import one_thread, tiny_config  # noqa: F401 (autouse fixture)
 
 CFG = ModelConfig(num_layers=2, num_heads=2, width=32, context=10, input_dim=5, output_dim=5)

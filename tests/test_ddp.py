@@ -9,6 +9,10 @@ import torch.multiprocessing as mp
 from torch import nn
 
 import mop.train as mt
+from mop.config import to_dict
+from mop.models import build_model
+from mop.runs import load_model
+from mop.train.device import init_distributed
 from tests.test_train import tiny_config
 
 
@@ -28,10 +32,10 @@ def _worker(rank: int, world: int, port: int, out_dir: str) -> None:
         OMP_NUM_THREADS="1",
     )
     torch.set_num_threads(1)
-    assert mt._distributed() == (rank, world)
+    assert init_distributed() == (rank, world)
     config = mt.resolve_config(tiny_config())
     torch.manual_seed(0)
-    model = mt.build_model(config.model)
+    model = build_model(config.model)
     ddp = nn.parallel.DistributedDataParallel(mt.LossModule(model))
     inputs, targets = mt.TrainingData(config, torch.device("cpu")).batch()  # global batch, same on all ranks
     b = config.train.batch_size // world
@@ -45,15 +49,15 @@ def test_ddp_gradients_equal_single_process(tmp_path):
     mp.spawn(_worker, args=(2, _free_port(), str(tmp_path)), nprocs=2, join=True)
     config = mt.resolve_config(tiny_config())
     torch.manual_seed(0)
-    model = mt.build_model(config.model)
+    model = build_model(config.model)
     model.loss(*mt.TrainingData(config, torch.device("cpu")).batch()).backward()
     for rank in range(2):
         grads = torch.load(tmp_path / f"grad{rank}.pt", weights_only=True)
         for name, p in model.named_parameters():
             torch.testing.assert_close(grads[name], p.grad, rtol=1e-5, atol=1e-7)
     single = mt.train(tiny_config(steps=2), tmp_path / "single", progress=False)
-    distributed, _ = mt.load_model(tmp_path / "run")
-    reference, _ = mt.load_model(single)
+    distributed, _ = load_model(tmp_path / "run")
+    reference, _ = load_model(single)
     for a, b in zip(distributed.parameters(), reference.parameters(), strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-5)  # Adam: two steps of size ~lr = 3e-4
     assert (tmp_path / "run" / "done.json").exists()
@@ -73,7 +77,7 @@ def test_torchrun_two_ranks_train_like_one_process(tmp_path):
     config = tiny_config(steps=4)
     overrides = [
         f"{section}.{key}={json.dumps(value)}"
-        for section, values in mt.to_dict(config).items()
+        for section, values in to_dict(config).items()
         for key, value in values.items()
     ]
     command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2"]

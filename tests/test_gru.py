@@ -3,7 +3,7 @@
 import torch
 
 from mop.config import ModelConfig
-from mop.model import build_model
+from mop.models import build_model
 
 
 def tiny(**kw) -> ModelConfig:

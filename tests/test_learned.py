@@ -5,8 +5,8 @@ import torch
 
 from mop.config import ModelConfig
 from mop.errors import MopError
-from mop.learned import LearnedPredictor
-from mop.model import build_model
+from mop.models import build_model
+from mop.models.predictor import LearnedPredictor
 from mop.predictors import Predictor
 from mop.systems.base import Trajectories
 

@@ -7,7 +7,7 @@ import torch
 
 from mop.config import ModelConfig
 from mop.errors import MopError
-from mop.model import build_model
+from mop.models import build_model
 
 
 def tiny(**kw) -> ModelConfig:

@@ -4,8 +4,8 @@ import numpy as np
 import torch
 
 from mop.cli import main
+from mop.runs import load_predictor
 from mop.systems.base import Trajectories
-from mop.train import load_predictor
 
 
 def _write_csv(path, ys):

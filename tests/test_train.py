@@ -13,9 +13,12 @@ import pytest
 import torch
 
 import mop.train as mt
+import mop.train.loop
 from mop.checkpoint import load_checkpoint, load_tensors
-from mop.config import RunConfig, apply_overrides, from_dict
+from mop.config import RunConfig, apply_overrides, from_dict, to_dict
 from mop.errors import MopError
+from mop.models import build_model
+from mop.runs import load_predictor
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
@@ -100,14 +103,14 @@ def test_resume_equals_uninterrupted(tmp_path, monkeypatch, num_source_systems, 
 
 def _fresh(config):
     config = mt.resolve_config(config)
-    model = mt.build_model(config.model)
+    model = build_model(config.model)
     return model, mt.make_optimizer(model, config.train, torch.device("cpu"))
 
 
 def test_sigkill_three_times_then_resume(tmp_path):
     config = tiny_config(steps=80, checkpoint_every=1)  # long enough that no run finishes before its kill
     reference = mt.train(config, tmp_path / "reference", progress=False)
-    (tmp_path / "config.json").write_text(json.dumps(mt.to_dict(config)))
+    (tmp_path / "config.json").write_text(json.dumps(to_dict(config)))
     run = tmp_path / "run"
     code = (
         "import json,sys; from mop.config import RunConfig, from_dict; from mop.train import train; "
@@ -153,7 +156,8 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tmp_path, monkeypatch):
 
 def test_finished_run_is_reused_and_other_config_refused(reference, monkeypatch):
     before = (reference / "model.safetensors").stat().st_mtime_ns
-    monkeypatch.setattr(mt, "build_model", lambda cfg: pytest.fail("a finished run must not train again"))
+    never = lambda cfg: pytest.fail("a finished run must not train again")  # noqa: E731
+    monkeypatch.setattr(mop.train.loop, "build_model", never)
     assert mt.train(tiny_config(), reference, progress=False) == reference
     assert (reference / "model.safetensors").stat().st_mtime_ns == before
     with pytest.raises(MopError, match="different config.*train.lr"):
@@ -163,7 +167,7 @@ def test_finished_run_is_reused_and_other_config_refused(reference, monkeypatch)
 def test_config_json_rebuilds_model(reference):
     config = from_dict(RunConfig, json.loads((reference / "config.json").read_text()))
     assert (config.model.input_dim, config.model.output_dim) == (2, 2)
-    predictor = mt.load_predictor(reference)
+    predictor = load_predictor(reference)
     assert predictor.cfg == config.model
 
 

@@ -21,7 +21,7 @@ import torch
 
 from mop.config import ModelConfig
 from mop.errors import MopError
-from mop.model import build_model
+from mop.models import build_model
 
 INPUT_DIM = OUTPUT_DIM = 5
 

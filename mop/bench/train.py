@@ -64,10 +64,11 @@ def _sync(device: torch.device) -> None:
 
 def mop_step(config: RunConfig, device: torch.device):
     from mop import train as mt
+    from mop.models import build_model
 
     config = mt.resolve_config(config)
     torch.manual_seed(0)
-    model = mt.build_model(config.model).to(device).train()
+    model = build_model(config.model).to(device).train()
     optimizer = mt.make_optimizer(model, config.train, device)
     loss_fn = mt.maybe_compile(mt.LossModule(model), config.train, device)
     data = mt.TrainingData(config, device)

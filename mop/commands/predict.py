@@ -57,7 +57,7 @@ def write_output(path: Path, names: list[str], yhat: list[np.ndarray]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mop.train import load_predictor
+    from mop.runs import load_predictor
 
     data_path = Path(args.data)
     out = Path(args.out) if args.out else data_path.with_name(data_path.stem + "_pred" + data_path.suffix)

@@ -8,9 +8,9 @@ LayerNorm and a linear read-out give the prediction. Output position t predicts 
 
     mean readout:      yhat_{t+1} = W_out h_t                          loss = MSE
     gaussian readout:  [mu, s] = W_out h_t, var = softplus(s) + 1e-6
-                       loss = mean_{t,i} 0.5 [log(2 pi var) + (y - mu)^2 / var]
+                       loss = mean_{t,i} 0.5 [log(2 pi var) + (y - mu)^2 / var]     (mop.models.heads)
 
-`predict_distribution` raises MopError for the mean readout (it has no variance).
+`predict_distribution` raises MopError for the mean readout (it has no variance). Registered as arch "gpt".
 
 Streaming (`init_cache` / `step`): one new input per call, keys and values of past inputs kept in a
 circular cache of `context` slots per layer, so every step costs O(context) however long the stream runs.
@@ -35,14 +35,8 @@ from torch import Tensor, nn
 
 from mop.config import ModelConfig
 from mop.errors import MopError
-
-
-def _check_dims(cfg: ModelConfig) -> None:
-    if cfg.input_dim <= 0 or cfg.output_dim <= 0:
-        raise MopError(
-            f"model.input_dim and model.output_dim must be > 0 to build a model, got "
-            f"{cfg.input_dim} and {cfg.output_dim}; set them from the system family first"
-        )
+from mop.models.heads import check_dims, prediction_loss, readout_dim, require_gaussian, split_readout
+from mop.models.registry import register_model
 
 
 def rope_angles(positions: Tensor, head_dim: int, base: float = 10000.0) -> tuple[Tensor, Tensor]:
@@ -157,20 +151,22 @@ class KVCache:
         self.t = 0  # inputs consumed
 
 
+@register_model("gpt")
 class Transformer(nn.Module):
     """GPT-2 body with a linear read-in (d_in -> d) and read-out (d -> m, or 2m for the Gaussian readout)."""
 
+    context_limited = True  # at most cfg.context inputs per forward (LearnedPredictor windows longer ones)
+
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
-        _check_dims(cfg)
+        check_dims(cfg)
         self.cfg = cfg
         self.read_in = nn.Linear(cfg.input_dim, cfg.width)
         self.wpe = nn.Embedding(cfg.context, cfg.width) if cfg.position == "learned" else None
         self.drop = nn.Dropout(cfg.dropout)
         self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.num_layers))
         self.ln_f = nn.LayerNorm(cfg.width)
-        out = cfg.output_dim * (2 if cfg.readout == "gaussian" else 1)
-        self.read_out = nn.Linear(cfg.width, out)
+        self.read_out = nn.Linear(cfg.width, readout_dim(cfg))
         self.apply(self._init_weights)
 
     def _init_weights(self, module: nn.Module) -> None:
@@ -205,29 +201,22 @@ class Transformer(nn.Module):
             h = block(h, rope)
         return self.ln_f(h)  # (B, T, d)
 
-    def _split(self, raw: Tensor) -> tuple[Tensor, Tensor | None]:
-        """Read-out (B, T, m or 2m) -> mean (B, T, m), var (B, T, m) or None."""
-        raw = raw.float()  # loss and variance in float32 also under bf16 autocast
-        if self.cfg.readout == "mean":
-            return raw, None
-        mu, s = raw.chunk(2, dim=-1)
-        return mu, F.softplus(s) + 1e-6
+    def _read_out(self, h: Tensor) -> tuple[Tensor, Tensor | None]:
+        """Final hidden states (B, T, d) -> mean (B, T, m), var (B, T, m) or None."""
+        return split_readout(self.read_out(h), self.cfg.readout)
 
     def forward(self, inputs: Tensor) -> Tensor:
         """inputs (B, T, d_in) -> mean predictions (B, T, m); position t predicts y_{t+1}."""
-        return self._split(self.read_out(self.hidden(inputs)))[0]
+        return self._read_out(self.hidden(inputs))[0]
 
     def predict_distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor]:
         """Gaussian readout only: (mean, var) each (B, T, m). MopError for readout 'mean'."""
-        if self.cfg.readout != "gaussian":
-            raise MopError(
-                "predict_distribution needs model.readout='gaussian'; this model predicts only the mean"
-            )
-        return self._split(self.read_out(self.hidden(inputs)))
+        require_gaussian(self.cfg)
+        return self._read_out(self.hidden(inputs))
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m)."""
-        mu, var = self._split(self.read_out(self.hidden(inputs)))
+        mu, var = self._read_out(self.hidden(inputs))
         return prediction_loss(mu, var, targets)
 
     # ---- streaming ----
@@ -247,26 +236,9 @@ class Transformer(nn.Module):
         for layer, block in enumerate(self.blocks):
             h = block.step(h, cache.k[layer], cache.v[layer], slot, filled, rope)
         cache.t = t + 1
-        mu, var = self._split(self.read_out(self.ln_f(h)))  # (B, 1, m)
+        mu, var = self._read_out(self.ln_f(h))  # (B, 1, m)
         return mu[:, 0], None if var is None else var[:, 0]
 
     def step(self, z: Tensor, cache: KVCache) -> Tensor:
         """One input z_t (B, d_in) -> mean prediction of y_{t+1} (B, m)."""
         return self.step_distribution(z, cache)[0]
-
-
-def prediction_loss(mu: Tensor, var: Tensor | None, targets: Tensor) -> Tensor:
-    """MSE when var is None, else mean over all entries of 0.5 [log(2 pi var) + (y - mu)^2 / var]."""
-    if var is None:
-        return F.mse_loss(mu, targets)
-    return 0.5 * (torch.log(2 * math.pi * var) + (targets - mu) ** 2 / var).mean()
-
-
-def build_model(cfg: ModelConfig) -> nn.Module:
-    """The transformer of the paper, or the GRU baseline for cfg.arch == 'gru'."""
-    _check_dims(cfg)
-    if cfg.arch == "gru":
-        from mop.gru import GRUModel
-
-        return GRUModel(cfg)
-    return Transformer(cfg)

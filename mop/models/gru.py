@@ -3,7 +3,7 @@
     h_t = GRU(W_in z_t, h_{t-1}),  yhat_{t+1} = W_out LN(h_t)   (num_layers stacked GRU layers of width d)
 
 No context limit: forward takes any T, and streaming carries the hidden state (B, L, d) step by step, which
-equals the full forward exactly.
+equals the full forward exactly. Registered as arch "gru"; read-out and loss from mop.models.heads.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import torch
 from torch import Tensor, nn
 
 from mop.config import ModelConfig
-from mop.errors import MopError
-from mop.model import _check_dims, prediction_loss
+from mop.models.heads import check_dims, prediction_loss, readout_dim, require_gaussian, split_readout
+from mop.models.registry import register_model
 
 
 class GRUCache:
@@ -24,10 +24,13 @@ class GRUCache:
         self.t = 0
 
 
+@register_model("gru")
 class GRUModel(nn.Module):
+    context_limited = False  # forward takes any T
+
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
-        _check_dims(cfg)
+        check_dims(cfg)
         self.cfg = cfg
         self.read_in = nn.Linear(cfg.input_dim, cfg.width)
         self.gru = nn.GRU(
@@ -38,19 +41,12 @@ class GRUModel(nn.Module):
             dropout=cfg.dropout if cfg.num_layers > 1 else 0.0,
         )
         self.ln_f = nn.LayerNorm(cfg.width)
-        self.read_out = nn.Linear(cfg.width, cfg.output_dim * (2 if cfg.readout == "gaussian" else 1))
-
-    def _split(self, raw: Tensor) -> tuple[Tensor, Tensor | None]:
-        raw = raw.float()  # loss and variance in float32 also under bf16 autocast
-        if self.cfg.readout == "mean":
-            return raw, None
-        mu, s = raw.chunk(2, dim=-1)
-        return mu, nn.functional.softplus(s) + 1e-6
+        self.read_out = nn.Linear(cfg.width, readout_dim(cfg))
 
     def _run(self, inputs: Tensor, h0: Tensor | None = None) -> tuple[Tensor, Tensor | None, Tensor]:
         """inputs (B, T, d_in) -> mean (B, T, m), var (B, T, m)|None, final hidden (L, B, d)."""
         out, h = self.gru(self.read_in(inputs), h0)  # (B, T, d), (L, B, d)
-        mu, var = self._split(self.read_out(self.ln_f(out)))
+        mu, var = split_readout(self.read_out(self.ln_f(out)), self.cfg.readout)
         return mu, var, h
 
     def forward(self, inputs: Tensor) -> Tensor:
@@ -58,10 +54,7 @@ class GRUModel(nn.Module):
         return self._run(inputs)[0]
 
     def predict_distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor]:
-        if self.cfg.readout != "gaussian":
-            raise MopError(
-                "predict_distribution needs model.readout='gaussian'; this model predicts only the mean"
-            )
+        require_gaussian(self.cfg)
         mu, var, _ = self._run(inputs)
         return mu, var
 

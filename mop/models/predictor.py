@@ -4,10 +4,10 @@ The model reads z_t = [y_t, u_t] (traj.model_inputs()) for t = 0..T-1 and predic
 Trajectories longer than the training context C (T > C) are handled by `mode`:
 - "window" (the paper's code): yhat_t uses the last C inputs z_{t-C}..z_{t-1}; one forward per window,
   windows batched.
-- "stream": one step at a time with the model's key-value cache (see mop.model), constant cost per step.
-  Equal to "window" for t <= C; beyond C it is the rolling-cache approximation documented in mop.model.
-For T <= C both modes equal a single forward pass. The GRU has no context limit: both modes run the full
-recurrence (streaming it is exact).
+- "stream": one step at a time with the model's key-value cache (see mop.models.transformer), constant cost
+  per step. Equal to "window" for t <= C; beyond C it is the rolling-cache approximation documented there.
+For T <= C both modes equal a single forward pass. A model without a context limit (context_limited = False,
+the GRU) runs the full recurrence in both modes (streaming it is exact).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from mop.systems.base import Trajectories
 
 
 class LearnedPredictor:
-    """Predictor protocol around a model from mop.model.build_model (run in eval mode, no grad, in chunks)."""
+    """Predictor protocol around a model of mop.models.build_model (run in eval mode, no grad, in chunks)."""
 
     def __init__(
         self, model: nn.Module, name: str = "mop", mode: str = "window", chunk_size: int = 256
@@ -64,7 +64,7 @@ class LearnedPredictor:
 
     def _chunk(self, z: Tensor, gaussian: bool) -> tuple[Tensor, Tensor | None]:
         T, C = z.shape[1], self.cfg.context
-        if self.cfg.arch == "gru" or T <= C:
+        if not self.model.context_limited or T <= C:
             return self._full(z, gaussian)
         if self.mode == "stream":
             return stream(self.model, z, gaussian)

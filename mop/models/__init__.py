@@ -1,0 +1,13 @@
+"""The learned models: a registry (model.arch -> class) and the built-in architectures.
+
+    gpt   mop.models.transformer   the paper's GPT-2-style causal transformer
+    gru   mop.models.gru           GRU baseline
+
+A new architecture is one module in this package with a class decorated by @register_model("name"),
+imported below.
+"""
+
+from mop.models import gru, transformer  # noqa: F401 (importing registers the built-in models)
+from mop.models.registry import build_model, check_arch, model_names, register_model
+
+__all__ = ["build_model", "check_arch", "model_names", "register_model"]

@@ -1,0 +1,51 @@
+"""The model registry: each learned architecture registers its class under the name model.arch selects.
+
+    @register_model("gpt")
+    class Transformer(nn.Module):
+        def __init__(self, cfg: ModelConfig) -> None: ...
+
+A model class takes a ModelConfig, keeps it as `.cfg`, and provides forward, loss, predict_distribution,
+init_cache, step_distribution, step and the class attribute `context_limited` (True when a forward takes at
+most cfg.context inputs); see mop.models.transformer. Importing its module registers it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from torch import nn
+
+from mop.config import ModelConfig
+from mop.errors import MopError
+
+_MODELS: dict[str, type[nn.Module]] = {}
+
+
+def register_model(name: str) -> Callable[[type[nn.Module]], type[nn.Module]]:
+    """Class decorator: build_model(cfg) with cfg.arch == name builds this class. Names are unique."""
+
+    def register(cls: type[nn.Module]) -> type[nn.Module]:
+        if name in _MODELS:
+            raise MopError(f"model architecture {name!r} is already registered (by {_MODELS[name].__name__})")
+        _MODELS[name] = cls
+        return cls
+
+    return register
+
+
+def model_names() -> list[str]:
+    """The registered architectures, sorted."""
+    return sorted(_MODELS)
+
+
+def check_arch(arch: str) -> None:
+    """MopError naming the known architectures when `arch` is not registered."""
+    if arch not in _MODELS:
+        known = ", ".join(repr(name) for name in model_names())
+        raise MopError(f"model.arch must be one of {known}, got {arch!r}")
+
+
+def build_model(cfg: ModelConfig) -> nn.Module:
+    """The model registered under cfg.arch (the paper's transformer is 'gpt')."""
+    check_arch(cfg.arch)
+    return _MODELS[cfg.arch](cfg)

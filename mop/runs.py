@@ -1,0 +1,54 @@
+"""Loading a trained run directory (written by mop.train): its config, its model, its predictor.
+
+    config.json        RunConfig (model.input_dim / output_dim resolved) -> the model's architecture
+    model.safetensors  the weights
+
+Imports neither the trainer nor TensorBoard, so `mop.load` and `mop predict` start fast.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from mop.checkpoint import load_model_weights
+from mop.config import ModelConfig, RunConfig, from_dict
+from mop.errors import MopError
+from mop.models import build_model
+from mop.models.predictor import LearnedPredictor
+
+
+def load_config(run_dir: str | os.PathLike) -> RunConfig:
+    """The RunConfig saved in `run_dir`/config.json; MopError for a missing or damaged run directory."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise MopError(f"run directory {run_dir} does not exist; train one with `mop train --out {run_dir}`")
+    path = run_dir / "config.json"
+    if not path.is_file():
+        raise MopError(f"{run_dir} has no config.json; it is not a mop run directory")
+    try:
+        return from_dict(RunConfig, json.loads(path.read_text()))
+    except json.JSONDecodeError:
+        raise MopError(f"{path} is not valid JSON; the run directory is damaged") from None
+
+
+def load_model(
+    run_dir: str | os.PathLike, device: str | torch.device = "cpu"
+) -> tuple[nn.Module, ModelConfig]:
+    """The model of a run directory (config.json + model.safetensors), in eval mode on `device`."""
+    config = load_config(run_dir)
+    model = build_model(config.model)
+    load_model_weights(Path(run_dir) / "model.safetensors", model)
+    return model.to(device).eval(), config.model
+
+
+def load_predictor(
+    run_dir: str | os.PathLike, device: str | torch.device = "cpu", mode: str = "window"
+) -> LearnedPredictor:
+    """A trained run as a LearnedPredictor (the Predictor interface of the classical filters)."""
+    model, _ = load_model(run_dir, device)
+    return LearnedPredictor(model, name="mop", mode=mode)

@@ -1,0 +1,32 @@
+"""Training the learned predictor (the paper's recipe) into a run directory, with resume and DDP.
+
+    data.py      TrainingData, validation_batch: batches from the system family, one seeded generator
+    optim.py     AdamW, lr schedule, autocast, compile, train_step, validation_loss
+    device.py    the device and the DDP process group
+    rundir.py    the run directory: config check and reuse, metrics log, checkpoint of the training state
+    loop.py      train(): the loop (signals, NaN stop, DDP slices)
+    progress.py  the progress display
+
+Loading a trained run (config, model, predictor) is mop.runs, which does not import the trainer.
+"""
+
+from mop.train.data import TrainingData, validation_batch
+from mop.train.device import resolve_device
+from mop.train.loop import TrainState, train
+from mop.train.optim import LossModule, autocast, learning_rate, make_optimizer, maybe_compile, train_step
+from mop.train.rundir import resolve_config
+
+__all__ = [
+    "LossModule",
+    "TrainState",
+    "TrainingData",
+    "autocast",
+    "learning_rate",
+    "make_optimizer",
+    "maybe_compile",
+    "resolve_config",
+    "resolve_device",
+    "train",
+    "train_step",
+    "validation_batch",
+]

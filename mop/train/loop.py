@@ -1,0 +1,199 @@
+"""The training loop: train(config, out_dir) runs (or resumes) a run directory (mop.train.rundir).
+
+Every checkpoint_every steps (and at the end) rank 0 logs the validation loss and writes the whole training
+state, so a run stopped anywhere resumes to the same weights as one never stopped (bit for bit on CPU).
+SIGINT/SIGTERM checkpoint and stop (run the same command to resume); a non-finite loss stops with the last
+good checkpoint kept.
+
+DDP: under `torchrun --nproc_per_node N` every rank draws the same global batch and trains on its slice
+(rank r takes rows [r b, (r+1) b), b = batch_size / N); gradients are averaged by DistributedDataParallel,
+so one step equals a single-process step on the global batch. Rank 0 writes the run directory.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import torch
+import torch.distributed as dist
+from torch import Tensor, nn
+
+from mop.config import RunConfig
+from mop.errors import MopError
+from mop.models import build_model
+from mop.train.data import TrainingData, validation_batch
+from mop.train.device import init_distributed, setup_device
+from mop.train.optim import (
+    LossModule,
+    learning_rate,
+    make_optimizer,
+    maybe_compile,
+    train_step,
+    validation_loss,
+)
+from mop.train.progress import make_progress
+from mop.train.rundir import (
+    MetricsLog,
+    check_run_dir,
+    resolve_config,
+    restore_training_state,
+    save_training_state,
+    write_config,
+    write_done,
+)
+
+
+@dataclasses.dataclass
+class TrainState:
+    """What the loop reads and advances; rank 0 alone holds the validation batch and the metrics log."""
+
+    config: RunConfig
+    out_dir: Path
+    device: torch.device
+    model: nn.Module
+    loss_fn: nn.Module  # LossModule(model), maybe compiled, DDP-wrapped under torchrun
+    optimizer: torch.optim.Optimizer
+    data: TrainingData
+    step: int = 0
+    rank: int = 0
+    world: int = 1
+    val: tuple[Tensor, Tensor] | None = None  # (N, T, d_in), (N, T, m)
+    log: MetricsLog | None = None
+
+
+def train(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = True) -> Path:
+    """Train `config` into `out_dir` (resuming from its checkpoint if any); returns the run directory."""
+    out_dir = Path(out_dir)
+    config = resolve_config(config)
+    cfg = config.train
+    rank, world = init_distributed()
+    if cfg.batch_size % world:
+        raise MopError(
+            f"train.batch_size ({cfg.batch_size}) must be divisible by the number of processes ({world})"
+        )
+    if check_run_dir(out_dir, config):  # every rank reads it, so all return together
+        return out_dir
+    device = setup_device(cfg, world)
+    if rank == 0:
+        write_config(out_dir, config)
+    state = _start(config, out_dir, device, rank, world)
+    try:
+        _loop(state, progress)
+    finally:
+        if state.log is not None:
+            state.log.close()
+    return out_dir
+
+
+def _start(config: RunConfig, out_dir: Path, device: torch.device, rank: int, world: int) -> TrainState:
+    """Seeded model, AdamW and data, restored from the checkpoint when there is one."""
+    torch.manual_seed(config.train.seed)
+    model = build_model(config.model).to(device)
+    optimizer = make_optimizer(model, config.train, device)
+    data = TrainingData(config, device)
+    step = restore_training_state(out_dir, model, optimizer, data.generator, device)
+    if world > 1:
+        dist.barrier()
+    loss_fn = maybe_compile(LossModule(model), config.train, device)
+    if world > 1:
+        loss_fn = nn.parallel.DistributedDataParallel(loss_fn)
+    state = TrainState(config, out_dir, device, model, loss_fn, optimizer, data, step, rank, world)
+    if rank == 0:
+        state.val = validation_batch(config, device)
+        state.log = MetricsLog(out_dir, step)
+    return state
+
+
+def _loop(state: TrainState, progress: bool) -> None:
+    cfg = state.config.train
+    state.model.train()
+    bar = make_progress(cfg.steps, state.step, "train", enabled=state.rank == 0 and progress)
+    loss_sum = torch.zeros((), device=state.device)
+    last_good, since, t0 = state.step, 0, time.perf_counter()
+    with stop_signals() as flag:
+        while state.step < cfg.steps:
+            loss_sum += _step(state)
+            state.step, since = state.step + 1, since + 1
+            bar.update(1)
+            at_log = state.step % cfg.log_every == 0 or state.step == cfg.steps
+            at_ckpt = state.step % cfg.checkpoint_every == 0 or state.step == cfg.steps or flag["stop"]
+            if not (at_log or at_ckpt):
+                continue
+            mean_loss = float(loss_sum) / since
+            if not math.isfinite(mean_loss):
+                raise MopError(
+                    f"training loss became {mean_loss} between steps {state.step - since} and {state.step}; "
+                    f"the last good checkpoint (step {last_good}) is kept in {state.out_dir}; "
+                    f"try a lower train.lr"
+                )
+            if state.rank == 0 and at_log:
+                rate = since / (time.perf_counter() - t0)
+                record = {"step": state.step, "loss": mean_loss, "lr": learning_rate(cfg, state.step - 1)}
+                state.log.log({**record, "steps_per_s": rate})
+                bar.set_postfix(loss=f"{mean_loss:.4g}", steps_per_s=f"{rate:.1f}")
+            loss_sum.zero_()
+            since, t0 = 0, time.perf_counter()
+            if at_ckpt:
+                _checkpoint(state)
+                last_good = state.step
+            if flag["stop"]:
+                raise MopError(
+                    f"stopped by {flag['stop']} at step {state.step}; checkpoint saved in {state.out_dir}, "
+                    f"run the same command to resume"
+                )
+    bar.close()
+    if state.rank == 0:
+        write_done(state.out_dir, state.step)
+
+
+def _step(state: TrainState) -> Tensor:
+    """Set the scheduled lr, draw the global batch, train on this rank's slice; the detached loss."""
+    cfg = state.config.train
+    for group in state.optimizer.param_groups:
+        group["lr"] = learning_rate(cfg, state.step)
+    inputs, targets = state.data.batch()  # (B, T, d_in), (B, T, m): the global batch
+    b, r = cfg.batch_size // state.world, state.rank
+    inputs, targets = inputs[r * b : (r + 1) * b], targets[r * b : (r + 1) * b]
+    return train_step(state.model, state.loss_fn, state.optimizer, inputs, targets, cfg, state.device)
+
+
+def _checkpoint(state: TrainState) -> None:
+    """Rank 0: validation loss at scheduled checkpoints, then the whole training state; all ranks wait."""
+    cfg = state.config.train
+    if state.rank == 0:
+        if state.step % cfg.checkpoint_every == 0 or state.step == cfg.steps:
+            val_loss = validation_loss(state.model, state.val, cfg, state.device)
+            state.log.log({"step": state.step, "val_loss": val_loss})
+        save_training_state(
+            state.out_dir, state.step, state.model, state.optimizer, state.data.generator, state.device
+        )
+    if state.world > 1:
+        dist.barrier()
+
+
+@contextlib.contextmanager
+def stop_signals():
+    """While active, SIGINT/SIGTERM set flag['stop'] instead of killing; the loop checkpoints and exits."""
+    flag = {"stop": None}
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def handler(signum, frame):
+        flag["stop"] = signal.Signals(signum).name
+
+    for s in old:
+        signal.signal(s, handler)
+    try:
+        yield flag
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)

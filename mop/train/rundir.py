@@ -1,0 +1,154 @@
+"""The run directory of a training run (rank 0 writes it):
+
+    config.json             RunConfig with model.input_dim/output_dim resolved (rebuilds the model, mop.runs)
+    model.safetensors       model weights (latest checkpoint or final)
+    checkpoint.safetensors  model + AdamW state + RNG states + step (mop.checkpoint), for resuming
+    metrics.jsonl           {"step", "loss", "lr", "steps_per_s"} and {"step", "val_loss"} records
+    tb/                     TensorBoard scalars
+    done.json               written last; train() on a finished run with the same config returns at once
+
+A directory holding another config is refused, naming the first differing key.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from mop.atomic import write_json, write_text
+from mop.checkpoint import load_checkpoint, save_checkpoint, save_model
+from mop.config import RunConfig, to_dict
+from mop.errors import MopError
+from mop.models import check_arch
+from mop.systems import make_family
+
+
+def resolve_config(config: RunConfig) -> RunConfig:
+    """Fill model.input_dim / output_dim (0 = from the system family): d_in = m + k, d_out = m."""
+    check_arch(config.model.arch)
+    family = make_family(config.system)
+    d_in, m = family.output_dim + family.input_dim, family.output_dim
+    model = config.model
+    for name, value in (("input_dim", d_in), ("output_dim", m)):
+        if getattr(model, name) not in (0, value):
+            raise MopError(
+                f"model.{name}={getattr(model, name)} does not match the "
+                f"{config.system.family} family ({value}); leave it at 0"
+            )
+    return dataclasses.replace(config, model=dataclasses.replace(model, input_dim=d_in, output_dim=m))
+
+
+def check_run_dir(out_dir: Path, config: RunConfig) -> bool:
+    """True when `out_dir` holds a finished run of `config`; MopError when it holds a different config."""
+    path = out_dir / "config.json"
+    if not path.exists():
+        return False
+    try:
+        saved = json.loads(path.read_text())
+    except json.JSONDecodeError:
+        raise MopError(f"{path} is not valid JSON; remove the run directory or use another --out") from None
+    if saved != to_dict(config):
+        diff = _diff(saved, to_dict(config))
+        raise MopError(f"{out_dir} holds a run with a different config ({diff}); use another --out directory")
+    return (out_dir / "done.json").exists()
+
+
+def _diff(a: dict, b: dict, prefix: str = "") -> str:
+    for key in sorted(set(a) | set(b)):
+        x, y = a.get(key), b.get(key)
+        if isinstance(x, dict) and isinstance(y, dict):
+            found = _diff(x, y, f"{prefix}{key}.")
+            if found:
+                return found
+        elif x != y:
+            return f"{prefix}{key}: saved {x!r}, now {y!r}"
+    return ""
+
+
+def write_config(out_dir: Path, config: RunConfig) -> None:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_json(out_dir / "config.json", to_dict(config))
+
+
+def write_done(out_dir: Path, step: int) -> None:
+    write_json(out_dir / "done.json", {"step": step})
+
+
+class MetricsLog:
+    """metrics.jsonl (JSON record a line) + TensorBoard scalars; resume drops records past the checkpoint."""
+
+    def __init__(self, out_dir: Path, resume_step: int) -> None:
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.path = out_dir / "metrics.jsonl"
+        kept = []
+        if self.path.exists():
+            for line in self.path.read_text().splitlines():
+                with contextlib.suppress(json.JSONDecodeError):
+                    record = json.loads(line)
+                    if record.get("step", 0) <= resume_step:
+                        kept.append(line)
+        write_text(self.path, "".join(line + "\n" for line in kept))
+        self.writer = SummaryWriter(str(out_dir / "tb"), purge_step=resume_step + 1 if resume_step else None)
+
+    def log(self, record: dict) -> None:
+        with open(self.path, "a") as handle:
+            handle.write(json.dumps(record) + "\n")
+        for key, value in record.items():
+            if key != "step" and isinstance(value, float):
+                tag = "val/loss" if key == "val_loss" else f"train/{key}"
+                self.writer.add_scalar(tag, value, record["step"])
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+# ----------------------------------------------------------------------------- the whole training state
+
+
+def save_training_state(
+    out_dir: Path,
+    step: int,
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    generator: torch.Generator,
+    device: torch.device,
+) -> None:
+    """checkpoint.safetensors (model, AdamW, RNG states, step), then model.safetensors."""
+    save_checkpoint(out_dir / "checkpoint.safetensors", step, model, optimizer, _rng_state(generator, device))
+    save_model(out_dir / "model.safetensors", model)
+
+
+def restore_training_state(
+    out_dir: Path,
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    generator: torch.Generator,
+    device: torch.device,
+) -> int:
+    """Load checkpoint.safetensors into model, optimizer and the RNGs; the step to resume from (0 if none)."""
+    path = out_dir / "checkpoint.safetensors"
+    if not path.exists():
+        return 0
+    step, rng, _ = load_checkpoint(path, model, optimizer)
+    _set_rng_state(generator, rng, device)
+    return step
+
+
+def _rng_state(generator: torch.Generator, device: torch.device) -> dict[str, Tensor]:
+    state = {"data": generator.get_state(), "torch": torch.get_rng_state()}
+    if device.type == "cuda":
+        state["cuda"] = torch.cuda.get_rng_state(device)
+    return state
+
+
+def _set_rng_state(generator: torch.Generator, state: dict[str, Tensor], device: torch.device) -> None:
+    generator.set_state(state["data"])
+    torch.set_rng_state(state["torch"])
+    if device.type == "cuda" and "cuda" in state:
+        torch.cuda.set_rng_state(state["cuda"], device)
