@@ -55,7 +55,7 @@ def register_learned(name: str, arch: str) -> None:
     run directory given as make_predictor(name, run_dir=...); mode "window" (the paper's) or "stream"."""
 
     def load(run_dir: str, mode: str = "window", device: str = "cpu") -> Predictor:
-        from mop.train import load_predictor
+        from mop.runs import load_predictor
 
         return load_predictor(run_dir, device=device, mode=mode)
 

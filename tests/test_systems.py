@@ -121,9 +121,17 @@ def test_switching_continues_from_state_and_uses_system_2():
 
 
 def test_redraws_only_offending_systems():
+    """Systems of the first draw that stay inside the bound are kept untouched; only the others change."""
     fam = family("upper-triangular", max_abs=8.0)
     traj = fam.generate(300, 50, generator=generator(7))
     assert traj.y.abs().max() <= 8.0 and traj.x.abs().max() <= 8.0
+    g = generator(7)  # the same stream: the first draw, before any redraw
+    first = fam.simulate(fam.sample(300, generator=g), 50, generator=g)
+    inside = (first.y.abs() <= 8.0).flatten(1).all(1) & (first.x.abs() <= 8.0).flatten(1).all(1)
+    assert 0 < int(inside.sum()) < 300  # some systems needed a redraw
+    assert torch.equal(traj.params["A"][inside], first.params["A"][inside].to(traj.params["A"].dtype))
+    assert torch.equal(traj.y[inside], first.y[inside])
+    assert not torch.isclose(traj.y[~inside], first.y[~inside]).all(-1).all(-1).any()
 
 
 def test_same_seed_same_data_different_seed_different():

@@ -64,10 +64,10 @@ class LearnedPredictor:
 
     def _chunk(self, z: Tensor, gaussian: bool) -> tuple[Tensor, Tensor | None]:
         T, C = z.shape[1], self.cfg.context
+        if self.mode == "stream" and (T > C or not self.model.context_limited):
+            return stream(self.model, z, gaussian)  # a recurrent model streams its state: exact
         if not self.model.context_limited or T <= C:
             return self._full(z, gaussian)
-        if self.mode == "stream":
-            return stream(self.model, z, gaussian)
         return sliding_window(self.model, z, gaussian, C, self.chunk_size)
 
     def _pad(self, out: Tensor, like: Tensor, fill: float) -> Tensor:
