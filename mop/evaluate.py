@@ -20,8 +20,9 @@ from mop.systems.base import Trajectories
 def make_baseline(name: str, *, n4sid_every: int = 1, seed: int = 0) -> Predictor:
     """A classical predictor by its report name.
 
-    kalman, kalman-switch, rls, rls-best, n4sid-kf, zero, last, ekf, ukf, pf, pf-clip.
+    kalman, kalman-switch, kalman-colored, rls, rls-best, n4sid-kf, zero, last, ekf, ukf, pf, pf-clip.
     """
+    from mop.filters.colored import ColoredNoiseKalmanPredictor
     from mop.filters.ekf import EKFPredictor
     from mop.filters.kalman import KalmanPredictor
     from mop.filters.particle import ParticleFilterPredictor
@@ -33,6 +34,7 @@ def make_baseline(name: str, *, n4sid_every: int = 1, seed: int = 0) -> Predicto
     makers = {
         "kalman": KalmanPredictor,
         "kalman-switch": lambda: KalmanPredictor("kalman-switch", knows_switch=True),
+        "kalman-colored": ColoredNoiseKalmanPredictor,
         "rls": RLSPredictor,
         "rls-best": AdaptiveOrderRLSPredictor,
         "n4sid-kf": lambda: N4SIDKalmanPredictor(every=n4sid_every),
