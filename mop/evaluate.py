@@ -18,6 +18,7 @@ from mop.systems.base import Trajectories
 
 
 def _baselines() -> dict:
+    from mop.filters.colored import ColoredNoiseKalmanPredictor
     from mop.filters.ekf import EKFPredictor
     from mop.filters.kalman import KalmanPredictor
     from mop.filters.particle import ParticleFilterPredictor
@@ -30,6 +31,7 @@ def _baselines() -> dict:
     return {
         "kalman": (KalmanPredictor, {**system, "gaussian": True}),
         "kalman-switch": (lambda: KalmanPredictor("kalman-switch", knows_switch=True), system),
+        "kalman-colored": (ColoredNoiseKalmanPredictor, system),
         "rls": (RLSPredictor, {}),
         "rls-best": (AdaptiveOrderRLSPredictor, {}),
         "n4sid-kf": (lambda every=1: N4SIDKalmanPredictor(every=every), {}),

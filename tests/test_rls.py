@@ -1,4 +1,5 @@
-"""RLS equals the closed-form ridge least-squares solution at every step; adaptive order finds AR(p)."""
+"""Matrix RLS equals a textbook loop and the closed-form ridge solution at every step; adaptive order
+finds AR(p)."""
 
 import numpy as np
 import pytest
@@ -9,30 +10,58 @@ from mop.systems.base import Trajectories
 
 
 def ridge_reference(y: np.ndarray, order: int) -> np.ndarray:
-    """yhat_t = theta_t^T phi_{t-1}, theta_t = (I + sum phi phi^T)^{-1} sum phi y over the pairs
-    (phi_{s-1}, y_s), s = p..t-1, solved from scratch at each t; copy of y_{t-1} for t < p."""
+    """yhat_t = theta_t^T phi_{t-1}, theta_t = (I + sum phi phi^T)^{-1} sum phi y^T over the pairs
+    (phi_{s-1}, y_s), s = p..t-1, phi_s = [y_s; ...; y_{s-p+1}] (p*m), solved from scratch at each t;
+    yhat_0 = 0 and yhat_t = y_{t-1} for 1 <= t <= p."""
     B, T, m = y.shape
     out = np.zeros_like(y)
     for b in range(B):
-        for i in range(m):
-            z = y[b, :, i]
-            phi = lambda s, z=z: z[s - order + 1 : s + 1][::-1]  # noqa: E731  [z_s, ..., z_{s-p+1}]
-            for t in range(1, T):
-                if t < order:
-                    out[b, t, i] = z[t - 1]
-                    continue
-                X = np.array([phi(s - 1) for s in range(order, t)]).reshape(-1, order)
-                theta = np.linalg.solve(np.eye(order) + X.T @ X, X.T @ z[order:t])
-                out[b, t, i] = theta @ phi(t - 1)
+        phi = lambda s, b=b: np.concatenate([y[b, s - j] for j in range(order)])  # noqa: E731
+        for t in range(1, T):
+            if t <= order:
+                out[b, t] = y[b, t - 1]
+                continue
+            X = np.array([phi(s - 1) for s in range(order, t)])  # (t-p, p*m)
+            theta = np.linalg.solve(np.eye(order * m) + X.T @ X, X.T @ y[b, order:t])  # (p*m, m)
+            out[b, t] = theta.T @ phi(t - 1)
+    return out
+
+
+def textbook_rls(y: np.ndarray, order: int) -> np.ndarray:
+    """Plain per-system loop of the RLS recursion (P0 = I, theta0 = 0, forgetting 1), written out."""
+    B, T, m = y.shape
+    d = order * m
+    out = np.zeros_like(y)
+    for b in range(B):
+        theta, P = np.zeros((d, m)), np.eye(d)
+        for t in range(1, T):
+            if t <= order:
+                out[b, t] = y[b, t - 1]
+                continue
+            prev = np.concatenate([y[b, t - 2 - j] for j in range(order)])  # phi_{t-2}, target y_{t-1}
+            gain = P @ prev / (1.0 + prev @ P @ prev)
+            theta = theta + np.outer(gain, y[b, t - 1] - theta.T @ prev)
+            P = P - np.outer(gain, prev @ P)
+            out[b, t] = theta.T @ np.concatenate([y[b, t - 1 - j] for j in range(order)])
     return out
 
 
 @pytest.mark.parametrize("order", [1, 2, 3])
-def test_rls_equals_ridge_closed_form(order):
+def test_rls_equals_ridge_closed_form_and_textbook_loop(order):
     y = np.random.default_rng(order).normal(size=(3, 25, 2)).cumsum(1) * 0.3
-    np.testing.assert_allclose(
-        rls_predict(torch.from_numpy(y), order).numpy(), ridge_reference(y, order), atol=1e-9
-    )
+    yhat = rls_predict(torch.from_numpy(y), order).numpy()
+    np.testing.assert_allclose(yhat, ridge_reference(y, order), atol=1e-9)
+    np.testing.assert_allclose(yhat, textbook_rls(y, order), atol=1e-9)
+
+
+def test_rls_is_matrix_ar_startup_of_the_authors():
+    """yhat_0 = 0, yhat_1 = y_0, yhat_2 = y_1; yhat_3 uses the cross-output pair (phi_1 = [y_1; y_0], y_2):
+    theta = phi (1 + |phi|^2)^{-1} y_2^T, so yhat_3 = y_2 (phi_1^T phi_2) / (1 + |phi_1|^2)."""
+    y = torch.tensor([[[1.0, 0.0], [0.0, 2.0], [3.0, -1.0], [0.5, 0.5]]], dtype=torch.float64)
+    yhat = rls_predict(y, 2)[0]
+    torch.testing.assert_close(yhat[:3], torch.stack([torch.zeros(2), y[0, 0], y[0, 1]]).double())
+    phi1, phi2 = torch.cat([y[0, 1], y[0, 0]]), torch.cat([y[0, 2], y[0, 1]])
+    torch.testing.assert_close(yhat[3], y[0, 2] * (phi1 @ phi2) / (1 + phi1 @ phi1))
 
 
 def ar_process(rng, coeffs, B, T, noise=0.1):
@@ -70,4 +99,4 @@ def test_predictors_follow_protocol_and_dtype():
     for pred in (RLSPredictor(), AdaptiveOrderRLSPredictor()):
         out = pred.predict(traj)
         assert out.shape == y.shape and out.dtype == y.dtype
-    torch.testing.assert_close(RLSPredictor().predict(traj)[:, 1], y[:, 0])  # copies before p samples
+    torch.testing.assert_close(RLSPredictor().predict(traj)[:, 1:3], y[:, 0:2])  # copies up to t = p

@@ -205,3 +205,42 @@ class KalmanPredictor:
             )
         s = traj.params["switch_time"].to(torch.long)[:, None, None]  # (B, 1, 1)
         return lambda t: (torch.where(t >= s, p["A2"], p["A"]), torch.where(t >= s, p["C2"], p["C"]))
+
+
+def innovation_floor(A: Array, C: Array, Q: Array, R: Array) -> Tensor:
+    """(B,) irreducible one-step error E||y_t - yhat_t||^2 of the optimal (steady-state) predictor:
+    trace(C P C^T + R), P the filter DARE solution (scipy.linalg.solve_discrete_are per system).
+
+    A (B, n, n), C (B, m, n), Q (B, n, n), R (B, m, m). The paper's metric is the mean of ||e_t||_2, and by
+    Jensen E||e|| <= sqrt(E||e||^2), so the floor of the paper's error curve is approximately (and at most)
+    sqrt(innovation_floor).
+    """
+    from scipy.linalg import solve_discrete_are
+
+    (A, C, Q, R), _ = _to_torch(A, C, Q, R)
+    A, C, Q, R = (M.detach().cpu().double().numpy() for M in (A, C, Q, R))
+    out = [
+        np.trace(c @ solve_discrete_are(a.T, c.T, q, r) @ c.T + r)
+        for a, c, q, r in zip(A, C, Q, R, strict=True)
+    ]
+    return torch.tensor(out, dtype=torch.float64)
+
+
+def optimal_mse_curve(
+    A: Array, C: Array, Q: Array, R: Array, horizon: int, P0: Array | None = None
+) -> Tensor:
+    """(B, horizon + 1) E||y_t - yhat_t||^2 = trace(S_t), S_t = C P_t C^T + R, of the Kalman filter started at
+    P_0 = P0 (default I) for t = 0..horizon: the error floor of any predictor at each t when x_0 ~ N(0, P0).
+    Shapes as kalman_filter; its values do not depend on the outputs. trace(S_t) -> innovation_floor as t
+    grows; sqrt(trace S_t) is (by Jensen) an upper bound near the floor of the paper's mean ||e_t||_2 curve.
+    """
+    (A, C, Q, R, P0), _ = _to_torch(A, C, Q, R, P0)
+    B, n = A.shape[0], A.shape[-1]
+    P = torch.eye(n, dtype=A.dtype).expand(B, n, n) if P0 is None else P0
+    m, zero_y = A.new_zeros(B, n), A.new_zeros(B, C.shape[1])
+    out = []
+    for _ in range(horizon + 1):
+        _, P, S = _condition_on(m, P, zero_y, C, R)
+        out.append(S.diagonal(dim1=-2, dim2=-1).sum(-1))
+        _, P = _predict(m, P, A, Q)
+    return torch.stack(out, dim=1)

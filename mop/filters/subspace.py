@@ -71,26 +71,44 @@ def _run_predictor(A: Tensor, C: Tensor, K: Tensor, y: Tensor) -> Tensor:
 
 
 def n4sid_kalman_predict(
-    y: Tensor, order: int = 4, num_block_rows: int | None = None, min_prefix: int = 20, every: int = 1
+    y: Tensor,
+    order: int = 4,
+    num_block_rows: int | None = None,
+    min_prefix: int = 20,
+    every: int = 1,
+    min_columns: int | None = None,
+    select: bool = True,
 ) -> Tensor:
-    """yhat (B, T, m): for t >= min_prefix, re-identify (A, C, K) from y_0..y_{t-1} every `every` steps
-    and predict y_t with its steady-state predictor (state recomputed over the prefix after each
-    re-identification, carried forward between them). Before min_prefix, and for systems whose identified
-    predictor A - K C is not stable (spectral radius >= 1, common on short prefixes), the RLS-AR(2)
-    prediction is used instead."""
+    """yhat (B, T, m): for t >= t_0, re-identify (A, C, K) from y_0..y_{t-1} every `every` steps and predict
+    y_t with its steady-state predictor (state recomputed over the prefix after each re-identification,
+    carried forward between them); before t_0 the RLS-AR(2) prediction.
+
+    t_0 = max(min_prefix, 2 i - 1 + min_columns): the prefix must give the Hankel matrix (2 i m rows) at least
+    min_columns columns (default 2 i m): with fewer, the projection Y_f / Y_p (i m regressors) fits the noise
+    and the residual-based K is meaningless, which made the first identifications (t ~ 20, 17 columns for
+    20 rows) far worse than RLS. Systems whose identified predictor A - K C is unstable use RLS.
+    select: per system, use the identified predictor at t only if its out-of-sample one-step squared errors
+    over t_0..t-1 sum below RLS's over the same steps (causal; ties -> RLS), as rls-best chooses its order.
+    """
     B, T, m = y.shape
     i = num_block_rows or max(2, math.ceil(order / m) + 1)
+    min_columns = 2 * i * m if min_columns is None else min_columns
+    start = max(min_prefix, 2 * i - 1 + min_columns, 2 * i - 1 + order + 2)
     fallback = rls_predict(y, order=2)  # (B, T, m)
-    preds = list(fallback[:, :min_prefix].unbind(1))
+    preds = list(fallback[:, :start].unbind(1))
     A = C = K = state = stable = None
-    for t in range(min_prefix, T):
-        if (t - min_prefix) % every == 0:
+    score = y.new_zeros(B)  # sum over past steps of (model error^2 - RLS error^2)
+    for t in range(start, T):
+        if (t - start) % every == 0:
             A, C, K = identify(y[:, :t], order, i)
             stable = torch.linalg.eigvals(A - K @ C).abs().amax(-1) < 1  # (B,) usable predictor
             state = _run_predictor(A, C, K, y[:, :t])
-        model = (C @ state[..., None])[..., 0]  # (B, m)
-        preds.append(torch.where(stable[:, None], model, fallback[:, t]))
-        state = (A @ state[..., None] + K @ (y[:, t] - model)[..., None])[..., 0]
+        kf = (C @ state[..., None])[..., 0]  # (B, m)
+        model = torch.where(stable[:, None], kf, fallback[:, t])
+        use = score < 0 if select else torch.ones_like(stable)
+        preds.append(torch.where(use[:, None], model, fallback[:, t]))
+        score = score + ((model - y[:, t]) ** 2).sum(-1) - ((fallback[:, t] - y[:, t]) ** 2).sum(-1)
+        state = (A @ state[..., None] + K @ (y[:, t] - kf)[..., None])[..., 0]
     return torch.stack(preds, dim=1)
 
 
@@ -98,8 +116,9 @@ class N4SIDKalmanPredictor:
     """Subspace identification from the prefix + steady-state Kalman predictor ("n4sid-kf").
 
     order: identified state dimension n_hat; num_block_rows: Hankel block rows i (default ceil(n/m) + 1,
-    at least 2); min_prefix: first t that uses an identified model (before it RLS-AR(2)); every:
-    re-identify every `every` steps (1: at each t, the most accurate; larger is faster).
+    at least 2); min_prefix: first t that may use an identified model (before it RLS-AR(2)); every:
+    re-identify every `every` steps (1: at each t, the most accurate; larger is faster); min_columns,
+    select: see n4sid_kalman_predict.
     """
 
     def __init__(
@@ -109,6 +128,8 @@ class N4SIDKalmanPredictor:
         min_prefix: int = 20,
         every: int = 1,
         name: str = "n4sid-kf",
+        min_columns: int | None = None,
+        select: bool = True,
     ) -> None:
         if order < 1 or every < 1 or min_prefix < 1:
             raise MopError(
@@ -121,8 +142,11 @@ class N4SIDKalmanPredictor:
             every,
             name,
         )
+        self.min_columns, self.select = min_columns, select
 
     def predict(self, traj: Trajectories) -> Tensor:
         y = traj.y.double()
-        out = n4sid_kalman_predict(y, self.order, self.num_block_rows, self.min_prefix, self.every)
+        out = n4sid_kalman_predict(
+            y, self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select
+        )
         return out.to(traj.y.dtype)

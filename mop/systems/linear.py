@@ -257,12 +257,18 @@ class LinearFamily:
         return {"A": A, "C": C, **self.noise_params(num_systems, A.device)}
 
     def noise_params(self, num_systems: int, device: torch.device) -> dict[str, Tensor]:
+        """Q, R (summed variances), P0; and for the exact colored-noise filter (mop.filters.colored) the
+        per-draw variances "noise_var_w", "noise_var_v" (B,) float64 and "color_window" (B,) long."""
         eye = lambda d, var: scaled_eye(num_systems, d, var, device)  # noqa: E731
+        full = lambda v, dt: torch.full((num_systems,), v, dtype=dt, device=device)  # noqa: E731
         cfg, n, m = self.config, self.state_dim, self.output_dim
         return {
             "Q": eye(n, cfg.noise_var_w * self.window).clone(),
             "R": eye(m, cfg.noise_var_v * self.window).clone(),
             "P0": eye(n, cfg.x0_std**2).clone(),
+            "noise_var_w": full(cfg.noise_var_w, torch.float64),
+            "noise_var_v": full(cfg.noise_var_v, torch.float64),
+            "color_window": full(self.window, torch.long),
         }
 
     def draw_noise(
