@@ -28,10 +28,17 @@ def save(fig, out_dir: Path, stem: str) -> list[Path]:
     return paths
 
 
-def error_figure(predictors: dict[str, dict], panel: list[str], reference: str, title: str):
+def error_figure(
+    predictors: dict[str, dict],
+    panel: list[str],
+    reference: str,
+    title: str,
+    floor_mse: list[float] | None = None,
+):
     """Two panels. Left, the paper's: mean error ||yhat_t - y_t|| against t (log scale) with +-1 std bands
-    (floored above 0) for the `panel` predictors (those present). Right: every predictor's MSE ratio to the
-    reference against t (log scale), the reference's line at 1."""
+    (floored above 0) for the `panel` predictors (those present), and, where given, the optimal RMS error
+    sqrt(E||e_t||^2) of the known system (dashed; the floor of the MSE). Right: every predictor's MSE ratio to
+    the reference against t (log scale), and the floor's."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
     colors = {name: f"C{i}" for i, name in enumerate(predictors)}
     for name in dict.fromkeys(n for n in panel if n in predictors):
@@ -40,6 +47,8 @@ def error_figure(predictors: dict[str, dict], panel: list[str], reference: str, 
         t = np.arange(len(mean))
         left.plot(t, mean, label=name, color=colors[name])
         left.fill_between(t, np.maximum(mean - std, mean * 0.05), mean + std, alpha=0.15, color=colors[name])
+    if floor_mse is not None:
+        left.plot(np.sqrt(floor_mse), "k--", lw=0.9, label="optimal RMS error")
     left.set(yscale="log", xlabel="t", ylabel=r"$\|\hat y_t - y_t\|_2$", title=title)
     left.legend(fontsize=8)
     left.grid(alpha=0.3, which="both")
@@ -48,6 +57,10 @@ def error_figure(predictors: dict[str, dict], panel: list[str], reference: str, 
         for name, c in predictors.items():
             ratio = np.asarray(c["squared_error"][1:]) / den
             right.plot(np.arange(1, len(ratio) + 1), ratio, label=name, color=colors[name], lw=1.2)
+        if floor_mse is not None:
+            right.plot(
+                np.arange(1, len(den) + 1), np.asarray(floor_mse[1:]) / den, "k--", lw=0.9, label="floor"
+            )
         right.set(yscale="log", xlabel="t", ylabel=f"MSE ratio to {reference}", title="every predictor")
         right.legend(fontsize=7, ncol=2)
         right.grid(alpha=0.3, which="both")

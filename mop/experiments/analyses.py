@@ -50,3 +50,25 @@ def excess_mse(result, predictors: list, reference: str) -> dict:
     """MSE of MOP minus the reference's over t in [1, T] (floored at 1e-12 for log-log fits)."""
     mse = {name: float((e[:, 1:] ** 2).mean()) for name, e in result.errors.items()}
     return {"excess_mse": max(mse["mop"] - mse[reference], 1e-12)}
+
+
+@ANALYSES.register("floor")
+def floor(result, predictors: list, reference: str) -> dict:
+    """The irreducible error of a linear-Gaussian family: mean over test systems of trace(S_t), the optimal
+    filter's E||y_t - yhat_t||^2 at each t (mop.filters.kalman.optimal_mse_curve), and every predictor's
+    excess MSE over it in the report's windows (what no predictor can remove is subtracted)."""
+    from mop.evaluate import windows
+    from mop.filters.kalman import optimal_mse_curve
+    from mop.metrics import window_mean
+
+    p = result.traj.params
+    curve = optimal_mse_curve(p["A"], p["C"], p["Q"], p["R"], result.traj.horizon, p.get("P0")).mean(0)
+    curve = curve.tolist()  # (T+1,)
+    excess = {
+        name: {
+            w: window_mean(c["squared_error"], *span) - window_mean(curve, *span)
+            for w, span in windows(result.traj.horizon).items()
+        }
+        for name, c in result.summary["predictors"].items()
+    }
+    return {"floor": {"mse": curve, "excess_mse": excess}}

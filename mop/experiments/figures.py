@@ -28,7 +28,8 @@ def error(exp, results: dict, out: Path) -> list[Path]:
     for name, r in results.items():
         panel = [p or exp.reference for p in exp.panel]
         title = f"{exp.name} ({exp.title})" + ("" if len(results) == 1 else f", {name}")
-        fig = plots.error_figure(r.summary["predictors"], panel, exp.reference, title)
+        floor = r.extras.get("floor", {}).get("mse")
+        fig = plots.error_figure(r.summary["predictors"], panel, exp.reference, title, floor)
         paths += plots.save(fig, out, _stem(exp, results, name, "error"))
     return paths
 

@@ -246,6 +246,8 @@ def _sections(exp: Experiment, results: dict, figures: list[Path]) -> list[str]:
         sections.append(summary_section(heading, r.summary, mine))
         if "calibration" in r.extras:
             sections.append(_calibration_table(r.extras["calibration"]))
+        if "floor" in r.extras:
+            sections.append(_floor_table(r.extras["floor"]))
     shared = [f for f in pngs if not any(f in s for s in sections)]
     if shared:
         sections.append("\n".join(f"![{f}]({f})" for f in shared))
@@ -258,6 +260,19 @@ def _calibration_table(table: dict) -> str:
         f"| {n} | {r['nll']:.4f} | {r['coverage_50']:.3f} | {r['coverage_90']:.3f} | {r['coverage_95']:.3f} |"
         for n, r in table.items()
     ]
+    return "\n".join(lines) + "\n"
+
+
+def _floor_table(floor: dict) -> str:
+    excess = floor["excess_mse"]
+    wins = list(next(iter(excess.values())))
+    lines = [
+        "Excess MSE over the irreducible error (mean trace S_t of the optimal filter of each test system):",
+        "",
+        "| predictor | " + " | ".join(f"t in {w}" for w in wins) + " |",
+        "|---" * (len(wins) + 1) + "|",
+    ]
+    lines += [f"| {n} | " + " | ".join(f"{e[w]:+.4f}" for w in wins) + " |" for n, e in excess.items()]
     return "\n".join(lines) + "\n"
 
 
