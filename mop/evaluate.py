@@ -20,7 +20,8 @@ from mop.systems.base import Trajectories
 def make_baseline(name: str, *, n4sid_every: int = 1, seed: int = 0) -> Predictor:
     """A classical predictor by its report name.
 
-    kalman, kalman-switch, rls, rls-best, n4sid-kf, zero, last, ekf, ukf, pf, pf-clip.
+    kalman, kalman-switch, rls, rls-best, n4sid-kf, zero, last, ekf, ekf-noclip, ukf, ukf-noclip, pf,
+    pf-noclip (the -noclip filters ignore the quadrotor's state clipping, which ekf / ukf / pf know).
     """
     from mop.filters.ekf import EKFPredictor
     from mop.filters.kalman import KalmanPredictor
@@ -39,9 +40,11 @@ def make_baseline(name: str, *, n4sid_every: int = 1, seed: int = 0) -> Predicto
         "zero": ZeroPredictor,
         "last": LastValuePredictor,
         "ekf": EKFPredictor,
+        "ekf-noclip": lambda: EKFPredictor(project=False),
         "ukf": UKFPredictor,
+        "ukf-noclip": lambda: UKFPredictor(project=False),
         "pf": lambda: ParticleFilterPredictor(seed=seed),
-        "pf-clip": lambda: ParticleFilterPredictor(seed=seed, clip=True),
+        "pf-noclip": lambda: ParticleFilterPredictor(seed=seed, project=False),
     }
     if name not in makers:
         raise MopError(f"unknown baseline {name!r}; choose one of {', '.join(makers)}")

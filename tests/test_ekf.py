@@ -77,7 +77,7 @@ def test_quadrotor_filters_run_and_beat_the_prior():
     for predictor, tol in (
         (EKFPredictor(), 1e-12),
         (UKFPredictor(), 1e-12),
-        (ParticleFilterPredictor(300, clip=True), 5 * pf_sd),
+        (ParticleFilterPredictor(300), 5 * pf_sd),
     ):
         assert isinstance(predictor, Predictor)
         yhat = predictor.predict(traj)

@@ -72,8 +72,10 @@ def test_baselines_by_name():
         "last",
         "ekf",
         "ukf",
+        "ekf-noclip",
+        "ukf-noclip",
         "pf",
-        "pf-clip",
+        "pf-noclip",
     )
     for name in names:
         assert make_baseline(name).name == name

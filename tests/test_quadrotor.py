@@ -19,13 +19,15 @@ def numpy_step(s, u, mass, length, inertia, tau=0.1, g=10.0):
             phi + dphi * tau,
             vx + (vz * dphi - g * math.sin(phi)) * tau,
             vz + (-vx * dphi - g * math.cos(phi) + (u[0] + u[1]) / mass) * tau,
-            (u[0] - u[1]) * length * tau / inertia,
+            dphi + (u[0] - u[1]) * length * tau / inertia,
         ]
     )
 
 
 def test_noise_free_trajectory_matches_numpy_loop():
-    fam = make_family(SystemConfig(family="quadrotor", noise_var_w=0.0, noise_var_v=0.0), torch.float64)
+    fam = make_family(
+        SystemConfig(family="quadrotor", noise_var_w=0.0, noise_var_v=0.0, x0_std=0.0), torch.float64
+    )
     traj = fam.generate(10, 40, generator=generator(0))
     p = {k: v.numpy() for k, v in traj.params.items()}
     u, y = traj.u.numpy(), traj.y.numpy()

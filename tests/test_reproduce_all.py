@@ -31,7 +31,7 @@ def _check_schema(data: dict, names: set[str]) -> None:
     [
         ("colored-noise", {"mop", "kalman", "rls", "rls-best", "n4sid-kf"}),
         ("switching", {"mop", "kalman", "kalman-switch", "rls"}),
-        ("quadrotor", {"mop", "ekf", "ukf", "pf", "pf-clip"}),
+        ("quadrotor", {"mop", "ekf", "ekf-noclip", "ukf", "pf"}),
         ("upper-triangular", {"mop", "kalman", "rls"}),
     ],
 )

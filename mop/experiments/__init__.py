@@ -121,7 +121,7 @@ EXPERIMENTS: dict[str, Experiment] = {
             "Fig. 3",
             SystemConfig(family="quadrotor"),
             SystemConfig(family="quadrotor"),
-            ("ekf", "ukf", "pf", "pf-clip", "zero", "last"),  # pf-clip also knows the clipping
+            ("ekf", "ekf-noclip", "ukf", "pf", "zero", "last"),  # ekf / ukf / pf clip as the simulator does
             reference="ekf",
         ),
         Experiment(
