@@ -9,7 +9,9 @@ Time update by the unscented transform with 2n + 1 sigma points (Julier/Merwe sc
 The output map is linear (y = C x + v), for which the unscented measurement update is exactly the
 Kalman update, so conditioning reuses mop.filters.ekf._condition_on.
 With project=True ("ukf") the family's state projection (the quadrotor's clipping) is applied to m_0 and to
-each predicted mean, P left as it is, as in the EKF; project=False gives "ukf-noclip".
+each predicted mean, P left as it is; project=False gives "ukf-noclip". Unlike mop's EKF, which copies the
+authors' EKF, the UKF (not in the paper) does not also clip the posterior mean before the time update: that
+would raise its error over t in [20, 50) on mop's generator (N = 1000) from 0.50 to 0.65.
 On a linear system the UKF equals the Kalman filter.
 """
 
