@@ -112,6 +112,23 @@ def test_ekf_step_clips_like_the_authors_ekf():
     torch.testing.assert_close(yhat[:, 1], C(f(m0)), atol=1e-8, rtol=0)
 
 
+def test_ekf_time_update_clips_the_posterior_mean_before_the_step():
+    """The authors' EKF: m <- clip(f(clip(m), u)), P <- F P F^T + Q with F at the UNclipped posterior m."""
+    from mop.filters.ekf import _predict, identity, system_model
+
+    traj = quad_traj(4, 2, 10)
+    model = system_model(traj.params)
+    m = torch.tensor([[1.0, -25.0, -1.3, 2.4, -2.6, 0.9]], dtype=torch.float64).expand(4, 6)  # out of bounds
+    P, Q, u = traj.params["P0"], traj.params["Q"], traj.u[:, 0]
+    F = model.jacobian(m, u)
+    f = lambda x: model.f(x[:, None], u[:, None])[:, 0]  # noqa: E731
+    m_next, P_next = _predict(m, P, u, model.f, model.jacobian, Q, quadrotor.clip_state)
+    torch.testing.assert_close(m_next, quadrotor.clip_state(f(quadrotor.clip_state(m))))
+    torch.testing.assert_close(P_next, F @ P @ F.mT + Q)
+    m_next, P_next = _predict(m, P, u, model.f, model.jacobian, Q, identity)
+    torch.testing.assert_close(m_next, f(m))
+
+
 def test_projection_changes_nothing_where_it_never_binds(monkeypatch):
     """Linear families have no projection; on the quadrotor with huge bounds the clip is the identity.
     Either way the clipping filters equal the plain ones (the PF draw for draw, same seed)."""
