@@ -38,9 +38,11 @@ def _baselines() -> dict:
         "zero": (ZeroPredictor, {}),
         "last": (LastValuePredictor, {}),
         "ekf": (EKFPredictor, system),
+        "ekf-noclip": (lambda: EKFPredictor(project=False), system),
         "ukf": (UKFPredictor, system),
+        "ukf-noclip": (lambda: UKFPredictor(project=False), system),
         "pf": (lambda seed=0: ParticleFilterPredictor(seed=seed), system),
-        "pf-clip": (lambda seed=0: ParticleFilterPredictor(seed=seed, clip=True), system),
+        "pf-noclip": (lambda seed=0: ParticleFilterPredictor(seed=seed, project=False), system),
     }
 
 

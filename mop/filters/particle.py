@@ -4,9 +4,11 @@ With N particles X_t^i ~ p(x_t | y_{<t}) (start: X_0^i ~ N(m_0, P_0)):
 
     yhat_t = C mean_i(X_t^i)
     weights  w_i ∝ N(y_t; C X_t^i, R),  systematic resampling by w
-    propagate X_{t+1}^i = f(X_t^i, u_t) + L eps_i,  L L^T = Q,  eps_i ~ N(0, I)
+    propagate X_{t+1}^i = project(f(X_t^i, u_t) + L eps_i),  L L^T = Q,  eps_i ~ N(0, I)
 
-The filter knows (f, C, Q, R) from traj.params; with clip_state=True it also knows the quadrotor's clipping.
+The filter knows (f, C, Q, R) from traj.params and, with project=True ("pf"), the family's state projection
+(the quadrotor's clipping, applied to the initial and propagated particles, exactly as the simulator clips the
+state); project=False gives "pf-noclip".
 """
 
 from __future__ import annotations
@@ -14,8 +16,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from mop.filters.ekf import Dynamics, system_model
-from mop.systems import quadrotor
+from mop.filters.ekf import Dynamics, Projection, identity, system_model
 from mop.systems.base import Trajectories
 
 
@@ -53,24 +54,22 @@ def particle_filter_predict(
     *,
     num_particles: int = 1000,
     generator: torch.Generator,
-    clip: bool = False,
+    project: Projection | None = None,
 ) -> Tensor:
-    """One-step predictions yhat (B, T+1, m), shapes as in mop.filters.ekf.extended_kalman_predict."""
+    """One-step predictions yhat (B, T+1, m), shapes and `project` (here applied to every particle) as in
+    mop.filters.ekf.extended_kalman_predict."""
+    project = project or identity
     B, n = m0.shape
     L_Q = torch.linalg.cholesky(Q + 1e-12 * torch.eye(n, dtype=Q.dtype, device=Q.device))
     L_0 = torch.linalg.cholesky(P0 + 1e-12 * torch.eye(n, dtype=Q.dtype, device=Q.device))
     eps = torch.randn((B, num_particles, n), generator=generator, device=generator.device, dtype=m0.dtype)
-    X = m0[:, None] + eps @ L_0.mT  # (B, N, n)
-    if clip:
-        X = quadrotor.clip_state(X)
+    X = project(m0[:, None] + eps @ L_0.mT)  # (B, N, n)
     R_inv = torch.linalg.inv(R)  # (B, m, m)
     preds = []
     for t in range(y.shape[1]):
         preds.append((C @ X.mean(1)[..., None])[..., 0])  # (B, m)
         X = _condition_on(X, y[:, t], C, R_inv, generator)
-        X = _predict(X, None if u is None else u[:, t], f, L_Q, generator)
-        if clip:
-            X = quadrotor.clip_state(X)
+        X = project(_predict(X, None if u is None else u[:, t], f, L_Q, generator))
     return torch.stack(preds, dim=1)
 
 
@@ -81,38 +80,42 @@ def pf_predict(
     *,
     num_particles: int = 1000,
     seed: int = 0,
-    clip: bool = False,
+    project: bool = True,
 ) -> Tensor:
     """Particle-filter predictions (B, T+1, m) for systems in `params` (quadrotor or linear), in float64."""
-    f, _, m0 = system_model(params)
+    model = system_model(params)
     p = {k: params[k].double() for k in ("C", "Q", "R", "P0")}
     generator = torch.Generator(device=y.device).manual_seed(seed)
-    clip = clip and "mass" in params  # only the quadrotor is clipped
     u = None if u is None else u.double()
     return particle_filter_predict(
-        f,
+        model.f,
         p["C"],
         p["Q"],
         p["R"],
-        m0,
+        model.m0,
         p["P0"],
         y.double(),
         u,
         num_particles=num_particles,
         generator=generator,
-        clip=clip,
+        project=model.project if project else None,
     )
 
 
 class ParticleFilterPredictor:
     """Bootstrap particle filter knowing each system's parameters; seeded, `num_particles` per system."""
 
-    def __init__(self, num_particles: int = 1000, seed: int = 0, clip: bool = False) -> None:
-        self.num_particles, self.seed, self.clip = num_particles, seed, clip
-        self.name = "pf-clip" if clip else "pf"  # pf-clip also knows the quadrotor's state clipping
+    def __init__(self, num_particles: int = 1000, seed: int = 0, project: bool = True) -> None:
+        self.num_particles, self.seed, self.project = num_particles, seed, project
+        self.name = "pf" if project else "pf-noclip"  # pf also knows the quadrotor's state clipping
 
     def predict(self, traj: Trajectories) -> Tensor:
         yhat = pf_predict(
-            traj.params, traj.y, traj.u, num_particles=self.num_particles, seed=self.seed, clip=self.clip
+            traj.params,
+            traj.y,
+            traj.u,
+            num_particles=self.num_particles,
+            seed=self.seed,
+            project=self.project,
         )
         return yhat.to(traj.y.dtype)

@@ -5,11 +5,22 @@
     phi_{t+1} = phi + phidot tau
     vx_{t+1}  = vx + (vz phidot - g sin(phi)) tau
     vz_{t+1}  = vz + (-vx phidot - g cos(phi) + (u0 + u1) / m) tau
-    phidot_{t+1} = (u0 - u1) l tau / J                     (as printed in the paper)
+    phidot_{t+1} = phidot + (u0 - u1) l tau / J
     then + w_t, and the state is clipped to BOUNDS;         y_t = C x_t + v_t.
 
 (m, l, J) ~ U[0.5, 2], u0, u1 ~ U[-0.5, 0.5] each step, C (3 x 6) U[0,1], w, v ~ N(0, sigma^2 I), sigma 0.1.
-x_0 ~ N(0, noise_var_w I) clipped (the paper does not say; the drone starts near rest at the origin).
+x_0 ~ N(0, x0_std^2 I) per coordinate (x0_std = 1 by default), then clipped.
+
+Where this follows the authors' released code rather than the paper's text (DESIGN.md):
+- the angular rate ACCUMULATES (phidot_{t+1} = phidot_t + ...), the physical Euler step; the paper prints
+  phidot_{t+1} = (u0 - u1) l tau / J without phidot_t;
+- the state is clipped to BOUNDS after each step (noise included) and at t = 0; the paper does not mention it;
+- x_0 has unit scale (the paper does not give x_0).
+Where we follow the paper's text and deliberately differ from that code (effects measured by
+scripts/quadrotor_quirks.py):
+- x_0 is drawn independently per coordinate (their code copies ONE N(0, 1) draw into all six coordinates;
+  copying it would move mop's EKF error over t in [20, 50) by -0.01);
+- the three outputs get independent observation noise (their code shares one draw among them: -0.01).
 """
 
 from __future__ import annotations
@@ -45,7 +56,7 @@ def dynamics(x: Tensor, u: Tensor, mass: Tensor, length: Tensor, inertia: Tensor
             phi + phidot * TAU,
             vx + (vz * phidot - GRAVITY * s) * TAU,
             vz + (-vx * phidot - GRAVITY * c + (u0 + u1) / mass) * TAU,
-            (u0 - u1) * length * TAU / inertia,
+            phidot + (u0 - u1) * length * TAU / inertia,
         ],
         dim=-1,
     )
@@ -62,7 +73,7 @@ def dynamics_jacobian(x: Tensor, u: Tensor, mass: Tensor, length: Tensor, inerti
         [zero, zero, one, zero, zero, one * TAU],
         [zero, zero, -GRAVITY * c * TAU, one, phidot * TAU, vz * TAU],
         [zero, zero, GRAVITY * s * TAU, -phidot * TAU, one, -vx * TAU],
-        [zero, zero, zero, zero, zero, zero],
+        [zero, zero, zero, zero, zero, one],
     ]
     return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
 
@@ -75,7 +86,7 @@ def clip_state(x: Tensor) -> Tensor:
 
 class QuadrotorFamily:
     """params: "mass", "length", "inertia" (B,), "C" (B,3,6), "Q" (B,6,6), "R" (B,3,3), "P0" (B,6,6),
-    "x0_mean" (B,6).
+    "x0_mean" (B,6): x_0 ~ N(x0_mean, P0) = N(0, x0_std^2 I) before clipping.
 
     Trajectories carry u (B, T+1, 2); u_T is drawn too (the model reads [y_t, u_t]) but moves nothing.
     """
@@ -105,7 +116,7 @@ class QuadrotorFamily:
             "C": C,
             "Q": eye(STATE_DIM, cfg.noise_var_w),
             "R": eye(OUTPUT_DIM, cfg.noise_var_v),
-            "P0": eye(STATE_DIM, cfg.noise_var_w),
+            "P0": eye(STATE_DIM, cfg.x0_std**2),
             "x0_mean": torch.zeros(B, STATE_DIM, dtype=torch.float64, device=dev),
         }
 
@@ -115,9 +126,10 @@ class QuadrotorFamily:
         p = {k: v.to(self.dtype) for k, v in params.items()}
         B, cfg = p["C"].shape[0], self.config
         u = uniform((B, horizon + 1, INPUT_DIM), *ACTION_RANGE, generator, self.dtype)  # (B, T+1, 2)
-        w = normal((B, horizon + 1, STATE_DIM), generator, self.dtype) * cfg.noise_var_w**0.5
+        w = normal((B, horizon, STATE_DIM), generator, self.dtype) * cfg.noise_var_w**0.5
         v = normal((B, horizon + 1, OUTPUT_DIM), generator, self.dtype) * cfg.noise_var_v**0.5
-        x = clip_state(p["x0_mean"] + w[:, -1])  # x_0 ~ N(x0_mean, P0) with P0 = noise_var_w I, clipped
+        x0 = p["x0_mean"] + normal((B, STATE_DIM), generator, self.dtype) * cfg.x0_std  # N(x0_mean, P0)
+        x = clip_state(x0)  # (B, 6)
         xs = [x]
         for t in range(horizon):
             x = clip_state(dynamics(x, u[:, t], p["mass"], p["length"], p["inertia"]) + w[:, t])
