@@ -65,7 +65,17 @@ def test_baselines_by_name():
     """The paper's baselines are registered predictors, built by name with the name they report under."""
     from mop.predictors import PREDICTORS, make_predictor
 
-    names = ("kalman", "kalman-switch", "kalman-colored", "rls", "rls-best", "n4sid-kf", "zero", "last", "ekf")
+    names = (
+        "kalman",
+        "kalman-switch",
+        "kalman-colored",
+        "rls",
+        "rls-best",
+        "n4sid-kf",
+        "zero",
+        "last",
+        "ekf",
+    )
     names += ("ekf-noclip", "ukf", "ukf-noclip", "pf", "pf-noclip")
     for name in names:
         assert name in PREDICTORS and make_predictor(name).name == name

@@ -21,7 +21,7 @@ from mop.filters.kalman import KalmanPredictor
 from mop.filters.rls import RLSPredictor
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
-from mop.systems.quadrotor import GRAVITY, TAU
+from mop.systems.quadrotor import BOUNDS, GRAVITY, TAU
 
 HORIZON = 50
 
@@ -53,21 +53,23 @@ def loop_kalman(traj: Trajectories) -> np.ndarray:
 
 
 def loop_rls(traj: Trajectories, order: int = 2) -> np.ndarray:
-    """Per system and output: numpy RLS-AR(order), P0 = I, copying the last output before `order` samples."""
+    """Per system: numpy matrix RLS-AR(order) (every output on all outputs at `order` lags), P0 = I,
+    yhat_0 = 0 and yhat_t = y_{t-1} until order + 1 outputs are seen (the paper's baseline)."""
     y = traj.y.numpy()
+    B, T, m = y.shape
     out = np.zeros_like(y)
-    for b in range(y.shape[0]):
-        for i in range(y.shape[2]):
-            z, theta, P = y[b, :, i], np.zeros(order), np.eye(order)
-            for t in range(1, y.shape[1]):
-                if t < order:
-                    out[b, t, i] = z[t - 1]
-                    continue
-                if t > order:
-                    phi = z[t - 2 - np.arange(order)]
-                    k = P @ phi / (1 + phi @ P @ phi)
-                    theta, P = theta + k * (z[t - 1] - theta @ phi), P - np.outer(k, phi @ P)
-                out[b, t, i] = theta @ z[t - 1 - np.arange(order)]
+
+    def phi(z: np.ndarray, t: int) -> np.ndarray:  # [z_t, z_{t-1}, ..., z_{t-order+1}], zero before z_0
+        return np.concatenate([z[t - j] if t - j >= 0 else np.zeros(m) for j in range(order)])
+
+    for b in range(B):
+        z, theta, P = y[b], np.zeros((order * m, m)), np.eye(order * m)
+        out[b, 1 : order + 1] = z[: min(order, T - 1)]
+        for t in range(order + 1, T):
+            f = phi(z, t - 2)
+            k = P @ f / (1 + f @ P @ f)
+            theta, P = theta + np.outer(k, z[t - 1] - theta.T @ f), P - np.outer(k, f @ P)
+            out[b, t] = theta.T @ phi(z, t - 1)
     return out
 
 
@@ -87,23 +89,24 @@ def quad_f(
             0.0,
         ]
     )
-    f[5] = (u[0] - u[1]) * length * TAU / inertia
+    f[5] = dphi + (u[0] - u[1]) * length * TAU / inertia  # the angular rate accumulates
     F = np.eye(6)
     F[0, 2:5] = TAU * np.array([-vx * s - vz * c, c, -s])
     F[1, 2:5] = TAU * np.array([vx * c - vz * s, s, c])
     F[2, 5] = TAU
     F[3, [2, 4, 5]] = TAU * np.array([-GRAVITY * c, dphi, vz])
     F[4, [2, 3, 5]] = TAU * np.array([GRAVITY * s, -dphi, -vx])
-    F[5, 5] = 0.0
     return f, F
 
 
 def loop_ekf(traj: Trajectories) -> np.ndarray:
-    """Per-system numpy EKF (the authors' style)."""
+    """Per-system numpy EKF (the authors' style): the posterior mean is clipped before the step, the
+    predicted mean after it, F taken at the unclipped posterior."""
     p, y, u = {k: v.numpy() for k, v in traj.params.items()}, traj.y.numpy(), traj.u.numpy()
-    out = np.zeros_like(y)
+    out, bound = np.zeros_like(y), np.array(BOUNDS)
     for b in range(y.shape[0]):
-        C, Q, R, m, P = p["C"][b], p["Q"][b], p["R"][b], p["x0_mean"][b].copy(), p["P0"][b].copy()
+        C, Q, R, P = p["C"][b], p["Q"][b], p["R"][b], p["P0"][b].copy()
+        m = np.clip(p["x0_mean"][b], -bound, bound)
         for t in range(y.shape[1]):
             out[b, t] = C @ m
             S = C @ P @ C.T + R
@@ -111,8 +114,9 @@ def loop_ekf(traj: Trajectories) -> np.ndarray:
             m = m + K @ (y[b, t] - C @ m)
             I_KC = np.eye(6) - K @ C
             P = I_KC @ P @ I_KC.T + K @ R @ K.T
-            m, F = quad_f(m, u[b, t], p["mass"][b], p["length"][b], p["inertia"][b])
-            P = F @ P @ F.T + Q
+            _, F = quad_f(m, u[b, t], p["mass"][b], p["length"][b], p["inertia"][b])
+            f, _ = quad_f(np.clip(m, -bound, bound), u[b, t], p["mass"][b], p["length"][b], p["inertia"][b])
+            m, P = np.clip(f, -bound, bound), F @ P @ F.T + Q
     return out
 
 
