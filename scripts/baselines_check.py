@@ -14,7 +14,7 @@ import time
 import torch
 
 from mop.config import SystemConfig
-from mop.evaluate import make_baseline
+from mop.predictors import make_predictor
 from mop.systems import generator, make_family
 
 FAMILIES = ("linear", "upper-triangular", "colored-noise")
@@ -37,7 +37,7 @@ def main() -> None:
             if name == "kalman-colored" and fam != "colored-noise":
                 continue
             t0 = time.time()
-            preds[name] = make_baseline(name).predict(traj)[:, :50]
+            preds[name] = make_predictor(name).predict(traj)[:, :50]
             err = (preds[name] - y).norm(dim=-1)  # (N, 50)
             print(f"{fam:17s} {name:15s} err[20,50) = {err[:, 20:50].mean():.4f}   ({time.time() - t0:.1f}s)")
         if args.ratio and "kalman" in preds and "n4sid-kf" in preds:

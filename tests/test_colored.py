@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from mop.config import SystemConfig
-from mop.evaluate import make_baseline
 from mop.filters.colored import ColoredNoiseKalmanPredictor, colored_kalman_filter
 from mop.filters.kalman import kalman_filter
+from mop.predictors import make_predictor
 from mop.systems import generator, make_family
 from mop.systems.linear import moving_sum_noise
 
@@ -100,6 +100,6 @@ def test_empirical_error_matches_its_covariance_and_beats_the_white_kf():
     mse = ((yhat - traj.y) ** 2).sum(-1).mean()
     expected = S.diagonal(dim1=-2, dim2=-1).sum(-1).mean()
     assert abs(mse / expected - 1) < 0.05, (mse, expected)
-    white = ((make_baseline("kalman").predict(traj) - traj.y) ** 2).sum(-1).mean()
+    white = ((make_predictor("kalman").predict(traj) - traj.y) ** 2).sum(-1).mean()
     assert mse < 0.8 * white, (mse, white)
     torch.testing.assert_close(ColoredNoiseKalmanPredictor().predict(traj), yhat)
