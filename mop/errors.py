@@ -19,3 +19,9 @@ def require(module: str, purpose: str, extra: str = "bench") -> None:
         raise MopError(
             f"{purpose} needs {module}, which is not installed; run: pip install 'mop[{extra}]'"
         ) from None
+
+
+def check(condition: bool, message: str) -> None:
+    """Raise MopError(message) unless condition holds; for __post_init__ validation."""
+    if not condition:
+        raise MopError(message)

@@ -17,38 +17,6 @@ from mop.predictors import Predictor
 from mop.systems.base import Trajectories
 
 
-def _baselines() -> dict:
-    from mop.filters.colored import ColoredNoiseKalmanPredictor
-    from mop.filters.ekf import EKFPredictor
-    from mop.filters.kalman import KalmanPredictor
-    from mop.filters.particle import ParticleFilterPredictor
-    from mop.filters.rls import AdaptiveOrderRLSPredictor, RLSPredictor
-    from mop.filters.simple import LastValuePredictor, ZeroPredictor
-    from mop.filters.subspace import N4SIDKalmanPredictor
-    from mop.filters.ukf import UKFPredictor
-
-    system = {"needs_system": True}
-    return {
-        "kalman": (KalmanPredictor, {**system, "gaussian": True}),
-        "kalman-switch": (lambda: KalmanPredictor("kalman-switch", knows_switch=True), system),
-        "kalman-colored": (ColoredNoiseKalmanPredictor, system),
-        "rls": (RLSPredictor, {}),
-        "rls-best": (AdaptiveOrderRLSPredictor, {}),
-        "n4sid-kf": (lambda every=1: N4SIDKalmanPredictor(every=every), {}),
-        "zero": (ZeroPredictor, {}),
-        "last": (LastValuePredictor, {}),
-        "ekf": (EKFPredictor, system),
-        "ekf-noclip": (lambda: EKFPredictor(project=False), system),
-        "ukf": (UKFPredictor, system),
-        "ukf-noclip": (lambda: UKFPredictor(project=False), system),
-        "pf": (lambda seed=0: ParticleFilterPredictor(seed=seed), system),
-        "pf-noclip": (lambda seed=0: ParticleFilterPredictor(seed=seed, project=False), system),
-    }
-
-
-BASELINES = _baselines()
-
-
 def evaluate(predictors: list[Predictor], traj: Trajectories, progress: bool = True) -> dict[str, dict]:
     """{name: {"e": (N, T+1) per-system errors ||yhat_t - y_t||_2, "seconds": wall time}}.
 

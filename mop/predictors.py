@@ -38,10 +38,9 @@ class Predictor(Protocol):
 
 def _load_builtin() -> None:
     import mop.filters  # noqa: F401  (each module registers its predictors)
-    from mop.evaluate import BASELINES
+    from mop.systems import FAMILIES
 
-    for name, (factory, meta) in BASELINES.items():
-        PREDICTORS.add(name, factory, **meta)
+    FAMILIES.names()  # family modules may register their own baselines (e.g. kalman-system1)
 
     register_learned("mop", arch="gpt")
     register_learned("gru", arch="gru")

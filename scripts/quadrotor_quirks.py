@@ -20,10 +20,11 @@ import itertools
 import torch
 
 from mop.config import SystemConfig
-from mop.filters.ekf import _condition_on, ekf_predict, system_model
+from mop.filters.ekf import ekf_predict
+from mop.filters.gaussian import condition_on
 from mop.systems import generator, make_family
 from mop.systems.linear import normal, uniform
-from mop.systems.quadrotor import ACTION_RANGE, clip_state, dynamics
+from mop.systems.quadrotor import ACTION_RANGE, QuadrotorFamily, clip_state, dynamics
 
 HORIZON, WINDOW, NOISE_DRAWS = 50, (20, 50), 3
 
@@ -50,14 +51,14 @@ def simulate(params, horizon, gen, *, x0_shared=False, v_shared=False, sigma=0.1
 
 def ekf_with_noisy_mean(params, y, u, gen, sigma=0.1):
     """mop's EKF with quirk (a): m <- clip(f(clip(m), u) + w), w ~ N(0, sigma^2 I) drawn by the filter."""
-    model = system_model(params)
+    model = QuadrotorFamily.state_space(params)
     C, Q, R, P = (params[k] for k in ("C", "Q", "R", "P0"))
     m, preds = clip_state(model.m0), []
     for t in range(y.shape[1]):
         preds.append((C @ m[..., None])[..., 0])
-        m, P = _condition_on(m, P, y[:, t], C, R)
-        F = model.jacobian(m, u[:, t])  # at the unclipped posterior mean, as mop's EKF and theirs
-        m = model.f(clip_state(m)[:, None], u[:, t, None])[:, 0]
+        m, P, _ = condition_on(m, P, y[:, t], C, R)
+        F = model.jacobian(m, u[:, t], t)  # at the unclipped posterior mean, as mop's EKF and theirs
+        m = model.f(clip_state(m)[:, None], u[:, t, None], t)[:, 0]
         m, P = clip_state(m + normal(m.shape, gen) * sigma), F @ P @ F.mT + Q
     return torch.stack(preds, dim=1)
 
@@ -89,9 +90,9 @@ def main() -> None:
             )
             ekf /= NOISE_DRAWS
         else:
-            ekf = window_error(ekf_predict(params, y, u), y)
+            ekf = window_error(ekf_predict(QuadrotorFamily.state_space(params), y, u), y)
         base = ekf if base is None else base
-        noclip = ekf_predict(params, y, u, project=False)
+        noclip = ekf_predict(QuadrotorFamily.state_space(params), y, u, project=False)
         last = torch.cat([torch.zeros_like(y[:, :1]), y[:, :-1]], dim=1)  # yhat_t = y_{t-1}
         row = (ekf, ekf - base, window_error(noclip, y), window_error(last, y))
         on = ((x0_shared, 9), (v_shared, 8), (ekf_noise, 9))

@@ -104,28 +104,29 @@ def test_ekf_step_clips_like_the_authors_ekf():
     C = lambda x: (p["C"] @ x[..., None])[..., 0]  # noqa: E731
     clip = quadrotor.clip_state
     m0 = p["x0_mean"]
-    yhat = ekf_predict(p, traj.y, traj.u)
+    model = quadrotor.QuadrotorFamily.state_space(p)
+    yhat = ekf_predict(model, traj.y, traj.u)
     torch.testing.assert_close(yhat[:, 0], C(clip(m0)))
     torch.testing.assert_close(yhat[:, 1], C(clip(f(clip(m0)))), atol=1e-8, rtol=0)
-    yhat = ekf_predict(p, traj.y, traj.u, project=False)
+    yhat = ekf_predict(model, traj.y, traj.u, project=False)
     torch.testing.assert_close(yhat[:, 0], C(m0))
     torch.testing.assert_close(yhat[:, 1], C(f(m0)), atol=1e-8, rtol=0)
 
 
 def test_ekf_time_update_clips_the_posterior_mean_before_the_step():
     """The authors' EKF: m <- clip(f(clip(m), u)), P <- F P F^T + Q with F at the UNclipped posterior m."""
-    from mop.filters.ekf import _predict, identity, system_model
+    from mop.filters.gaussian import ekf_step
 
     traj = quad_traj(4, 2, 10)
-    model = system_model(traj.params)
+    model = quadrotor.QuadrotorFamily.state_space(traj.params)
     m = torch.tensor([[1.0, -25.0, -1.3, 2.4, -2.6, 0.9]], dtype=torch.float64).expand(4, 6)  # out of bounds
     P, Q, u = traj.params["P0"], traj.params["Q"], traj.u[:, 0]
-    F = model.jacobian(m, u)
-    f = lambda x: model.f(x[:, None], u[:, None])[:, 0]  # noqa: E731
-    m_next, P_next = _predict(m, P, u, model.f, model.jacobian, Q, quadrotor.clip_state)
+    F = model.jacobian(m, u, 0)
+    f = lambda x: model.f(x[:, None], u[:, None], 0)[:, 0]  # noqa: E731
+    m_next, P_next = ekf_step(model, m, P, u, 0, quadrotor.clip_state)
     torch.testing.assert_close(m_next, quadrotor.clip_state(f(quadrotor.clip_state(m))))
     torch.testing.assert_close(P_next, F @ P @ F.mT + Q)
-    m_next, P_next = _predict(m, P, u, model.f, model.jacobian, Q, identity)
+    m_next, P_next = ekf_step(model, m, P, u, 0, None)
     torch.testing.assert_close(m_next, f(m))
 
 
@@ -162,12 +163,14 @@ def test_quadrotor_error_levels():
 def test_unscented_time_update_closed_form():
     """f(x) = x^2 for x ~ N(mu, s^2): E f = mu^2 + s^2, Var f = 2 s^4 + 4 mu^2 s^2; the UT with n = 1,
     alpha = 1, beta = 0, kappa = 2 (points mu, mu +- sqrt(3) s) reproduces both exactly."""
-    from mop.filters.ukf import _predict
+    from mop.filters.gaussian import ukf_step_with
+    from mop.systems.base import StateSpace
 
     mu, s2, q = torch.tensor([[0.7], [-1.3]], dtype=torch.float64), torch.tensor([0.2, 0.5]), 0.03
     P = s2.double()[:, None, None]  # (B, 1, 1)
     Q = torch.full((2, 1, 1), q, dtype=torch.float64)
-    m, P_next = _predict(mu, P, None, lambda x, u: x**2, Q, alpha=1.0, beta=0.0, kappa=2.0)
+    model = StateSpace(f=lambda x, u, t: x**2, C=torch.ones(2, 1, 1), Q=Q, R=Q, m0=mu, P0=P)
+    m, P_next = ukf_step_with(alpha=1.0, beta=0.0, kappa=2.0)(model, mu, P, None, 0)
     mu, s2 = mu[:, 0], s2.double()
     torch.testing.assert_close(m[:, 0], mu**2 + s2)
     torch.testing.assert_close(P_next[:, 0, 0], 2 * s2**2 + 4 * mu**2 * s2 + q)

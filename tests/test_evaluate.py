@@ -67,7 +67,7 @@ def test_baselines_by_name():
 
     names = (
         "kalman",
-        "kalman-switch",
+        "kalman-system1",
         "kalman-colored",
         "rls",
         "rls-best",

@@ -7,7 +7,6 @@ import torch
 from filterpy.kalman import KalmanFilter
 
 from mop.filters.kalman import (
-    KalmanPredictor,
     innovation_floor,
     kalman_filter,
     kalman_predict,
@@ -16,6 +15,7 @@ from mop.filters.kalman import (
     steady_state_gain,
     steady_state_predict,
 )
+from mop.predictors import make_predictor
 from mop.systems.base import Trajectories
 
 
@@ -132,8 +132,8 @@ def test_switch_aware_kalman_equals_kf_with_system2_after_switch():
     traj = _switching_traj(rng, s=s)
     p = {k: v.numpy() for k, v in traj.params.items()}
     y = traj.y.numpy()
-    yhat = KalmanPredictor("kalman-switch", knows_switch=True).predict(traj).numpy()
-    keep = KalmanPredictor().predict(traj).numpy()
+    yhat = make_predictor("kalman").predict(traj).numpy()  # the switching family's model knows the switch
+    keep = make_predictor("kalman-system1").predict(traj).numpy()  # the authors' baseline keeps system 1
     np.testing.assert_allclose(
         yhat[:, :s],
         filterpy_predict(p["A"], p["C"], p["Q"], p["R"], y[:, :s], np.zeros((4, 3)), p["P0"]),

@@ -30,7 +30,7 @@ def _check_schema(data: dict, names: set[str]) -> None:
     "name, predictors",
     [
         ("colored-noise", {"mop", "kalman", "rls", "rls-best", "n4sid-kf"}),
-        ("switching", {"mop", "kalman", "kalman-switch", "rls"}),
+        ("switching", {"mop", "kalman", "kalman-system1", "rls"}),
         ("quadrotor", {"mop", "ekf", "ukf", "pf"}),
         ("upper-triangular", {"mop", "kalman", "rls"}),
     ],

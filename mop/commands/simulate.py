@@ -13,14 +13,11 @@ import torch
 
 from mop.atomic import atomic_path
 from mop.commands import OverridesAnywhere
-from mop.config import FAMILIES, SystemConfig, apply_overrides
+from mop.config import SystemConfig, apply_overrides, to_dict
 from mop.errors import MopError
-from mop.systems import generator, make_family
+from mop.systems import FAMILIES, generator, make_family
 
-EPILOG = """overrides (key=value, any SystemConfig field):
-  state_dim=10 output_dim=5 noise_var_w=0.01 noise_var_v=0.01 spectral_radius=0.95 x0_std=1.0
-  color_window=5 switch_time=50 max_abs=50.0
-
+EXAMPLES = """
 examples:
   mop simulate linear --systems 1000 --horizon 50 --seed 0 --out linear.npz
   mop simulate switching --horizon 100 switch_time=50 --out switching.npz
@@ -32,9 +29,14 @@ examples:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.__class__ = OverridesAnywhere  # the subparser the dispatcher made for us
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.epilog = EPILOG
-    parser.add_argument("family", choices=FAMILIES, help="system family to sample from")
-    parser.add_argument("overrides", nargs="*", metavar="key=value", help="SystemConfig settings (see below)")
+    knobs = [
+        f"  {name}: "
+        + " ".join(f"{k}={v}" for k, v in to_dict(SystemConfig(family=name)).items() if k != "family")
+        for name in FAMILIES.names()
+    ]
+    parser.epilog = "overrides (key=value) per family, with their defaults:\n" + "\n".join(knobs) + EXAMPLES
+    parser.add_argument("family", choices=FAMILIES.names(), help="system family to sample from")
+    parser.add_argument("overrides", nargs="*", metavar="key=value", help="the family's settings (see below)")
     parser.add_argument(
         "--systems", type=int, default=1000, help="number of systems, one trajectory each (1000)"
     )

@@ -1,14 +1,13 @@
-"""Classical predictors, batched over systems: Kalman (and steady-state), RLS, subspace identification,
-simple baselines; the quadrotor EKF / UKF / particle filter live in ekf.py, ukf.py, particle.py."""
+"""Classical predictors, batched over systems, each registered in mop.predictors.PREDICTORS by its module:
+the Gaussian filtering core (gaussian.py) with the Kalman filter, EKF and UKF; the particle filter; the exact
+colored-noise filter; RLS; subspace identification; simple baselines."""
 
-from mop.filters.colored import ColoredNoiseKalmanPredictor, colored_kalman_filter
+from mop.filters import colored, ekf, gaussian, kalman, particle, rls, simple, subspace, ukf  # noqa: F401
 from mop.filters.kalman import (
     KalmanPredictor,
     KalmanResult,
-    innovation_floor,
     kalman_filter,
     kalman_predict,
-    optimal_mse_curve,
     solve_filter_dare,
     steady_state_gain,
 )
@@ -23,10 +22,6 @@ __all__ = [
     "kalman_predict",
     "solve_filter_dare",
     "steady_state_gain",
-    "innovation_floor",
-    "optimal_mse_curve",
-    "ColoredNoiseKalmanPredictor",
-    "colored_kalman_filter",
     "RLSPredictor",
     "AdaptiveOrderRLSPredictor",
     "rls_predict",

@@ -18,9 +18,9 @@ then z_{t+1} = A_aug z_t + G [a_{t+W-1}; b_{t+W}] and y_t = C_aug z_t exactly (n
 
 The new draws are independent of z_t, so this is a standard state-space model with process noise covariance
 Q_aug = G diag(q I, r I) G^T (positive semi-definite) and R_aug = 0. The Kalman filter on it
-(mop.filters.kalman.kalman_loop) is the exact MMSE predictor E[y_t | y_{<t}]; its innovation covariance
+(mop.filters.gaussian.gaussian_filter) is the exact MMSE predictor E[y_t | y_{<t}]; its innovation covariance
 S_t = C_aug P_t C_aug^T >= r I (the draw b_{t+W-1} is unobserved before t), so the Cholesky of S_t in
-_condition_on is always defined (for r > 0), with no jitter. Prior at t = 0:
+condition_on is always defined (for r > 0), with no jitter. Prior at t = 0:
 z_0 ~ N(0, blockdiag(P0, q I, ..., r I, ...)). For W = 1 the model is x_{t+1} = A x_t + a_t,
 y_t = C x_t + b_t:
 the plain Kalman filter with Q = q I, R = r I.
@@ -32,8 +32,9 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
-from mop.filters.kalman import kalman_loop
-from mop.systems.base import Trajectories
+from mop.filters.gaussian import gaussian_filter, kalman_step
+from mop.predictors import PREDICTORS
+from mop.systems.base import StateSpace, Trajectories
 
 
 def augmented_model(
@@ -86,9 +87,19 @@ def colored_kalman_filter(
     A_aug, C_aug, Q_aug, P0_aug = augmented_model(A, C, var_w, var_v, window, P0)
     R_aug = torch.zeros(B, m, m, dtype=A.dtype, device=A.device)
     z0 = torch.zeros(B, A_aug.shape[-1], dtype=A.dtype, device=A.device)
-    return kalman_loop(lambda t: (A_aug, C_aug), Q_aug, R_aug, y, z0, P0_aug)
+    model = StateSpace(
+        f=lambda x, u, t: x @ A_aug.mT,
+        C=C_aug,
+        Q=Q_aug,
+        R=R_aug,
+        m0=z0,
+        P0=P0_aug,
+        jacobian=lambda x, u, t: A_aug,
+    )
+    return gaussian_filter(model, kalman_step, y)
 
 
+@PREDICTORS.register("kalman-colored", needs_system=True)
 class ColoredNoiseKalmanPredictor:
     """Kalman filter on the noise-augmented state ("kalman-colored"): the optimal predictor for the
     colored-noise family when the system is known. Needs params A, C, P0, noise_var_w, noise_var_v (B,),

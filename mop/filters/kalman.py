@@ -2,11 +2,10 @@
 
     x_{t+1} = A x_t + w_t,  w_t ~ N(0, Q)        y_t = C x_t + v_t,  v_t ~ N(0, R)        x_0 ~ N(x0, P0)
 
-With m_t, P_t the prior mean / covariance of x_t given y_{<t}:
+The filter is mop.filters.gaussian's core with the linear time update (kalman_step):
 
     yhat_t = C m_t,   S_t = C P_t C^T + R                  (predictive mean and covariance of y_t)
-    condition on y_t:  K = P C^T S^{-1},  m <- m + K (y_t - C m),  P <- (I - K C) P (I - K C)^T + K R K^T
-    predict:           m <- A m,  P <- A P A^T + Q
+    condition on y_t (Joseph form), then  m <- A m,  P <- A P A^T + Q
 
 The steady-state predictor uses the fixed point P of the filter Riccati equation (DARE)
     P = A P A^T - A P C^T (C P C^T + R)^{-1} C P A^T + Q,
@@ -15,7 +14,6 @@ solved batched in torch by structured doubling (tested against scipy.linalg.solv
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,10 +21,11 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
-from mop.systems.base import Trajectories
+from mop.filters.gaussian import GaussianFilterPredictor, condition_on, gaussian_filter, kalman_step
+from mop.predictors import PREDICTORS
+from mop.systems.base import StateSpace
 
 Array = Tensor | np.ndarray
-StepMatrices = Callable[[int], tuple[Tensor, Tensor]]  # t -> (A_t (B, n, n), C_t (B, m, n))
 
 
 @dataclass(frozen=True)
@@ -57,37 +56,6 @@ def _check_shapes(A: Tensor, C: Tensor, Q: Tensor, R: Tensor, y: Tensor) -> None
         raise MopError(f"kalman: y has shape {tuple(y.shape)}, expected ({B}, T, {m}); fix the inputs")
 
 
-def _condition_on(m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Measurement update, Joseph form. m (B, n), P (B, n, n), y (B, m) -> (m, P, S (B, m, m))."""
-    S = C @ P @ C.mT + R  # (B, m, m)
-    L = torch.linalg.cholesky(S)  # (B, m, m)
-    K = torch.cholesky_solve(C @ P, L).mT  # (B, n, m) = P C^T S^{-1}
-    m = m + (K @ (y - (C @ m[..., None])[..., 0])[..., None])[..., 0]
-    I_KC = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device) - K @ C  # (B, n, n)
-    P = I_KC @ P @ I_KC.mT + K @ R @ K.mT
-    return m, P, S
-
-
-def _predict(m: Tensor, P: Tensor, A: Tensor, Q: Tensor) -> tuple[Tensor, Tensor]:
-    """Time update: m <- A m, P <- A P A^T + Q (symmetrized)."""
-    P = A @ P @ A.mT + Q
-    return (A @ m[..., None])[..., 0], 0.5 * (P + P.mT)
-
-
-def kalman_loop(
-    matrices: StepMatrices, Q: Tensor, R: Tensor, y: Tensor, x0: Tensor, P0: Tensor
-) -> tuple[Tensor, Tensor]:
-    """Time-varying KF: matrices(t) gives (A_t, C_t); y_t = C_t x_t, x_{t+1} = A_t x_t. Returns yhat, S."""
-    m, P, preds, covs = x0, P0, [], []
-    for t in range(y.shape[1]):
-        A, C = matrices(t)
-        preds.append((C @ m[..., None])[..., 0])
-        m, P, S = _condition_on(m, P, y[:, t], C, R)
-        covs.append(S)
-        m, P = _predict(m, P, A, Q)
-    return torch.stack(preds, dim=1), torch.stack(covs, dim=1)  # (B, T, m), (B, T, m, m)
-
-
 def kalman_filter(
     A: Array, C: Array, Q: Array, R: Array, y: Array, x0: Array | None = None, P0: Array | None = None
 ) -> KalmanResult:
@@ -102,7 +70,8 @@ def kalman_filter(
     B, n = A.shape[0], A.shape[-1]
     x0 = torch.zeros(B, n, dtype=A.dtype) if x0 is None else x0
     P0 = torch.eye(n, dtype=A.dtype).expand(B, n, n) if P0 is None else P0
-    yhat, S = kalman_loop(lambda t: (A, C), Q, R, y, x0, P0)
+    model = StateSpace(f=lambda x, u, t: x @ A.mT, C=C, Q=Q, R=R, m0=x0, P0=P0, jacobian=lambda x, u, t: A)
+    yhat, S = gaussian_filter(model, kalman_step, y)
     if is_numpy:
         return KalmanResult(yhat.numpy(), S.numpy())
     return KalmanResult(yhat, S)
@@ -157,54 +126,14 @@ def steady_state_predict(A: Tensor, C: Tensor, K: Tensor, y: Tensor, x0: Tensor 
     return torch.stack(preds, dim=1)
 
 
-def _linear_params(traj: Trajectories) -> dict[str, Tensor]:
-    missing = [k for k in ("A", "C", "Q", "R") if k not in traj.params]
-    if missing:
-        raise MopError(
-            f"the Kalman predictor needs linear-system parameters {missing} in the trajectories; "
-            "use it on a linear family"
-        )
-    p = {k: v.double() for k, v in traj.params.items() if v.is_floating_point()}
-    B, n = p["A"].shape[0], p["A"].shape[-1]
-    p.setdefault("P0", torch.eye(n, dtype=torch.float64).expand(B, n, n))
-    return p
+@PREDICTORS.register("kalman", needs_system=True, gaussian=True)
+class KalmanPredictor(GaussianFilterPredictor):
+    """The Kalman filter that knows each system: its family's (linear) StateSpace, x_0 ~ N(0, P0).
+    On switching systems the family's model switches too (the authors' KF that keeps system 1 is the
+    predictor "kalman-system1" of mop.systems.switching)."""
 
-
-class KalmanPredictor:
-    """The Kalman filter that knows each system (A, C, Q, R, P0 from traj.params; x_0 mean 0).
-
-    On switching systems it keeps system 1's (A, C) throughout, as the authors' baseline does;
-    `knows_switch=True` (name "kalman-switch") uses (A2, C2) from switch_time on, continuing its estimate.
-    `steady_state=True` uses the constant DARE gain instead of the time-varying one.
-    """
-
-    def __init__(self, name: str = "kalman", steady_state: bool = False, knows_switch: bool = False) -> None:
-        self.name, self.steady_state, self.knows_switch = name, steady_state, knows_switch
-
-    def predict(self, traj: Trajectories) -> Tensor:
-        p, y = _linear_params(traj), traj.y.double()
-        if self.steady_state:
-            K, _ = steady_state_gain(p["A"], p["C"], p["Q"], p["R"])
-            return steady_state_predict(p["A"], p["C"], K, y).to(traj.y.dtype)
-        return self.predict_distribution(traj)[0]
-
-    def predict_distribution(self, traj: Trajectories) -> tuple[Tensor, Tensor]:
-        """(mean, var) each (B, T+1, m): C m_t and diag(S_t) = diag(C P_t C^T + R) of the time-varying KF."""
-        p, y = _linear_params(traj), traj.y.double()
-        x0 = torch.zeros(p["A"].shape[:-1], dtype=torch.float64)
-        yhat, S = kalman_loop(self._matrices(p, traj), p["Q"], p["R"], y, x0, p["P0"])
-        return yhat.to(traj.y.dtype), torch.diagonal(S, dim1=-2, dim2=-1).to(traj.y.dtype)
-
-    def _matrices(self, p: dict[str, Tensor], traj: Trajectories) -> StepMatrices:
-        if not self.knows_switch:
-            return lambda t: (p["A"], p["C"])
-        if "switch_time" not in traj.params:
-            raise MopError(
-                "kalman-switch needs switching-system parameters (A2, C2, switch_time); "
-                "use it on the switching family"
-            )
-        s = traj.params["switch_time"].to(torch.long)[:, None, None]  # (B, 1, 1)
-        return lambda t: (torch.where(t >= s, p["A2"], p["A"]), torch.where(t >= s, p["C2"], p["C"]))
+    def __init__(self) -> None:
+        super().__init__(kalman_step, project=False, name="kalman")
 
 
 def innovation_floor(A: Array, C: Array, Q: Array, R: Array) -> Tensor:
@@ -240,7 +169,7 @@ def optimal_mse_curve(
     m, zero_y = A.new_zeros(B, n), A.new_zeros(B, C.shape[1])
     out = []
     for _ in range(horizon + 1):
-        _, P, S = _condition_on(m, P, zero_y, C, R)
+        _, P, S = condition_on(m, P, zero_y, C, R)
         out.append(S.diagonal(dim1=-2, dim2=-1).sum(-1))
-        _, P = _predict(m, P, A, Q)
+        P = A @ P @ A.mT + Q
     return torch.stack(out, dim=1)

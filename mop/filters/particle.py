@@ -13,11 +13,15 @@ state); project=False gives "pf-noclip".
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import Tensor
 
-from mop.filters.ekf import Dynamics, Projection, identity, system_model
-from mop.systems.base import Trajectories
+from mop.predictors import PREDICTORS
+from mop.systems.base import StateSpace, Trajectories, state_space_of
+
+Dynamics = Callable[[Tensor, "Tensor | None"], Tensor]  # f: (x (B, N, n), u (B, N, k) | None) -> (B, N, n)
 
 
 def _condition_on(X: Tensor, y: Tensor, C: Tensor, R_inv: Tensor, generator: torch.Generator) -> Tensor:
@@ -42,39 +46,8 @@ def _predict(X: Tensor, u: Tensor | None, f: Dynamics, L_Q: Tensor, generator: t
     return FX + eps @ L_Q.mT
 
 
-def particle_filter_predict(
-    f: Dynamics,
-    C: Tensor,
-    Q: Tensor,
-    R: Tensor,
-    m0: Tensor,
-    P0: Tensor,
-    y: Tensor,
-    u: Tensor | None = None,
-    *,
-    num_particles: int = 1000,
-    generator: torch.Generator,
-    project: Projection | None = None,
-) -> Tensor:
-    """One-step predictions yhat (B, T+1, m), shapes and `project` (here applied to every particle) as in
-    mop.filters.ekf.extended_kalman_predict."""
-    project = project or identity
-    B, n = m0.shape
-    L_Q = torch.linalg.cholesky(Q + 1e-12 * torch.eye(n, dtype=Q.dtype, device=Q.device))
-    L_0 = torch.linalg.cholesky(P0 + 1e-12 * torch.eye(n, dtype=Q.dtype, device=Q.device))
-    eps = torch.randn((B, num_particles, n), generator=generator, device=generator.device, dtype=m0.dtype)
-    X = project(m0[:, None] + eps @ L_0.mT)  # (B, N, n)
-    R_inv = torch.linalg.inv(R)  # (B, m, m)
-    preds = []
-    for t in range(y.shape[1]):
-        preds.append((C @ X.mean(1)[..., None])[..., 0])  # (B, m)
-        X = _condition_on(X, y[:, t], C, R_inv, generator)
-        X = project(_predict(X, None if u is None else u[:, t], f, L_Q, generator))
-    return torch.stack(preds, dim=1)
-
-
 def pf_predict(
-    params: dict[str, Tensor],
+    model: StateSpace,
     y: Tensor,
     u: Tensor | None = None,
     *,
@@ -82,36 +55,41 @@ def pf_predict(
     seed: int = 0,
     project: bool = True,
 ) -> Tensor:
-    """Particle-filter predictions (B, T+1, m) for systems in `params` (quadrotor or linear), in float64."""
-    model = system_model(params)
-    p = {k: params[k].double() for k in ("C", "Q", "R", "P0")}
+    """One-step predictions yhat (B, T+1, m) for the systems of `model` (a family's StateSpace), float64.
+
+    y (B, T+1, m), u (B, T+1, k) or None; `project` applies the model's projection to every particle.
+    """
     generator = torch.Generator(device=y.device).manual_seed(seed)
-    u = None if u is None else u.double()
-    return particle_filter_predict(
-        model.f,
-        p["C"],
-        p["Q"],
-        p["R"],
-        model.m0,
-        p["P0"],
-        y.double(),
-        u,
-        num_particles=num_particles,
-        generator=generator,
-        project=model.project if project else None,
-    )
+    proj = model.project if project and model.project is not None else (lambda x: x)
+    y, u = y.double(), None if u is None else u.double()
+    B, n = model.m0.shape
+    eye = 1e-12 * torch.eye(n, dtype=y.dtype, device=y.device)
+    L_Q, L_0 = torch.linalg.cholesky(model.Q + eye), torch.linalg.cholesky(model.P0 + eye)
+    eps = torch.randn((B, num_particles, n), generator=generator, device=generator.device, dtype=y.dtype)
+    X = proj(model.m0[:, None] + eps @ L_0.mT)  # (B, N, n)
+    R_inv = torch.linalg.inv(model.R)  # (B, m, m)
+    preds = []
+    for t in range(y.shape[1]):
+        C = model.output_matrix(t)
+        preds.append((C @ X.mean(1)[..., None])[..., 0])  # (B, m)
+        X = _condition_on(X, y[:, t], C, R_inv, generator)
+        f = lambda x, v, t=t: model.f(x, v, t)  # noqa: E731
+        X = proj(_predict(X, None if u is None else u[:, t], f, L_Q, generator))
+    return torch.stack(preds, dim=1)
 
 
+@PREDICTORS.register("pf", needs_system=True)
 class ParticleFilterPredictor:
-    """Bootstrap particle filter knowing each system's parameters; seeded, `num_particles` per system."""
+    """Bootstrap particle filter knowing each system; seeded, `num_particles` per system. project=True
+    ("pf") also knows the simulator's state projection (the quadrotor's clipping), False ("pf-noclip") not."""
 
     def __init__(self, num_particles: int = 1000, seed: int = 0, project: bool = True) -> None:
         self.num_particles, self.seed, self.project = num_particles, seed, project
-        self.name = "pf" if project else "pf-noclip"  # pf also knows the quadrotor's state clipping
+        self.name = "pf" if project else "pf-noclip"
 
     def predict(self, traj: Trajectories) -> Tensor:
         yhat = pf_predict(
-            traj.params,
+            state_space_of(traj),
             traj.y,
             traj.u,
             num_particles=self.num_particles,
@@ -119,3 +97,8 @@ class ParticleFilterPredictor:
             project=self.project,
         )
         return yhat.to(traj.y.dtype)
+
+
+PREDICTORS.add(
+    "pf-noclip", lambda seed=0: ParticleFilterPredictor(seed=seed, project=False), needs_system=True
+)

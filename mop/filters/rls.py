@@ -19,6 +19,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from mop.predictors import PREDICTORS
 from mop.systems.base import Trajectories
 
 
@@ -66,6 +67,7 @@ def adaptive_order_rls_predict(y: Tensor, max_order: int = 5) -> tuple[Tensor, T
     return yhat, best + 1
 
 
+@PREDICTORS.register("rls")
 class RLSPredictor:
     """Matrix RLS autoregression of a fixed order (the paper's baseline: order 2, 2m regressors)."""
 
@@ -76,6 +78,7 @@ class RLSPredictor:
         return rls_predict(traj.y.double(), self.order).to(traj.y.dtype)
 
 
+@PREDICTORS.register("rls-best")
 class AdaptiveOrderRLSPredictor:
     """Matrix RLS with the order 1..max_order chosen online by the lowest past one-step error ("rls-best")."""
 

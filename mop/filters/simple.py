@@ -5,9 +5,11 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from mop.predictors import PREDICTORS
 from mop.systems.base import Trajectories
 
 
+@PREDICTORS.register("zero")
 class ZeroPredictor:
     """yhat_t = 0 (the prior mean of every output)."""
 
@@ -17,6 +19,7 @@ class ZeroPredictor:
         return torch.zeros_like(traj.y)  # (B, T+1, m)
 
 
+@PREDICTORS.register("last")
 class LastValuePredictor:
     """yhat_t = y_{t-1}, and yhat_0 = 0."""
 

@@ -19,6 +19,7 @@ from torch import Tensor
 
 from mop.errors import MopError
 from mop.filters.rls import rls_predict
+from mop.predictors import PREDICTORS
 from mop.systems.base import Trajectories
 
 
@@ -112,6 +113,7 @@ def n4sid_kalman_predict(
     return torch.stack(preds, dim=1)
 
 
+@PREDICTORS.register("n4sid-kf")
 class N4SIDKalmanPredictor:
     """Subspace identification from the prefix + steady-state Kalman predictor ("n4sid-kf").
 

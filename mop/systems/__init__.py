@@ -1,27 +1,30 @@
-"""System families (distributions over dynamical systems), batched and seeded.
+"""System families (distributions over dynamical systems), batched and seeded, found by name in FAMILIES.
 
 family = make_family(SystemConfig(family="linear"))
 traj = family.generate(1000, 50, generator=generator(seed=0))   # Trajectories, y (1000, 51, 5)
+
+Each family is one module that registers itself (mop.systems.base.register_family); a family outside the
+package registers the same way when its module is imported (e.g. as a plugin of an experiment file).
 """
 
 from __future__ import annotations
 
 import torch
 
-from mop.config import SystemConfig
-from mop.systems.base import SystemFamily, Trajectories
-from mop.systems.linear import LinearFamily
-from mop.systems.quadrotor import QuadrotorFamily
-from mop.systems.switching import SwitchingFamily
+from mop.systems.base import (
+    FAMILIES,
+    StateSpace,
+    SystemConfig,
+    SystemFamily,
+    Trajectories,
+    register_family,
+    state_space_of,
+)
 
 
 def make_family(config: SystemConfig, dtype: torch.dtype = torch.float32) -> SystemFamily:
     """The family named by config.family; generate() returns tensors of `dtype` (use float64 for filters)."""
-    if config.family == "quadrotor":
-        return QuadrotorFamily(config, dtype)
-    if config.family == "switching":
-        return SwitchingFamily(config, dtype)
-    return LinearFamily(config, dtype)
+    return FAMILIES.get(config.family)(config, dtype)
 
 
 def generator(seed: int, device: torch.device | str = "cpu") -> torch.Generator:
@@ -30,11 +33,13 @@ def generator(seed: int, device: torch.device | str = "cpu") -> torch.Generator:
 
 
 __all__ = [
-    "make_family",
-    "generator",
+    "FAMILIES",
+    "StateSpace",
+    "SystemConfig",
     "SystemFamily",
     "Trajectories",
-    "LinearFamily",
-    "SwitchingFamily",
-    "QuadrotorFamily",
+    "generator",
+    "make_family",
+    "register_family",
+    "state_space_of",
 ]

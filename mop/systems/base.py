@@ -1,18 +1,40 @@
-"""Shared containers and the interface every system family implements.
+"""What every system family shares: trajectories, configs, the state-space description filters consume,
+the family registry, sampling helpers and the redraw loop.
 
 Time indexing used everywhere in mop: a trajectory of horizon T holds outputs y_0..y_T
 (T + 1 of them). Inputs u_t (where a family has them) act between y_t and y_{t+1}:
-x_{t+1} = f(x_t, u_t) + w_t, y_t = g(x_t) + v_t.
+x_{t+1} = f(x_t, u_t) + w_t, y_t = C x_t + v_t.
+
+A new family is one module:
+
+    @dataclass(frozen=True)
+    class PendulumConfig(SystemConfig):        # only its own knobs, validated in __post_init__
+        family: str = "pendulum"
+        damping: float = 0.1
+
+    @register_family("pendulum", PendulumConfig)
+    class Pendulum(SystemFamily):
+        def sample(self, num_systems, *, generator): ...          # params, each (B, ...)
+        def simulate(self, params, horizon, *, generator): ...    # Trajectories
+        @staticmethod
+        def state_space(params): ...                              # StateSpace for the EKF / UKF / PF
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor
+
+from mop.errors import MopError, check
+from mop.registry import Registry
+
+MAX_REDRAWS = 100
 
 
 @dataclass
@@ -24,7 +46,7 @@ class Trajectories:
     x: (B, T+1, n) true states, or None for measured data.
     params: per-system parameters, each with leading dim B (e.g. "A": (B, n, n), "C": (B, m, n),
         "Q": (B, n, n), "R": (B, m, m)); what a predictor that knows the system may use.
-    family: name of the family that made it ("" for user data).
+    family: name of the family that made it ("" for user data); its state_space(params) describes the systems.
     """
 
     y: Tensor
@@ -54,63 +76,264 @@ class Trajectories:
         """(B, T+1, m + k): [y_t, u_t] per step, the sequence a learned predictor reads."""
         return self.y if self.u is None else torch.cat([self.y, self.u], dim=-1)
 
-    def to(self, device: torch.device | str) -> Trajectories:
-        move = lambda t: None if t is None else t.to(device)  # noqa: E731
+    def _map(self, fn: Callable[[Tensor], Tensor]) -> Trajectories:
+        opt = lambda t: None if t is None else fn(t)  # noqa: E731
         return Trajectories(
-            move(self.y),
-            move(self.u),
-            move(self.x),
-            {k: v.to(device) for k, v in self.params.items()},
-            self.family,
+            fn(self.y), opt(self.u), opt(self.x), {k: fn(v) for k, v in self.params.items()}, self.family
         )
+
+    def to(self, device: torch.device | str) -> Trajectories:
+        return self._map(lambda t: t.to(device))
 
     def select(self, index: slice | Tensor) -> Trajectories:
         """The subset of systems picked by `index` along the batch dimension."""
-        pick = lambda t: None if t is None else t[index]  # noqa: E731
-        return Trajectories(
-            pick(self.y),
-            pick(self.u),
-            pick(self.x),
-            {k: v[index] for k, v in self.params.items()},
-            self.family,
-        )
+        return self._map(lambda t: t[index])
 
     def to_numpy_dict(self) -> dict[str, np.ndarray]:
-        """Flat dict for np.savez: y, u (if any), x (if any), and params as param_<name>."""
+        """Flat dict for np.savez: y, u (if any), x (if any), params as param_<name>, and family."""
         out = {"y": self.y.cpu().numpy()}
         if self.u is not None:
             out["u"] = self.u.cpu().numpy()
         if self.x is not None:
             out["x"] = self.x.cpu().numpy()
         out.update({f"param_{k}": v.cpu().numpy() for k, v in self.params.items()})
+        if self.family:
+            out["family"] = np.array(self.family)
         return out
 
 
-class SystemFamily(Protocol):
-    """A distribution over dynamical systems (D_sys in the paper).
+@dataclass(frozen=True)
+class SystemConfig:
+    """A family's settings. Each family subclasses this with its own knobs; constructing the base class
+    builds the registered family's config: SystemConfig(family="quadrotor") is a QuadrotorConfig.
 
-    Implementations are batched: one call samples or simulates B systems at once, on any device,
-    and all randomness comes from the `torch.Generator` passed in (same seed -> same numbers).
+    max_abs: trajectories with any |x| or |y| above it are redrawn (DESIGN.md: 50).
     """
 
-    name: str
+    family: str = "linear"
+    max_abs: float = 50.0
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> SystemConfig:
+        if cls is SystemConfig:
+            return object.__new__(config_class(kwargs.get("family", "linear")))
+        return object.__new__(cls)
+
+    @classmethod
+    def resolve_class(cls, data: dict[str, Any]) -> type:
+        """The dataclass that `data` (a dict with "family") builds: used by mop.config.from_dict."""
+        return config_class(data.get("family", "linear")) if cls is SystemConfig else cls
+
+    def __post_init__(self) -> None:
+        expected = config_class(self.family)
+        check(
+            isinstance(self, expected),
+            f"system family {self.family!r} takes a {expected.__name__}, not a {type(self).__name__}",
+        )
+        check(self.max_abs > 0, f"system.max_abs must be > 0, got {self.max_abs}")
+
+
+Transition = Callable[
+    [Tensor, "Tensor | None", int], Tensor
+]  # (x (B, N, n), u (B, N, k) | None, t) -> (B, N, n)
+TransitionJacobian = Callable[
+    [Tensor, "Tensor | None", int], Tensor
+]  # (x (B, n), u (B, k) | None, t) -> (B, n, n)
+Projection = Callable[[Tensor], Tensor]  # x (..., n) -> (..., n), e.g. clipping to bounds
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    """The model a filter that knows the system is given, batched over B systems (float64):
+
+        x_{t+1} = project(f(x_t, u_t, t) + w_t),  w_t ~ N(0, Q);   y_t = C_t x_t + v_t,  v_t ~ N(0, R);
+        x_0 ~ N(m0, P0) (then projected).
+
+    f maps point sets x (B, N, n) (N = 1 for a mean, N particles or sigma points) with u (B, N, k) | None.
+    jacobian: df/dx at x (B, n), u (B, k) | None -> (B, n, n); None means autograd (torch.func.jacrev).
+    C: (B, m, n), or a function t -> (B, m, n) for time-varying outputs (switching systems).
+    project: the simulator's state projection (the quadrotor's clipping); None for none.
+    """
+
+    f: Transition
+    C: Tensor | Callable[[int], Tensor]
+    Q: Tensor
+    R: Tensor
+    m0: Tensor
+    P0: Tensor
+    jacobian: TransitionJacobian | None = None
+    project: Projection | None = None
+
+    def output_matrix(self, t: int) -> Tensor:
+        return self.C(t) if callable(self.C) else self.C
+
+    def transition_jacobian(self, x: Tensor, u: Tensor | None, t: int) -> Tensor:
+        """(B, n, n) df/dx at x (B, n): the family's, or autograd through f. Each system's next state depends
+        on its own state only, so the Jacobian of sum_b f(x_b) with respect to x_b is system b's."""
+        if self.jacobian is not None:
+            return self.jacobian(x, u, t)
+        u_set = None if u is None else u[:, None]
+        summed = torch.func.jacrev(lambda z: self.f(z[:, None], u_set, t)[:, 0].sum(0))(x)  # (n, B, n)
+        return summed.permute(1, 0, 2)
+
+
+def linear_state_space(A: Tensor, C: Tensor, Q: Tensor, R: Tensor, P0: Tensor) -> StateSpace:
+    """x_{t+1} = A x_t + w_t, y_t = C x_t + v_t, x_0 ~ N(0, P0); float64."""
+    A, C, Q, R, P0 = (M.double() for M in (A, C, Q, R, P0))
+    return StateSpace(
+        f=lambda x, u, t: x @ A.mT,
+        C=C,
+        Q=Q,
+        R=R,
+        m0=A.new_zeros(A.shape[:-1]),
+        P0=P0,
+        jacobian=lambda x, u, t: A,
+    )
+
+
+class SystemFamily:
+    """A distribution over dynamical systems (D_sys in the paper), batched and seeded.
+
+    One call samples or simulates B systems at once, on any device, and all randomness comes from the
+    torch.Generator passed in (same seed -> same numbers). Subclasses set state_dim, output_dim, input_dim
+    in __init__ and implement sample, simulate and (for predictors that know the system) state_space.
+    """
+
+    name: ClassVar[str] = ""
+    Config: ClassVar[type[SystemConfig]] = SystemConfig
     state_dim: int
     output_dim: int
-    input_dim: int  # 0 when the family has no inputs
+    input_dim: int = 0
+
+    def __init__(self, config: SystemConfig, dtype: torch.dtype = torch.float32) -> None:
+        self.config, self.dtype = config, dtype
 
     def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
         """Parameters of `num_systems` systems, each tensor with leading dim B."""
-        ...
+        raise NotImplementedError
 
     def simulate(
         self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
     ) -> Trajectories:
         """One trajectory of `horizon` steps (horizon + 1 outputs) per system."""
-        ...
+        raise NotImplementedError
+
+    @staticmethod
+    def state_space(params: dict[str, Tensor]) -> StateSpace:
+        """The systems in `params` as a StateSpace; families without one refuse system-aware predictors."""
+        raise MopError("this family gives no state-space model; use predictors that need no system knowledge")
 
     def generate(self, num_systems: int, horizon: int, *, generator: torch.Generator) -> Trajectories:
-        """sample + simulate, redrawing systems whose trajectory leaves the bound.
+        """sample + simulate, then redraw (sample and simulate again) only the systems that left +-max_abs."""
+        if num_systems < 1 or horizon < 1:
+            raise MopError(
+                f"need at least 1 system and horizon >= 1, got {num_systems} systems, horizon {horizon}"
+            )
+        traj = self.simulate(self.sample(num_systems, generator=generator), horizon, generator=generator)
+        for _ in range(MAX_REDRAWS):
+            bad = out_of_bounds(traj, self.config.max_abs)
+            if not bad.any():
+                return cast(traj, self.dtype)
+            idx = bad.nonzero().squeeze(1)
+            new = self.simulate(self.sample(len(idx), generator=generator), horizon, generator=generator)
+            traj = replace_rows(traj, idx, new)
+        raise MopError(
+            f"{int(bad.sum())} systems stayed outside |x|,|y| <= {self.config.max_abs} after "
+            f"{MAX_REDRAWS} redraws; raise system.max_abs or lower the noise / spectral_radius"
+        )
 
-        DESIGN.md: every |x|, |y| <= 50.
-        """
-        ...
+
+def _load_builtin_families() -> None:
+    import mop.systems.colored_noise  # noqa: F401
+    import mop.systems.linear  # noqa: F401
+    import mop.systems.quadrotor  # noqa: F401
+    import mop.systems.switching  # noqa: F401
+    import mop.systems.upper_triangular  # noqa: F401
+
+
+FAMILIES: Registry = Registry("system family", loader=_load_builtin_families)
+
+
+def register_family(name: str, config: type[SystemConfig]) -> Callable[[type], type]:
+    """Class decorator: register a SystemFamily subclass under `name` with its config dataclass."""
+
+    def decorate(cls: type) -> type:
+        cls.name, cls.Config = name, config
+        FAMILIES.add(name, cls)
+        return cls
+
+    return decorate
+
+
+def config_class(family: str) -> type[SystemConfig]:
+    return FAMILIES.get(family).Config
+
+
+def state_space_of(traj: Trajectories) -> StateSpace:
+    """The StateSpace of the systems in `traj` from its family; MopError for data without one."""
+    if not traj.family:
+        raise MopError(
+            "these trajectories carry no system family, so a predictor that knows the system cannot run; "
+            "use one that needs no model (rls, rls-best, n4sid-kf, last, zero)"
+        )
+    return FAMILIES.get(traj.family).state_space(traj.params)
+
+
+# ----------------------------------------------------------------------------- sampling helpers
+
+
+def uniform(
+    shape: tuple[int, ...],
+    low: float,
+    high: float,
+    generator: torch.Generator,
+    dtype: torch.dtype = torch.float64,
+) -> Tensor:
+    """U[low, high] draws on the generator's device."""
+    draw = torch.rand(shape, generator=generator, device=generator.device, dtype=dtype)
+    return low + (high - low) * draw
+
+
+def normal(shape: tuple[int, ...], generator: torch.Generator, dtype: torch.dtype = torch.float64) -> Tensor:
+    """N(0, 1) draws on the generator's device (float32 draws are ~4x faster on CPU)."""
+    return torch.randn(shape, generator=generator, device=generator.device, dtype=dtype)
+
+
+def scaled_eye(num_systems: int, dim: int, var: float, device: torch.device) -> Tensor:
+    """(B, d, d) var * I in float64."""
+    return (var * torch.eye(dim, dtype=torch.float64, device=device)).expand(num_systems, dim, dim).clone()
+
+
+def out_of_bounds(traj: Trajectories, max_abs: float) -> Tensor:
+    """(B,) bool: any |x| or |y| above max_abs (or not finite)."""
+    big = lambda t: ~(t.abs() <= max_abs).flatten(1).all(1)  # noqa: E731
+    bad = big(traj.y)
+    return bad if traj.x is None else bad | big(traj.x)
+
+
+def replace_rows(traj: Trajectories, idx: Tensor, new: Trajectories) -> Trajectories:
+    """traj with systems idx replaced by the systems of `new` (same family and horizon)."""
+
+    def put(old: Tensor | None, fresh: Tensor | None) -> Tensor | None:
+        if old is None:
+            return None
+        old = old.clone()
+        old[idx] = fresh
+        return old
+
+    params = {k: put(v, new.params[k]) for k, v in traj.params.items()}
+    return Trajectories(put(traj.y, new.y), put(traj.u, new.u), put(traj.x, new.x), params, traj.family)
+
+
+def cast(traj: Trajectories, dtype: torch.dtype) -> Trajectories:
+    """Floating tensors to dtype (integer params such as switch_time stay as they are)."""
+    return traj._map(lambda t: t.to(dtype) if t.is_floating_point() else t)
+
+
+def replace_config(config: SystemConfig, **changes: Any) -> SystemConfig:
+    """dataclasses.replace for family configs (a change of family keeps the knobs both families share)."""
+    if "family" in changes and changes["family"] != config.family:
+        target = config_class(changes["family"])
+        shared = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
+        names = {f.name for f in dataclasses.fields(target)}
+        return target(**{k: v for k, v in {**shared, **changes}.items() if k in names})
+    return dataclasses.replace(config, **changes)

@@ -1,45 +1,33 @@
-"""Linear Gaussian systems and their variants (the paper's Sec. 5.1):
+"""Linear Gaussian systems, the family "linear" (the paper's Sec. 5.1), and the helpers its variants share:
 
     x_{t+1} = A x_t + w_t,   y_t = C x_t + v_t,   x_0 ~ N(0, x0_std^2 I),
 
-with w_t ~ N(0, sigma_w^2 I), v_t ~ N(0, sigma_v^2 I) i.i.d., or, for colored noise, w_t and v_t each the sum
-of the last `color_window` i.i.d. draws. A is dense (entries U[0,1] scaled to spectral radius rho) or upper
-triangular (diagonal U[-rho, rho], strict upper part U[-1, 1]); C has entries U[0,1], redrawn until (A, C) is
-observable. Everything is batched over B systems and draws from one torch.Generator on its device.
+with w_t ~ N(0, sigma_w^2 I), v_t ~ N(0, sigma_v^2 I) i.i.d. A is dense (entries U[0,1] scaled to spectral
+radius rho); C has entries U[0,1], redrawn until (A, C) is observable. Everything is batched over B systems
+and draws from one torch.Generator on its device. Variants (upper_triangular, colored_noise, switching)
+subclass LinearFamily in their own modules.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor
 
-from mop.config import SystemConfig
-from mop.errors import MopError
-from mop.systems.base import Trajectories
-
-MAX_REDRAWS = 100
-
-
-def uniform(
-    shape: tuple[int, ...],
-    low: float,
-    high: float,
-    generator: torch.Generator,
-    dtype: torch.dtype = torch.float64,
-) -> Tensor:
-    """U[low, high] draws on the generator's device."""
-    draw = torch.rand(shape, generator=generator, device=generator.device, dtype=dtype)
-    return low + (high - low) * draw
-
-
-def normal(shape: tuple[int, ...], generator: torch.Generator, dtype: torch.dtype = torch.float64) -> Tensor:
-    """N(0, 1) draws on the generator's device (float32 draws are ~4x faster on CPU)."""
-    return torch.randn(shape, generator=generator, device=generator.device, dtype=dtype)
-
-
-def scaled_eye(num_systems: int, dim: int, var: float, device: torch.device) -> Tensor:
-    """(B, d, d) var * I in float64."""
-    return (var * torch.eye(dim, dtype=torch.float64, device=device)).expand(num_systems, dim, dim).clone()
+from mop.errors import MopError, check
+from mop.systems.base import (
+    MAX_REDRAWS,
+    StateSpace,
+    SystemConfig,
+    SystemFamily,
+    Trajectories,
+    linear_state_space,
+    normal,
+    register_family,
+    scaled_eye,
+    uniform,
+)
 
 
 def check_stable(spectral_radius: float) -> None:
@@ -69,16 +57,6 @@ def sample_dense_A(
     A = uniform((num_systems, state_dim, state_dim), 0.0, 1.0, generator)
     rho = perron_radius(A)  # (B,)
     return A * (spectral_radius / rho)[:, None, None]
-
-
-def sample_upper_triangular_A(
-    num_systems: int, state_dim: int, spectral_radius: float, generator: torch.Generator
-) -> Tensor:
-    """(B, n, n) diagonal U[-rho, rho] (the eigenvalues), strictly upper part U[-1, 1], zeros below."""
-    check_stable(spectral_radius)
-    A = uniform((num_systems, state_dim, state_dim), -1.0, 1.0, generator).triu(1)
-    diag = uniform((num_systems, state_dim), -spectral_radius, spectral_radius, generator)
-    return A + torch.diag_embed(diag)
 
 
 def observability_matrix(A: Tensor, C: Tensor, num_blocks: int | None = None) -> Tensor:
@@ -178,57 +156,41 @@ def simulate_linear(
     return x, y + v
 
 
-def out_of_bounds(traj: Trajectories, max_abs: float) -> Tensor:
-    """(B,) bool: any |x| or |y| above max_abs (or not finite)."""
-    big = lambda t: ~(t.abs() <= max_abs).flatten(1).all(1)  # noqa: E731
-    bad = big(traj.y)
-    return bad if traj.x is None else bad | big(traj.x)
+@dataclass(frozen=True)
+class LinearConfig(SystemConfig):
+    """Linear Gaussian systems (the paper's defaults). noise_var_w / noise_var_v: variance of each i.i.d.
+    noise draw (sigma^2, the paper's 0.01); x0_std: x_0 ~ N(0, x0_std^2 I); spectral_radius: max |eig(A)|."""
 
+    family: str = "linear"
+    state_dim: int = 10
+    output_dim: int = 5
+    noise_var_w: float = 0.01
+    noise_var_v: float = 0.01
+    spectral_radius: float = 0.95
+    x0_std: float = 1.0
 
-def generate_with_redraws(family, num_systems: int, horizon: int, generator: torch.Generator) -> Trajectories:
-    """sample + simulate, then redraw (sample and simulate again) only the systems that left +-max_abs."""
-    if num_systems < 1 or horizon < 1:
-        raise MopError(
-            f"need at least 1 system and horizon >= 1, got {num_systems} systems, horizon {horizon}"
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("state_dim", "output_dim"):
+            value = getattr(self, name)
+            check(
+                isinstance(value, int) and value > 0,
+                f"system.{name} must be a positive integer, got {value!r}",
+            )
+        check(
+            self.noise_var_w >= 0 and self.noise_var_v >= 0,
+            f"noise variances must be >= 0, got w={self.noise_var_w}, v={self.noise_var_v}",
         )
-    traj = family.simulate(family.sample(num_systems, generator=generator), horizon, generator=generator)
-    for _ in range(MAX_REDRAWS):
-        bad = out_of_bounds(traj, family.config.max_abs)
-        if not bad.any():
-            return cast(traj, family.dtype)
-        idx = bad.nonzero().squeeze(1)
-        new = family.simulate(family.sample(len(idx), generator=generator), horizon, generator=generator)
-        traj = replace_rows(traj, idx, new)
-    raise MopError(
-        f"{int(bad.sum())} systems stayed outside |x|,|y| <= {family.config.max_abs} after "
-        f"{MAX_REDRAWS} redraws; raise system.max_abs or lower the noise / spectral_radius"
-    )
+        check(
+            0 < self.spectral_radius < 1,
+            f"system.spectral_radius must be in (0, 1) for a stable system, got {self.spectral_radius}",
+        )
+        check(self.x0_std >= 0, f"system.x0_std must be >= 0, got {self.x0_std}")
 
 
-def replace_rows(traj: Trajectories, idx: Tensor, new: Trajectories) -> Trajectories:
-    """traj with systems idx replaced by the systems of `new` (same family and horizon)."""
-
-    def put(old: Tensor | None, fresh: Tensor | None) -> Tensor | None:
-        if old is None:
-            return None
-        old = old.clone()
-        old[idx] = fresh
-        return old
-
-    params = {k: put(v, new.params[k]) for k, v in traj.params.items()}
-    return Trajectories(put(traj.y, new.y), put(traj.u, new.u), put(traj.x, new.x), params, traj.family)
-
-
-def cast(traj: Trajectories, dtype: torch.dtype) -> Trajectories:
-    """Floating tensors to dtype (integer params such as switch_time stay as they are)."""
-    to = lambda t: None if t is None else (t.to(dtype) if t.is_floating_point() else t)  # noqa: E731
-    return Trajectories(
-        to(traj.y), to(traj.u), to(traj.x), {k: to(v) for k, v in traj.params.items()}, traj.family
-    )
-
-
-class LinearFamily:
-    """Linear Gaussian systems: "linear" (dense A), "upper-triangular", "colored-noise".
+@register_family("linear", LinearConfig)
+class LinearFamily(SystemFamily):
+    """Dense linear Gaussian systems (the paper's Fig. 2a); the base of the other linear families.
 
     params: "A" (B,n,n), "C" (B,m,n), "Q" (B,n,n) = var(w_t) I, "R" (B,m,m) = var(v_t) I (for colored noise
     the summed variance color_window * sigma^2, as the paper's Kalman filter uses), "P0" (B,n,n) = x0_std^2 I.
@@ -236,19 +198,14 @@ class LinearFamily:
     simulation run in `dtype`, which generate() returns (float32 for training, float64 for filter references).
     """
 
-    def __init__(self, config: SystemConfig, dtype: torch.dtype = torch.float32) -> None:
-        check_stable(config.spectral_radius)
-        self.config, self.dtype, self.name = config, dtype, config.family
-        self.state_dim = config.state_dim or 10
-        self.output_dim = config.output_dim or 5
-        self.input_dim = 0
-        self.window = config.color_window if config.family == "colored-noise" else 1
+    window = 1  # noise draws summed per step (colored noise: color_window)
+
+    def __init__(self, config: LinearConfig, dtype: torch.dtype = torch.float32) -> None:
+        super().__init__(config, dtype)
+        check_stable(config.spectral_radius)  # also when a config was changed behind its validation
+        self.state_dim, self.output_dim, self.input_dim = config.state_dim, config.output_dim, 0
 
     def sample_A(self, num_systems: int, generator: torch.Generator) -> Tensor:
-        if self.name == "upper-triangular":
-            return sample_upper_triangular_A(
-                num_systems, self.state_dim, self.config.spectral_radius, generator
-            )
         return sample_dense_A(num_systems, self.state_dim, self.config.spectral_radius, generator)
 
     def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
@@ -288,5 +245,8 @@ class LinearFamily:
         x, y = simulate_linear(A, C, *self.draw_noise(A.shape[0], horizon, generator))
         return Trajectories(y=y, x=x, params=dict(params), family=self.name)
 
-    def generate(self, num_systems: int, horizon: int, *, generator: torch.Generator) -> Trajectories:
-        return generate_with_redraws(self, num_systems, horizon, generator)
+    @staticmethod
+    def state_space(params: dict[str, Tensor]) -> StateSpace:
+        """x_{t+1} = A x_t + w_t, y_t = C x_t + v_t with the white Q, R of params (for colored noise the
+        summed variances: the paper's Kalman filter, which treats the noise as white)."""
+        return linear_state_space(params["A"], params["C"], params["Q"], params["R"], params["P0"])

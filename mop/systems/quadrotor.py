@@ -26,14 +26,22 @@ scripts/quadrotor_quirks.py):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from mop.config import SystemConfig
-from mop.errors import MopError
-from mop.systems.base import Trajectories
-from mop.systems.linear import cast, generate_with_redraws, normal, scaled_eye, uniform
+from mop.errors import check
+from mop.systems.base import (
+    StateSpace,
+    SystemConfig,
+    SystemFamily,
+    Trajectories,
+    normal,
+    register_family,
+    scaled_eye,
+    uniform,
+)
 
 TAU = 0.1
 GRAVITY = 10.0
@@ -84,24 +92,33 @@ def clip_state(x: Tensor) -> Tensor:
     return torch.maximum(torch.minimum(x, bound), -bound)
 
 
-class QuadrotorFamily:
+@dataclass(frozen=True)
+class QuadrotorConfig(SystemConfig):
+    """noise_var_w / noise_var_v: variances of w_t, v_t (the paper's 0.01); x0_std: x_0 ~ N(0, x0_std^2 I)."""
+
+    family: str = "quadrotor"
+    noise_var_w: float = 0.01
+    noise_var_v: float = 0.01
+    x0_std: float = 1.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check(
+            self.noise_var_w >= 0 and self.noise_var_v >= 0,
+            f"noise variances must be >= 0, got w={self.noise_var_w}, v={self.noise_var_v}",
+        )
+        check(self.x0_std >= 0, f"system.x0_std must be >= 0, got {self.x0_std}")
+
+
+@register_family("quadrotor", QuadrotorConfig)
+class QuadrotorFamily(SystemFamily):
     """params: "mass", "length", "inertia" (B,), "C" (B,3,6), "Q" (B,6,6), "R" (B,3,3), "P0" (B,6,6),
     "x0_mean" (B,6): x_0 ~ N(x0_mean, P0) = N(0, x0_std^2 I) before clipping.
 
     Trajectories carry u (B, T+1, 2); u_T is drawn too (the model reads [y_t, u_t]) but moves nothing.
     """
 
-    name = "quadrotor"
     state_dim, output_dim, input_dim = STATE_DIM, OUTPUT_DIM, INPUT_DIM
-
-    def __init__(self, config: SystemConfig, dtype: torch.dtype = torch.float32) -> None:
-        if config.state_dim not in (None, STATE_DIM) or config.output_dim not in (None, OUTPUT_DIM):
-            raise MopError(
-                f"the quadrotor has state_dim 6 and output_dim 3, got "
-                f"{config.state_dim}/{config.output_dim}; "
-                "leave system.state_dim/output_dim unset"
-            )
-        self.config, self.dtype = config, dtype
 
     def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
         B, dev = num_systems, generator.device
@@ -138,16 +155,29 @@ class QuadrotorFamily:
         y = x @ p["C"].mT + v  # (B, T+1, 3)
         return Trajectories(y=y, u=u, x=x, params=dict(params), family=self.name)
 
-    def generate(self, num_systems: int, horizon: int, *, generator: torch.Generator) -> Trajectories:
-        return generate_with_redraws(self, num_systems, horizon, generator)
+    @staticmethod
+    def state_space(params: dict[str, Tensor]) -> StateSpace:
+        """f and its Jacobian with (m, l, J) known, C, Q, R, N(x0_mean, P0), and the clipping (BOUNDS)."""
+        p = {k: v.double() for k, v in params.items()}
+        mlJ = (p["mass"], p["length"], p["inertia"])  # (B,) each
+        return StateSpace(
+            f=lambda x, u, t: dynamics(x, u, *(q[:, None] for q in mlJ)),
+            C=p["C"],
+            Q=p["Q"],
+            R=p["R"],
+            m0=p["x0_mean"],
+            P0=p["P0"],
+            jacobian=lambda x, u, t: dynamics_jacobian(x, u, *mlJ),
+            project=clip_state,
+        )
 
 
 __all__ = [
     "QuadrotorFamily",
+    "QuadrotorConfig",
     "dynamics",
     "dynamics_jacobian",
     "clip_state",
-    "cast",
     "TAU",
     "GRAVITY",
     "BOUNDS",

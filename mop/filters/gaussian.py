@@ -1,0 +1,142 @@
+"""One Gaussian filtering core shared by the Kalman filter, the EKF and the UKF: each supplies only its
+time update. Batched over B systems, a loop over time only; float64.
+
+With m_t, P_t the prior mean / covariance of x_t given y_{<t} (and u_{<t}), for t = 0..T:
+
+    yhat_t = C_t m_t,   S_t = C_t P_t C_t^T + R                (predictive mean and covariance of y_t)
+    condition on y_t (Joseph form):  K = P C^T S^{-1},  m <- m + K (y_t - C m),
+                                     P <- (I - K C) P (I - K C)^T + K R K^T
+    time update (the filter's step):  (m, P) <- step(model, m, P, u_t, t)
+
+Steps: kalman_step (linear f: m <- A_t m, P <- A_t P A_t^T + Q), ekf_step (linearise f at the posterior
+mean; `project` clips means as the simulator clips states), ukf_step (unscented transform).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+
+from mop.systems.base import StateSpace, Trajectories, state_space_of
+
+Projection = Callable[[Tensor], Tensor]
+# a time update: (model, m (B, n), P (B, n, n), u (B, k) | None, t, projection | None) -> (m, P)
+Step = Callable[
+    [StateSpace, Tensor, Tensor, "Tensor | None", int, "Projection | None"], tuple[Tensor, Tensor]
+]
+
+
+def condition_on(m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Measurement update, Joseph form. m (B, n), P (B, n, n), y (B, m) -> (m, P, S (B, m, m))."""
+    S = C @ P @ C.mT + R  # (B, m, m)
+    L = torch.linalg.cholesky(S)  # (B, m, m)
+    K = torch.cholesky_solve(C @ P, L).mT  # (B, n, m) = P C^T S^{-1}
+    m = m + (K @ (y - (C @ m[..., None])[..., 0])[..., None])[..., 0]
+    I_KC = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device) - K @ C  # (B, n, n)
+    P = I_KC @ P @ I_KC.mT + K @ R @ K.mT
+    return m, P, S
+
+
+def gaussian_filter(
+    model: StateSpace, step: Step, y: Tensor, u: Tensor | None = None, project: bool = True
+) -> tuple[Tensor, Tensor]:
+    """Predictive means yhat (B, T+1, m) and covariances S (B, T+1, m, m) of y_t given y_{<t}, u_{<t}.
+
+    y (B, T+1, m), u (B, T+1, k) or None; `project` applies the model's state projection (if any) to m_0 and
+    inside `step`.
+    """
+    proj = model.project if project and model.project is not None else None
+    m, P = (model.m0 if proj is None else proj(model.m0)), model.P0
+    means, covs = [], []
+    for t in range(y.shape[1]):
+        C = model.output_matrix(t)
+        means.append((C @ m[..., None])[..., 0])
+        m, P, S = condition_on(m, P, y[:, t], C, model.R)
+        covs.append(S)
+        m, P = step(model, m, P, None if u is None else u[:, t], t, proj)
+    return torch.stack(means, dim=1), torch.stack(covs, dim=1)
+
+
+def kalman_step(
+    model: StateSpace, m: Tensor, P: Tensor, u: Tensor | None, t: int, proj: Projection | None = None
+) -> tuple[Tensor, Tensor]:
+    """Linear time update: m <- A_t m, P <- A_t P A_t^T + Q (symmetrized), A_t = df/dx."""
+    A = model.transition_jacobian(m, u, t)  # (B, n, n)
+    P = A @ P @ A.mT + model.Q
+    return (A @ m[..., None])[..., 0], 0.5 * (P + P.mT)
+
+
+def ekf_step(
+    model: StateSpace, m: Tensor, P: Tensor, u: Tensor | None, t: int, proj: Projection | None = None
+) -> tuple[Tensor, Tensor]:
+    """EKF time update: m <- proj(f(proj(m), u)), P <- F P F^T + Q with F = df/dx at the (unprojected)
+    posterior mean. With a projection this is the authors' quadrotor EKF: their state class clips the
+    posterior mean before the step and the step's result, and the Jacobian is taken before clipping."""
+    F = model.transition_jacobian(m, u, t)  # (B, n, n)
+    x = m if proj is None else proj(m)
+    m_next = model.f(x[:, None], None if u is None else u[:, None], t)[:, 0]  # (B, n)
+    return (m_next if proj is None else proj(m_next)), F @ P @ F.mT + model.Q
+
+
+def sigma_points(
+    m: Tensor, P: Tensor, alpha: float, beta: float, kappa: float
+) -> tuple[Tensor, Tensor, Tensor]:
+    """X (B, 2n+1, n), Wm (2n+1,), Wc (2n+1,) for N(m, P) (Julier / Merwe scaling); m (B, n), P (B, n, n).
+
+    lambda = alpha^2 (n + kappa) - n,  L L^T = P,
+    X = [m, m + sqrt(n + lambda) L_i, m - sqrt(n + lambda) L_i],
+    Wm_0 = lambda / (n + lambda), Wc_0 = Wm_0 + 1 - alpha^2 + beta, Wm_i = Wc_i = 1 / (2 (n + lambda)).
+    """
+    n = m.shape[-1]
+    lam = alpha**2 * (n + kappa) - n
+    L = torch.linalg.cholesky((n + lam) * P)  # (B, n, n)
+    X = torch.cat([m[:, None], m[:, None] + L.mT, m[:, None] - L.mT], dim=1)  # rows of L^T = columns of L
+    Wm = torch.full((2 * n + 1,), 0.5 / (n + lam), dtype=m.dtype, device=m.device)
+    Wm[0] = lam / (n + lam)
+    Wc = Wm.clone()
+    Wc[0] = Wm[0] + 1 - alpha**2 + beta
+    return X, Wm, Wc
+
+
+def ukf_step_with(alpha: float = 1.0, beta: float = 0.0, kappa: float = 0.0) -> Step:
+    """The unscented time update: m <- proj(sum_i Wm_i f(X_i, u)), P <- sum_i Wc_i (f(X_i) - m)(...)^T + Q.
+
+    Only the predicted mean is projected (clipping the posterior too scored worse on the quadrotor)."""
+
+    def step(
+        model: StateSpace, m: Tensor, P: Tensor, u: Tensor | None, t: int, proj: Projection | None = None
+    ) -> tuple[Tensor, Tensor]:
+        X, Wm, Wc = sigma_points(m, P, alpha, beta, kappa)  # (B, 2n+1, n)
+        u_rep = None if u is None else u[:, None].expand(-1, X.shape[1], -1)  # (B, 2n+1, k)
+        FX = model.f(X, u_rep, t)  # (B, 2n+1, n)
+        m = torch.einsum("i,bin->bn", Wm, FX)
+        D = FX - m[:, None]  # (B, 2n+1, n)
+        P = torch.einsum("i,bin,bik->bnk", Wc, D, D) + model.Q
+        return (m if proj is None else proj(m)), 0.5 * (P + P.mT)
+
+    return step
+
+
+def filter_distribution(
+    model: StateSpace, step: Step, traj: Trajectories, project: bool = True
+) -> tuple[Tensor, Tensor]:
+    """(mean, var) each (B, T+1, m) in traj.y's dtype: C_t m_t and diag(S_t)."""
+    u = None if traj.u is None else traj.u.double()
+    mean, S = gaussian_filter(model, step, traj.y.double(), u, project)
+    return mean.to(traj.y.dtype), torch.diagonal(S, dim1=-2, dim2=-1).to(traj.y.dtype)
+
+
+class GaussianFilterPredictor:
+    """A Gaussian filter that knows each system (the family's StateSpace of traj.params), as a predictor
+    with a predictive distribution. step: kalman_step, ekf_step or a ukf_step_with(...) step."""
+
+    def __init__(self, step: Step, project: bool = True, name: str = "") -> None:
+        self.step, self.project, self.name = step, project, name
+
+    def predict_distribution(self, traj: Trajectories) -> tuple[Tensor, Tensor]:
+        return filter_distribution(state_space_of(traj), self.step, traj, self.project)
+
+    def predict(self, traj: Trajectories) -> Tensor:
+        return self.predict_distribution(traj)[0]
