@@ -155,6 +155,11 @@ class RecordedData:
             )
         return kept
 
+    def check_lengths(self, horizon: int) -> None:
+        """MopError unless both splits hold a trajectory of at least horizon + 1 steps."""
+        self._check(self.train_index, horizon, "training")
+        self._check(self.val_index, horizon, "validation")
+
     def windows(self, cfg: DataConfig, horizon: int, device: torch.device) -> Windows:
         """Every window of horizon + 1 steps of the training trajectories at least that long."""
         kept = self._check(self.train_index, horizon, "training")

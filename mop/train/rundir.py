@@ -54,6 +54,7 @@ def _resolve_data(config: RunConfig) -> RunConfig:
     from mop.train.data import recorded_data
 
     data = recorded_data(config.data)
+    data.check_lengths(config.train.horizon)
     stats = data.fit()
     for name, value in stats.items():
         given = getattr(config.data, name)
