@@ -42,7 +42,11 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
 
 
 def to_dict(config: Any) -> dict[str, Any]:
-    return dataclasses.asdict(config)
+    """The config as nested dicts; a RunConfig without recorded data has no "data" key (as before)."""
+    data = dataclasses.asdict(config)
+    if isinstance(config, RunConfig) and config.data is None:
+        del data["data"]
+    return data
 
 
 def apply_overrides(config: T, overrides: list[str]) -> T:
@@ -59,6 +63,8 @@ def apply_overrides(config: T, overrides: list[str]) -> T:
         key, raw = item.split("=", 1)
         node = data
         *path, leaf = key.split(".")
+        if path[:1] == ["data"] and "data" not in data:
+            raise MopError(f"override {key!r} needs recorded data: give `mop train --data FILE`")
         for part in path:
             if not isinstance(node.get(part), dict):
                 raise MopError(f"unknown config key {key!r}")
@@ -193,12 +199,56 @@ class TrainConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class DataConfig:
+    """Recorded trajectories to train on (`mop train --data FILE`) instead of simulating `system`.
+
+    path: a .npz (y (B, T+1, m), optional u (B, T+1, k)) or the long CSV that `mop predict` reads; one
+        trajectory per system, lengths may differ (those shorter than train.horizon + 1 outputs are skipped).
+    validation_fraction: share of the trajectories held out (a permutation seeded by split_seed) for the
+        validation loss; at least one trajectory on each side.
+    y_mean, y_std (m values each), u_mean, u_std (k values each, [] without inputs): per-channel
+        normalisation in the file's units, fitted on the training split by the trainer (None = not yet
+        fitted; a given value must equal the fit). The predictor of the run applies it, so predictions come
+        back in the file's units.
+    """
+
+    path: str = ""
+    validation_fraction: float = 0.1
+    split_seed: int = 0
+    y_mean: list[float] | None = None
+    y_std: list[float] | None = None
+    u_mean: list[float] | None = None
+    u_std: list[float] | None = None
+
+    def __post_init__(self) -> None:
+        check(isinstance(self.path, str) and self.path != "", "data.path must name a .npz or .csv file")
+        check(
+            isinstance(self.validation_fraction, (int, float)) and 0 < self.validation_fraction < 1,
+            f"data.validation_fraction must be in (0, 1), got {self.validation_fraction!r}",
+        )
+        check(isinstance(self.split_seed, int), f"data.split_seed must be an integer: {self.split_seed!r}")
+        for name in ("y_std", "u_std"):
+            value = getattr(self, name)
+            check(
+                value is None or all(isinstance(s, (int, float)) and s > 0 for s in value),
+                f"data.{name} must hold positive numbers, got {value!r}",
+            )
+
+    @property
+    def fitted(self) -> bool:
+        return None not in (self.y_mean, self.y_std, self.u_mean, self.u_std)
+
+
+@dataclasses.dataclass(frozen=True)
 class RunConfig:
     """Everything `mop train` needs; saved as config.json in the run directory.
 
-    Enough on its own to rebuild the model.
+    Enough on its own to rebuild the model (and, for recorded data, its normalisation).
+    data: None trains on simulated systems of `system` (and is left out of config.json, so runs without
+    data keep their config and its hash); a DataConfig trains on recorded trajectories (`system` unused).
     """
 
     system: SystemConfig = dataclasses.field(default_factory=SystemConfig)
     model: ModelConfig = dataclasses.field(default_factory=ModelConfig)
     train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
+    data: DataConfig | None = None

@@ -1,6 +1,7 @@
 """Loading a trained run directory (written by mop.train): its config, its model, its predictor.
 
-    config.json        RunConfig (model.input_dim / output_dim resolved) -> the model's architecture
+    config.json        RunConfig (model.input_dim / output_dim resolved) -> the model's architecture; for a
+                       run on recorded data also data.y_mean/y_std/u_mean/u_std -> the predictor's scaling
     model.safetensors  the weights
 
 Imports neither the trainer nor TensorBoard, so `mop.load` and `mop predict` start fast.
@@ -19,7 +20,7 @@ from mop.checkpoint import load_model_weights
 from mop.config import ModelConfig, RunConfig, from_dict
 from mop.errors import MopError
 from mop.models import build_model
-from mop.models.predictor import LearnedPredictor
+from mop.models.predictor import LearnedPredictor, Normalization
 
 
 def load_config(run_dir: str | os.PathLike) -> RunConfig:
@@ -49,6 +50,19 @@ def load_model(
 def load_predictor(
     run_dir: str | os.PathLike, device: str | torch.device = "cpu", mode: str = "window"
 ) -> LearnedPredictor:
-    """A trained run as a LearnedPredictor (the Predictor interface of the classical filters)."""
+    """A trained run as a LearnedPredictor (the Predictor interface of the classical filters).
+
+    A run on recorded data predicts in the data's units (its normalisation, from config.json, is applied).
+    """
     model, _ = load_model(run_dir, device)
-    return LearnedPredictor(model, name="mop", mode=mode)
+    return LearnedPredictor(model, name="mop", mode=mode, normalization=load_normalization(run_dir))
+
+
+def load_normalization(run_dir: str | os.PathLike) -> Normalization | None:
+    """The per-channel scaling of a run on recorded data (config.json's data), None for simulated runs."""
+    data = load_config(run_dir).data
+    if data is None:
+        return None
+    if not data.fitted:
+        raise MopError(f"{run_dir}/config.json has data without its fitted normalisation; retrain the run")
+    return Normalization.from_lists(data.y_mean, data.y_std, data.u_mean, data.u_std)

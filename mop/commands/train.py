@@ -1,17 +1,19 @@
-"""`mop train [EXPERIMENT_OR_CONFIG.json] [--preset P] [--out DIR] [key=value ...]`: train a run directory.
+"""`mop train [EXPERIMENT_OR_CONFIG.json] [--preset P] [--data FILE] [--out DIR] [key=value ...]`: train.
 
 Config layers, later wins: RunConfig defaults (the paper's) < a JSON config file or an experiment's preset
-< dotted key=value overrides (e.g. train.steps=200 model.num_layers=4).
+< --data FILE (sets data.path) < dotted key=value overrides (e.g. train.steps=200 model.num_layers=4,
+data.validation_fraction=0.2).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
 from mop.commands import OverridesAnywhere
-from mop.config import RunConfig, apply_overrides, from_dict
+from mop.config import DataConfig, RunConfig, apply_overrides, from_dict
 from mop.errors import MopError
 
 EPILOG = """examples:
@@ -19,6 +21,8 @@ EPILOG = """examples:
   mop train --out runs/tiny train.steps=200 model.num_layers=2 model.width=64 model.num_heads=4
   mop train config.json --out runs/x train.seed=1                # a JSON RunConfig, then overrides
   mop train linear --preset small --out runs/linear-small        # an experiment of mop.experiments
+  mop train --data runs.npz --out runs/mine train.horizon=40     # recorded trajectories (.npz or .csv)
+  mop predict runs/mine new_runs.csv                             # predictions in the data's units
   torchrun --nproc_per_node 4 -m mop train --out runs/ddp        # DistributedDataParallel, rank 0 writes
   python -c "import mop; p = mop.load('runs/tiny'); print(p.name)"
 """
@@ -32,6 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("overrides", nargs="*", metavar="key=value", help="dotted RunConfig overrides")
     parser.add_argument("--preset", default=None, help="preset of the experiment (paper|small|smoke)")
     parser.add_argument("--out", default="runs/mop", help="run directory (runs/mop)")
+    parser.add_argument(
+        "--data",
+        default=None,
+        help="train on recorded trajectories: .npz (y (B,T+1,m), optional u) or the CSV of `mop predict`; "
+        "a seeded data.validation_fraction (0.1) is held out, channels normalised on the training split",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -72,7 +82,17 @@ def run(args: argparse.Namespace) -> int:
     source, overrides = args.source, list(args.overrides or [])
     if source is not None and "=" in source:  # no config file: the first word is an override
         source, overrides = None, [source, *overrides]
-    config = apply_overrides(base_config(source, args.preset), overrides)
+    config = base_config(source, args.preset)
+    if args.data is not None:
+        data = config.data or DataConfig(path=args.data)
+        config = dataclasses.replace(config, data=dataclasses.replace(data, path=args.data))
+    config = apply_overrides(config, overrides)
+    if config.data is not None:  # the trainer fits the normalisation afresh (a saved config's is refitted)
+        unfitted = dict.fromkeys(("y_mean", "y_std", "u_mean", "u_std"))
+        config = dataclasses.replace(config, data=dataclasses.replace(config.data, **unfitted))
+        from mop.train.data import recorded_data
+
+        print(recorded_data(config.data).summary(config.train.horizon))
     out = train(config, args.out, progress=not args.no_progress)
     print(f"run directory: {out}  (load with: mop.load({str(out)!r}))")
     return 0

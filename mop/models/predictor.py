@@ -8,9 +8,16 @@ Trajectories longer than the training context C (T > C) are handled by `mode`:
   per step. Equal to "window" for t <= C; beyond C it is the rolling-cache approximation documented there.
 For T <= C both modes equal a single forward pass. A model without a context limit (context_limited = False,
 the GRU) runs the full recurrence in both modes (streaming it is exact).
+
+A model trained on recorded data (`mop train --data`) reads normalised inputs: `normalization` maps
+z -> (z - z_mean) / z_std before the model (in float64) and the model's mean mu -> mu * y_std + y_mean
+(variance var * y_std^2) after it, so predictions are in the data's units; yhat[:, 0] is then y_mean.
 """
 
 from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor, nn
@@ -19,11 +26,44 @@ from mop.errors import MopError
 from mop.systems.base import Trajectories
 
 
+@dataclasses.dataclass(frozen=True)
+class Normalization:
+    """Per-channel affine scaling, float64: y_mean, y_std (m,) of outputs, u_mean, u_std (k,) of inputs."""
+
+    y_mean: Tensor
+    y_std: Tensor
+    u_mean: Tensor
+    u_std: Tensor
+
+    @classmethod
+    def from_lists(
+        cls, y_mean: Sequence[float], y_std: Sequence[float], u_mean: Sequence[float], u_std: Sequence[float]
+    ) -> Normalization:
+        t = lambda v: torch.tensor(list(v), dtype=torch.float64)  # noqa: E731
+        return cls(t(y_mean), t(y_std), t(u_mean), t(u_std))
+
+    def inputs(self, z: Tensor) -> Tensor:
+        """z (B, T, m + k) in data units -> normalised, float64."""
+        mean = torch.cat([self.y_mean, self.u_mean]).to(z.device)
+        std = torch.cat([self.y_std, self.u_std]).to(z.device)
+        return (z.double() - mean) / std
+
+    def outputs(self, mu: Tensor, var: Tensor | None) -> tuple[Tensor, Tensor | None]:
+        """Normalised mean, var|None (B, T, m) -> data units, float64."""
+        mean, std = self.y_mean.to(mu.device), self.y_std.to(mu.device)
+        return mu.double() * std + mean, None if var is None else var.double() * std**2
+
+
 class LearnedPredictor:
     """Predictor protocol around a model of mop.models.build_model (run in eval mode, no grad, in chunks)."""
 
     def __init__(
-        self, model: nn.Module, name: str = "mop", mode: str = "window", chunk_size: int = 256
+        self,
+        model: nn.Module,
+        name: str = "mop",
+        mode: str = "window",
+        chunk_size: int = 256,
+        normalization: Normalization | None = None,
     ) -> None:
         if mode not in ("window", "stream"):
             raise MopError(f"predictor mode must be 'window' or 'stream', got {mode!r}")
@@ -31,6 +71,7 @@ class LearnedPredictor:
             raise MopError(f"chunk_size must be positive, got {chunk_size}")
         self.model, self.name, self.mode, self.chunk_size = model, name, mode, chunk_size
         self.cfg = model.cfg
+        self.normalization = normalization
 
     def _inputs(self, traj: Trajectories) -> Tensor:
         z = traj.model_inputs()  # (B, T+1, d_in)
@@ -41,7 +82,10 @@ class LearnedPredictor:
                 f"input width {self.cfg.input_dim}; use a model trained on this family"
             )
         p = next(self.model.parameters())
-        return z[:, :-1].to(device=p.device, dtype=p.dtype)  # (B, T, d_in): z_0..z_{T-1}
+        z = z[:, :-1]  # (B, T, d_in): z_0..z_{T-1}
+        if self.normalization is not None:
+            z = self.normalization.inputs(z)
+        return z.to(device=p.device, dtype=p.dtype)
 
     @torch.no_grad()
     def _run(self, z: Tensor, gaussian: bool) -> tuple[Tensor, Tensor | None]:
@@ -55,6 +99,8 @@ class LearnedPredictor:
             self.model.train(was_training)
         mu = torch.cat([p[0] for p in parts])
         var = torch.cat([p[1] for p in parts]) if gaussian else None
+        if self.normalization is not None:
+            mu, var = self.normalization.outputs(mu, var)
         return mu, var
 
     def _full(self, z: Tensor, gaussian: bool) -> tuple[Tensor, Tensor | None]:
@@ -70,22 +116,29 @@ class LearnedPredictor:
             return self._full(z, gaussian)
         return sliding_window(self.model, z, gaussian, C, self.chunk_size)
 
-    def _pad(self, out: Tensor, like: Tensor, fill: float) -> Tensor:
-        """Prepend the data-free prediction for y_0: (B, T, m) -> (B, T+1, m)."""
+    def _pad(self, out: Tensor, like: Tensor, fill: float, scale: Tensor | None = None) -> Tensor:
+        """Prepend the data-free prediction for y_0 (fill, or `scale` (m,)): (B, T, m) -> (B, T+1, m)."""
         first = torch.full_like(out[:, :1], fill)
+        if scale is not None:
+            first = scale.to(first).expand_as(first)
         return torch.cat([first, out], dim=1).to(device=like.device, dtype=like.dtype)
 
     def predict(self, traj: Trajectories) -> Tensor:
-        """(B, T+1, m): yhat[:, 0] = 0, yhat[:, t] from z_0..z_{t-1}."""
+        """(B, T+1, m): yhat[:, 0] = 0 (y_mean when normalised), yhat[:, t] from z_0..z_{t-1}."""
         mu, _ = self._run(self._inputs(traj), gaussian=False)
-        return self._pad(mu, traj.y, 0.0)
+        norm = self.normalization
+        return self._pad(mu, traj.y, 0.0, None if norm is None else norm.y_mean)
 
     def predict_distribution(self, traj: Trajectories) -> tuple[Tensor, Tensor]:
-        """Gaussian readout: (mean, var) each (B, T+1, m); index 0 is (0, 1) by convention (no data)."""
+        """Gaussian readout: (mean, var) each (B, T+1, m); index 0 is (0, 1) by convention (no data), or
+        (y_mean, y_std^2) when normalised."""
         if self.cfg.readout != "gaussian":
             raise MopError("predict_distribution needs a model with readout='gaussian'")
         mu, var = self._run(self._inputs(traj), gaussian=True)
-        return self._pad(mu, traj.y, 0.0), self._pad(var, traj.y, 1.0)
+        norm = self.normalization
+        if norm is None:
+            return self._pad(mu, traj.y, 0.0), self._pad(var, traj.y, 1.0)
+        return self._pad(mu, traj.y, 0.0, norm.y_mean), self._pad(var, traj.y, 1.0, norm.y_std**2)
 
 
 def stream(model: nn.Module, z: Tensor, gaussian: bool = False) -> tuple[Tensor, Tensor | None]:

@@ -1,6 +1,7 @@
 """The run directory of a training run (rank 0 writes it):
 
-    config.json             RunConfig with model.input_dim/output_dim resolved (rebuilds the model, mop.runs)
+    config.json             RunConfig with model.input_dim/output_dim resolved (rebuilds the model, mop.runs);
+                            for recorded data also data.y_mean/y_std/u_mean/u_std (the predictor's scaling)
     model.safetensors       model weights (latest checkpoint or final)
     checkpoint.safetensors  model + AdamW state + RNG states + step (mop.checkpoint), for resuming
     metrics.jsonl           {"step", "loss", "lr", "steps_per_s"} and {"step", "val_loss"} records
@@ -29,18 +30,42 @@ from mop.systems import make_family
 
 
 def resolve_config(config: RunConfig) -> RunConfig:
-    """Fill model.input_dim / output_dim (0 = from the system family): d_in = m + k, d_out = m."""
+    """Fill model.input_dim / output_dim (0 = from the system family or the data file): d_in = m + k,
+    d_out = m; for recorded data also the normalisation fitted on the training split (data.y_mean, ...)."""
     check_arch(config.model.arch)
+    if config.data is not None:
+        return _resolve_data(config)
     family = make_family(config.system)
     d_in, m = family.output_dim + family.input_dim, family.output_dim
+    return _with_dims(config, d_in, m, f"the {config.system.family} family")
+
+
+def _with_dims(config: RunConfig, d_in: int, m: int, source: str) -> RunConfig:
     model = config.model
     for name, value in (("input_dim", d_in), ("output_dim", m)):
         if getattr(model, name) not in (0, value):
             raise MopError(
-                f"model.{name}={getattr(model, name)} does not match the "
-                f"{config.system.family} family ({value}); leave it at 0"
+                f"model.{name}={getattr(model, name)} does not match {source} ({value}); leave it at 0"
             )
     return dataclasses.replace(config, model=dataclasses.replace(model, input_dim=d_in, output_dim=m))
+
+
+def _resolve_data(config: RunConfig) -> RunConfig:
+    from mop.train.data import recorded_data
+
+    data = recorded_data(config.data)
+    data.check_lengths(config.train.horizon)
+    stats = data.fit()
+    for name, value in stats.items():
+        given = getattr(config.data, name)
+        if given is not None and [float(v) for v in given] != value:
+            raise MopError(
+                f"data.{name} {given} differs from the fit on the training split of {config.data.path} "
+                f"({value}); leave it out (the file or the split changed)"
+            )
+    config = dataclasses.replace(config, data=dataclasses.replace(config.data, **stats))
+    d_in, m = data.output_dim + data.input_dim, data.output_dim
+    return _with_dims(config, d_in, m, f"the data file {config.data.path}")
 
 
 def check_run_dir(out_dir: Path, config: RunConfig) -> bool:
