@@ -46,7 +46,7 @@ def _load_builtin() -> None:
     register_learned("gru", arch="gru")
 
 
-PREDICTORS: Registry = Registry("predictor", loader=_load_builtin)
+PREDICTORS: Registry = Registry("predictor", loader=_load_builtin, group="mop.predictors")
 
 
 def register_learned(name: str, arch: str) -> None:

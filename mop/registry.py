@@ -8,8 +8,10 @@
     FAMILIES.get("pendulum")      # the class; MopError naming the known entries for an unknown name
 
 A registry is filled by importing the modules that define its entries. `loader` (called once, on first
-lookup) imports the built-in modules, so `import mop` stays light. A name registered twice is refused,
-which catches two plug-ins choosing the same name.
+lookup) imports the built-in modules, so `import mop` stays light, and then every installed package's entry
+points of the group `mop.<kind>` (e.g. a package declaring `[project.entry-points."mop.families"]
+pendulum = "my_pkg.pendulum"` is imported on first lookup). A name registered twice is refused, which catches
+two plug-ins choosing the same name.
 """
 
 from __future__ import annotations
@@ -25,11 +27,11 @@ T = TypeVar("T")
 class Registry(Generic[T]):
     """name -> entry, with optional metadata per entry (e.g. what a predictor needs)."""
 
-    def __init__(self, kind: str, loader: Callable[[], None] | None = None) -> None:
-        self.kind = kind
+    def __init__(self, kind: str, loader: Callable[[], None] | None = None, group: str = "") -> None:
+        self.kind, self.group = kind, group
         self._entries: dict[str, T] = {}
         self._meta: dict[str, dict[str, Any]] = {}
-        self._loader, self._loaded = loader, loader is None
+        self._loader, self._loaded = loader, loader is None and not group
 
     def register(self, name: str, **meta: Any) -> Callable[[T], T]:
         """Decorator: register the decorated object under `name` (MopError if the name is taken)."""
@@ -48,7 +50,13 @@ class Registry(Generic[T]):
     def _load(self) -> None:
         if not self._loaded:
             self._loaded = True
-            self._loader()
+            if self._loader is not None:
+                self._loader()
+            if self.group:
+                from importlib.metadata import entry_points
+
+                for entry in entry_points(group=self.group):
+                    entry.load()  # importing the module registers its entries
 
     def get(self, name: str) -> T:
         self._load()

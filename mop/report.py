@@ -75,7 +75,7 @@ def build_report(
     parts = [
         f"# {title}",
         "",
-        "## The paper's claims against our numbers",
+        "## Claims against our numbers",
         "",
         *claims,
         "",

@@ -28,7 +28,7 @@ def _load_builtin() -> None:
         EXPERIMENTS.add(exp.name, exp)
 
 
-EXPERIMENTS: Registry = Registry("experiment", loader=_load_builtin)
+EXPERIMENTS: Registry = Registry("experiment", loader=_load_builtin, group="mop.experiments")
 
 
 def get_experiment(name: str) -> Experiment:

@@ -250,7 +250,7 @@ def _load_builtin_families() -> None:
     import mop.systems.upper_triangular  # noqa: F401
 
 
-FAMILIES: Registry = Registry("system family", loader=_load_builtin_families)
+FAMILIES: Registry = Registry("system family", loader=_load_builtin_families, group="mop.families")
 
 
 def register_family(name: str, config: type[SystemConfig]) -> Callable[[type], type]:

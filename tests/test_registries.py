@@ -1,0 +1,90 @@
+"""Every registered family, predictor and experiment is found from its registry and exercised here, so a
+new entry is tested the moment it registers. Names are unique."""
+
+import dataclasses
+
+import pytest
+import torch
+
+from mop.config import SystemConfig, apply_overrides, from_dict, to_dict
+from mop.errors import MopError
+from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
+from mop.registry import Registry
+from mop.systems import FAMILIES, generator, make_family, state_space_of
+
+FAMILY_NAMES = FAMILIES.names()
+
+
+def test_duplicate_names_are_refused():
+    reg = Registry("thing")
+    reg.add("a", object())
+    with pytest.raises(MopError, match="thing 'a' is already registered"):
+        reg.add("a", object())
+    with pytest.raises(MopError, match="unknown thing 'b'; choose one of a"):
+        reg.get("b")
+
+
+@pytest.mark.parametrize("name", FAMILY_NAMES)
+def test_every_family_is_seeded_bounded_and_round_trips_its_config(name):
+    config = SystemConfig(family=name)
+    assert type(config) is FAMILIES.get(name).Config and config.family == name
+    assert from_dict(SystemConfig, to_dict(config)) == config
+    family = make_family(config, torch.float64)
+    a, b = (family.generate(8, 12, generator=generator(3)) for _ in range(2))
+    assert torch.equal(a.y, b.y) and a.y.shape == (8, 13, family.output_dim) and a.family == name
+    assert a.input_dim == family.input_dim and (a.y.abs() <= config.max_abs).all()
+    with pytest.raises(MopError, match="unknown config key"):
+        apply_overrides(config, ["no_such_knob=1"])
+
+
+@pytest.mark.parametrize("name", FAMILY_NAMES)
+def test_every_family_state_space_runs_the_ekf(name):
+    traj = make_family(SystemConfig(family=name), torch.float64).generate(4, 10, generator=generator(1))
+    model = state_space_of(traj)
+    assert model.m0.shape == (4, make_family(SystemConfig(family=name)).state_dim)
+    yhat = make_predictor("ekf").predict(traj)
+    assert yhat.shape == traj.y.shape and torch.isfinite(yhat).all()
+
+
+def _trajectories_for(name: str, tiny_run_family) -> object:
+    """A batch the predictor accepts: learned ones their run's family, system-aware ones the first family
+    whose state space they can use."""
+    if is_learned(name):
+        return tiny_run_family
+    candidates = FAMILY_NAMES if needs_system(name) else ["linear"]
+    for family in candidates:
+        traj = make_family(SystemConfig(family=family), torch.float64).generate(5, 12, generator=generator(2))
+        try:
+            make_predictor(name).predict(traj)
+            return traj
+        except MopError:
+            continue
+    pytest.fail(f"predictor {name} runs on no registered family")
+
+
+@pytest.mark.parametrize("name", PREDICTORS.names())
+def test_every_predictor_is_causal(name, tiny_run):
+    """yhat[:, t] uses y[:, :t] only: changing the last output changes no prediction."""
+    tiny = make_family(SystemConfig(state_dim=2, output_dim=2), torch.float32).generate(
+        5, 12, generator=generator(2)
+    )
+    traj = _trajectories_for(name, tiny)
+    options = {"run_dir": str(tiny_run)} if is_learned(name) else {"seed": 0}
+    predictor = make_predictor(name, **options)
+    assert predictor.name == name
+    yhat = predictor.predict(traj)
+    assert yhat.shape == traj.y.shape and torch.isfinite(yhat).all()
+    later = dataclasses.replace(traj, y=traj.y.clone())
+    later.y[:, -1] += 3.0
+    torch.testing.assert_close(make_predictor(name, **options).predict(later), yhat)
+    if PREDICTORS.meta(name).get("gaussian") and not is_learned(name):
+        mean, var = predictor.predict_distribution(traj)
+        torch.testing.assert_close(mean, yhat)
+        assert (var > 0).all()
+
+
+def test_system_aware_predictors_refuse_data_without_a_family():
+    from mop.systems import Trajectories
+
+    with pytest.raises(MopError, match="carry no system family"):
+        make_predictor("kalman").predict(Trajectories(y=torch.zeros(2, 5, 3)))
