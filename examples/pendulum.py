@@ -6,7 +6,8 @@ examples/pendulum.toml names it as a plugin); nothing inside mop/ knows it.
     omega_{t+1} = omega_t + tau (-(g / l) sin(theta_t) - b omega_t + k u_t)        then + w_t
     y_t = C x_t + v_t,   x = (theta, omega),   C (2 x 2) entries U[0, 1]
 
-l ~ U[0.5, 2], b ~ U[0.1, 0.5], k ~ U[0.5, 2], u_t ~ U[-1, 1], w ~ N(0, q I), v ~ N(0, r I), x_0 ~ N(0, x0_std^2 I).
+l ~ U[0.5, 2], b ~ U[0.1, 0.5], k ~ U[0.5, 2], u_t ~ U[-1, 1], w ~ N(0, q I), v ~ N(0, r I),
+x_0 ~ N(0, x0_std^2 I).
 No Jacobian is given: the EKF differentiates f with autograd (StateSpace.jacobian = None).
 """
 

@@ -4,6 +4,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh test
 . .venv/bin/activate
-ruff check mop tests
-ruff format --check mop tests
+ruff check mop tests examples scripts
+ruff format --check mop tests examples scripts
 python -m pytest -n 2 -q --durations=15 "$@"
