@@ -2,7 +2,6 @@
 
 import numpy as np
 import torch
-from filterpy.kalman import KalmanFilter
 
 from mop.config import SystemConfig
 from mop.filters.ekf import EKFPredictor, ekf_predict
@@ -10,47 +9,26 @@ from mop.filters.particle import ParticleFilterPredictor
 from mop.filters.ukf import UKFPredictor
 from mop.predictors import Predictor
 from mop.systems import generator, make_family, quadrotor
-
-
-def filterpy_predictions(traj, b):
-    """Per-system filterpy Kalman filter: yhat_t = H x_{t|t-1}."""
-    p = {k: v[b].numpy() for k, v in traj.params.items()}
-    kf = KalmanFilter(dim_x=p["A"].shape[0], dim_z=p["C"].shape[0])
-    kf.F, kf.H, kf.Q, kf.R, kf.P = p["A"], p["C"], p["Q"], p["R"], p["P0"].copy()
-    kf.x = np.zeros(p["A"].shape[0])
-    out = []
-    for y in traj.y[b].numpy():
-        out.append(kf.H @ kf.x)
-        kf.update(y)
-        kf.predict()
-    return np.array(out)
-
-
-def linear_traj(num_systems=6, horizon=30, seed=0, **kw):
-    return make_family(
-        SystemConfig(family="linear", state_dim=4, output_dim=2, **kw), torch.float64
-    ).generate(num_systems, horizon, generator=generator(seed))
+from tests.reference import filterpy_on, linear_traj, quad_traj
 
 
 def test_ekf_on_linear_system_equals_kalman_filter():
     traj = linear_traj()
     yhat = EKFPredictor().predict(traj).numpy()
-    for b in range(traj.num_systems):
-        np.testing.assert_allclose(yhat[b], filterpy_predictions(traj, b), atol=1e-9)
+    np.testing.assert_allclose(yhat, filterpy_on(traj), atol=1e-9)
 
 
 def test_ukf_on_linear_system_equals_kalman_filter():
     traj = linear_traj(seed=1)
     for predictor in (UKFPredictor(), UKFPredictor(alpha=0.5, beta=2.0, kappa=1.0)):
         yhat = predictor.predict(traj).numpy()
-        for b in range(traj.num_systems):
-            np.testing.assert_allclose(yhat[b], filterpy_predictions(traj, b), atol=1e-8)
+        np.testing.assert_allclose(yhat, filterpy_on(traj), atol=1e-8)
 
 
 def test_particle_filter_approaches_kalman_filter():
     """Monte Carlo error of the PF mean shrinks like 1/sqrt(N): many particles -> close to the KF."""
     traj = linear_traj(num_systems=4, horizon=15, seed=2, noise_var_w=0.1, noise_var_v=0.1)
-    kf = np.stack([filterpy_predictions(traj, b) for b in range(4)])
+    kf = filterpy_on(traj)
     gap = lambda n: np.abs(ParticleFilterPredictor(n, seed=0).predict(traj).numpy() - kf).mean()  # noqa: E731
     scale = np.abs(traj.y.numpy() - kf).mean()  # the KF's own one-step error, for scale
     small, large = gap(100), gap(20000)
@@ -84,12 +62,6 @@ def test_quadrotor_filters_run_and_beat_the_prior():
         assert yhat.shape == traj.y.shape and yhat.dtype == traj.y.dtype and torch.isfinite(yhat).all()
         assert ((yhat[:, 0] - prior_mean).abs() <= tol).all()
         assert (yhat - traj.y).norm(dim=-1)[:, 5:].mean() < prior_err
-
-
-def quad_traj(num_systems, horizon, seed):
-    return make_family(SystemConfig(family="quadrotor"), torch.float64).generate(
-        num_systems, horizon, generator=generator(seed)
-    )
 
 
 def test_ekf_step_clips_like_the_authors_ekf():

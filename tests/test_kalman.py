@@ -17,6 +17,7 @@ from mop.filters.kalman import (
 )
 from mop.predictors import make_predictor
 from mop.systems.base import Trajectories
+from tests.reference import filterpy_predict
 
 
 def random_spd(rng, B, d, scale=0.1):
@@ -39,19 +40,6 @@ def simulate(rng, A, C, Q, R, T, P0=None):
         ys.append(np.einsum("bij,bj->bi", C, x) + np.einsum("bij,bj->bi", Lr, rng.normal(size=(B, m))))
         x = np.einsum("bij,bj->bi", A, x) + np.einsum("bij,bj->bi", Lq, rng.normal(size=(B, n)))
     return np.stack(ys, axis=1)
-
-
-def filterpy_predict(A, C, Q, R, y, x0, P0):
-    """Reference: one filterpy KalmanFilter per system, predictions H x before each update."""
-    out = np.zeros_like(y)
-    for b in range(A.shape[0]):
-        kf = KalmanFilter(dim_x=A.shape[-1], dim_z=C.shape[1])
-        kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = A[b], C[b], Q[b], R[b], x0[b].copy(), P0[b].copy()
-        for t in range(y.shape[1]):
-            out[b, t] = C[b] @ kf.x
-            kf.update(y[b, t])
-            kf.predict()
-    return out
 
 
 @pytest.mark.parametrize("n,m", [(1, 1), (3, 2), (4, 4), (2, 5)])

@@ -8,31 +8,7 @@ import torch
 from mop.config import SystemConfig
 from mop.systems import generator, make_family
 from mop.systems.quadrotor import BOUNDS, dynamics, dynamics_jacobian
-
-
-def numpy_step(s, u, mass, length, inertia, tau=0.1, g=10.0):
-    """One Euler step of the authors' code, coordinate by coordinate (phidot accumulates)."""
-    px, pz, phi, vx, vz, dphi = s
-    return np.array(
-        [
-            px + (vx * math.cos(phi) - vz * math.sin(phi)) * tau,
-            pz + (vx * math.sin(phi) + vz * math.cos(phi)) * tau,
-            phi + dphi * tau,
-            vx + (vz * dphi - g * math.sin(phi)) * tau,
-            vz + (-vx * dphi - g * math.cos(phi) + (u[0] + u[1]) / mass) * tau,
-            dphi + (u[0] - u[1]) * length * tau / inertia,
-        ]
-    )
-
-
-def numpy_clip(s):
-    return np.array([min(max(si, -b), b) for si, b in zip(s, BOUNDS, strict=True)])
-
-
-def quad_traj(num_systems, horizon, seed, **kw):
-    return make_family(SystemConfig(family="quadrotor", **kw), torch.float64).generate(
-        num_systems, horizon, generator=generator(seed)
-    )
+from tests.reference import numpy_clip, numpy_quadrotor_step, quad_traj
 
 
 def test_dynamics_matches_numpy_on_random_states():
@@ -40,7 +16,7 @@ def test_dynamics_matches_numpy_on_random_states():
     rng = np.random.default_rng(0)
     x, u, mlJ = rng.normal(size=(50, 6)) * 2, rng.uniform(-0.5, 0.5, (50, 2)), rng.uniform(0.5, 2, (3, 50))
     got = dynamics(*(torch.from_numpy(a) for a in (x, u, *mlJ))).numpy()
-    ref = np.stack([numpy_step(x[b], u[b], *mlJ[:, b]) for b in range(50)])
+    ref = np.stack([numpy_quadrotor_step(x[b], u[b], *mlJ[:, b]) for b in range(50)])
     np.testing.assert_allclose(got, ref, atol=1e-12)
 
 
@@ -53,7 +29,7 @@ def test_noise_free_trajectory_matches_numpy_loop():
         for t in range(41):
             np.testing.assert_allclose(x[b, t], s, atol=1e-10)
             np.testing.assert_allclose(y[b, t], p["C"][b] @ s, atol=1e-10)
-            s = numpy_clip(numpy_step(s, u[b, t], p["mass"][b], p["length"][b], p["inertia"][b]))
+            s = numpy_clip(numpy_quadrotor_step(s, u[b, t], p["mass"][b], p["length"][b], p["inertia"][b]))
 
 
 def test_angular_rate_accumulates_in_simulated_trajectories():

@@ -1,0 +1,66 @@
+"""Slow, independent reference implementations used only by the tests, in one place: a per-system filterpy
+Kalman filter, the authors' quadrotor step written coordinate by coordinate in numpy, and seeded batches."""
+
+import math
+
+import numpy as np
+import torch
+from filterpy.kalman import KalmanFilter
+
+from mop.config import SystemConfig
+from mop.systems import generator, make_family
+from mop.systems.quadrotor import BOUNDS
+
+
+def filterpy_predict(A, C, Q, R, y, x0, P0):
+    """One filterpy KalmanFilter per system; predictions H x before each update. Arrays (B, ...)."""
+    out = np.zeros_like(y)
+    for b in range(A.shape[0]):
+        kf = KalmanFilter(dim_x=A.shape[-1], dim_z=C.shape[1])
+        kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = A[b], C[b], Q[b], R[b], x0[b].copy(), P0[b].copy()
+        for t in range(y.shape[1]):
+            out[b, t] = C[b] @ kf.x
+            kf.update(y[b, t])
+            kf.predict()
+    return out
+
+
+def filterpy_on(traj) -> np.ndarray:
+    """filterpy_predict on a linear family's Trajectories (x_0 mean 0)."""
+    p = {k: v.numpy() for k, v in traj.params.items()}
+    y = traj.y.numpy()
+    x0 = np.zeros((y.shape[0], p["A"].shape[-1]))
+    return filterpy_predict(p["A"], p["C"], p["Q"], p["R"], y, x0, p["P0"])
+
+
+def numpy_quadrotor_step(s, u, mass, length, inertia, tau=0.1, g=10.0):
+    """One Euler step of the authors' code, coordinate by coordinate (phidot accumulates)."""
+    px, pz, phi, vx, vz, dphi = s
+    return np.array(
+        [
+            px + (vx * math.cos(phi) - vz * math.sin(phi)) * tau,
+            pz + (vx * math.sin(phi) + vz * math.cos(phi)) * tau,
+            phi + dphi * tau,
+            vx + (vz * dphi - g * math.sin(phi)) * tau,
+            vz + (-vx * dphi - g * math.cos(phi) + (u[0] + u[1]) / mass) * tau,
+            dphi + (u[0] - u[1]) * length * tau / inertia,
+        ]
+    )
+
+
+def numpy_clip(s):
+    return np.array([min(max(si, -b), b) for si, b in zip(s, BOUNDS, strict=True)])
+
+
+def quad_traj(num_systems, horizon, seed, **kw):
+    """Seeded quadrotor trajectories in float64."""
+    return make_family(SystemConfig(family="quadrotor", **kw), torch.float64).generate(
+        num_systems, horizon, generator=generator(seed)
+    )
+
+
+def linear_traj(num_systems=6, horizon=30, seed=0, **kw):
+    """Seeded small linear trajectories (n = 4, m = 2) in float64."""
+    return make_family(
+        SystemConfig(family="linear", state_dim=4, output_dim=2, **kw), torch.float64
+    ).generate(num_systems, horizon, generator=generator(seed))
