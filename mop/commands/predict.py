@@ -147,8 +147,8 @@ def print_horizon_errors(data, forecasts, steps: int) -> None:
     """Mean ||y_{t+j} - forecast[t, j]|| over trajectories and t >= 1 with t + j <= T, per k = j + 1."""
     print(f"{'k':>4} {'count':>8} {'mean|e|':>10}")
     for j in range(steps):
-        pairs = zip(data, forecasts, strict=True)
-        e = np.concatenate([np.linalg.norm(y[1 + j :] - f[1 : len(y) - j, j], -1) for (y, _), f in pairs])
+        err = [y[1 + j :] - f[1 : len(y) - j, j] for (y, _), f in zip(data, forecasts, strict=True)]
+        e = np.concatenate([np.linalg.norm(d, axis=-1) for d in err])
         print(f"{j + 1:>4} {len(e):>8} {e.mean() if len(e) else float('nan'):>10.4g}")
 
 
