@@ -46,7 +46,7 @@ def resolve_predictor(spec: str, stream: bool = False):
     names = PREDICTORS.names()
     if spec not in names:
         raise MopError(
-            f"{spec!r} is neither a run directory nor a registered predictor; "
+            f"{spec!r}: run directory {spec} does not exist and no predictor is registered under that name; "
             f"give a run directory or one of: {', '.join(sorted(names))}"
         )
     if is_learned(spec):
