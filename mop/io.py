@@ -110,3 +110,23 @@ def read_trajectories(path: str | os.PathLike) -> tuple[list[str], Data]:
     if path.suffix == ".csv":
         return read_csv(path)
     raise MopError(f"{path}: unknown data format {path.suffix!r}; use .csv or .npz")
+
+
+def read_system(path: str | os.PathLike, num_trajectories: int) -> tuple[str, dict[str, np.ndarray]]:
+    """(family, {name: array}) from the `family` string array and the `param_<name>` arrays (each with leading
+    dim B = num_trajectories) that `mop simulate` writes next to y and u; ("", {}) where the file has none."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        return "", {}
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            family = str(d["family"]) if "family" in d else ""
+            params = {k[len("param_") :]: np.asarray(d[k]) for k in d.files if k.startswith("param_")}
+    except Exception as e:
+        raise MopError(f"{path}: not a readable .npz file ({type(e).__name__})") from None
+    for name, a in params.items():
+        if a.ndim == 0 or a.shape[0] != num_trajectories:
+            raise MopError(
+                f"{path}: param_{name} has shape {a.shape}; need leading dim {num_trajectories} (one per y)"
+            )
+    return family, params

@@ -81,3 +81,37 @@ def is_learned(name: str) -> bool:
 
 def needs_system(name: str) -> bool:
     return bool(PREDICTORS.meta(name).get("needs_system"))
+
+
+def forecast(predictor: Predictor, traj: Trajectories, steps: int) -> Tensor:
+    """k-step-ahead forecasts (B, T+1, K, m), K = steps, of a predictor with a `forecast` method.
+
+    forecast[:, t, j] predicts y_{t+j} from y_0..y_{t-1} (and the inputs u_0..u_{t+j-1}, given where the
+    family has inputs); j = 0 is the one-step predict(traj)[:, t]. Entries whose target index t + j exceeds T
+    are NaN. Each predictor documents how it rolls out (filters: their time update with no measurement;
+    RLS / subspace: iterating the fitted model; learned: autoregressively on their own predictions).
+    """
+    from mop.errors import MopError
+
+    if not isinstance(steps, int) or steps < 1:
+        raise MopError(f"forecast steps must be an integer >= 1, got {steps!r}")
+    method = getattr(predictor, "forecast", None)
+    if not callable(method):
+        raise MopError(
+            f"predictor {getattr(predictor, 'name', type(predictor).__name__)!r} has no k-step forecast; "
+            "use --steps 1 (one-step predict) or another predictor"
+        )
+    return nan_beyond_horizon(method(traj, steps))
+
+
+def nan_beyond_horizon(f: Tensor) -> Tensor:
+    """f (B, T+1, K, m) with the entries whose target index t + j > T set to NaN (in place; returned)."""
+    T1, K = f.shape[1], f.shape[2]
+    for j in range(1, K):
+        f[:, max(T1 - j, 0) :, j] = float("nan")
+    return f
+
+
+def repeat_forecast(yhat: Tensor, steps: int) -> Tensor:
+    """(B, T+1, K, m) forecasts that repeat the one-step prediction yhat (B, T+1, m) for every horizon."""
+    return nan_beyond_horizon(yhat[:, :, None].expand(-1, -1, steps, -1).clone())

@@ -72,3 +72,36 @@ def floor(result, predictors: list, reference: str) -> dict:
         for name, c in result.summary["predictors"].items()
     }
     return {"floor": {"mse": curve, "excess_mse": excess}}
+
+
+FORECAST_STEPS = 10
+FORECAST_START = 20
+
+
+def horizon_errors(y, f, start: int = FORECAST_START) -> list[float]:
+    """Mean ||y_{t+j} - f[:, t, j]||_2 over systems and origins t >= start (with t + j <= T), j = 0..K-1:
+    the k-step error for k = j + 1. y (B, T+1, m), f (B, T+1, K, m) with NaN past T (those are skipped)."""
+    T1, K = y.shape[1], f.shape[2]
+    out = []
+    for j in range(K):
+        e = (y[:, start + j :].double() - f[:, start : T1 - j, j].double()).norm(dim=-1)  # (B, T+1-start-j)
+        out.append(float(e.mean()) if e.numel() else float("nan"))
+    return out
+
+
+@ANALYSES.register("forecast")
+def forecast_analysis(result, predictors: list, reference: str) -> dict:
+    """k-step forecast error against k = 1..FORECAST_STEPS (10) per predictor with a forecast: mean over test
+    systems and forecast origins t >= FORECAST_START (20) of ||y_{t+k-1} - forecast_{t,k-1}|| (horizon_errors;
+    k = 1 is the one-step error over t >= 20). Predictors without a forecast are left out."""
+    from mop.predictors import forecast
+
+    steps = min(FORECAST_STEPS, result.traj.horizon + 1 - FORECAST_START)
+    start = FORECAST_START if steps >= 1 else 1
+    steps = max(steps, 1)
+    table = {}
+    for p in predictors:
+        if not callable(getattr(p, "forecast", None)):
+            continue
+        table[p.name] = horizon_errors(result.traj.y, forecast(p, result.traj, steps), start)
+    return {"forecast": {"k": list(range(1, steps + 1)), "start": start, "error": table}}

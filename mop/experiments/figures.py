@@ -99,3 +99,25 @@ def loglog(exp, results: dict, out: Path) -> list[Path]:
         )
         paths += plots.save(fig, out, f"scaling_{axis}")
     return paths
+
+
+@FIGURES.register("forecast")
+def forecast(exp, results: dict, out: Path) -> list[Path]:
+    """Per condition: k-step forecast error against k, one line per predictor (the "forecast" analysis)."""
+    import matplotlib.pyplot as plt
+
+    paths = []
+    for name, r in results.items():
+        table = r.extras.get("forecast")
+        if not table:
+            continue
+        fig, ax = plt.subplots(figsize=(4.5, 3.2))
+        for pred, errs in table["error"].items():
+            ax.plot(table["k"], errs, marker="o", ms=3, label=pred)
+        ax.set_xlabel("steps ahead k")
+        ax.set_ylabel(f"mean ||y - yhat|| over t >= {table['start']}")
+        ax.set_title(f"{exp.name}: k-step forecasts" + ("" if len(results) == 1 else f", {name}"))
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        paths += plots.save(fig, out, _stem(exp, results, name, "forecast"))
+    return paths

@@ -32,7 +32,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
-from mop.filters.gaussian import gaussian_filter, kalman_step
+from mop.filters.gaussian import filter_forecast, gaussian_filter, kalman_step
 from mop.predictors import PREDICTORS
 from mop.systems.base import StateSpace, Trajectories
 
@@ -82,12 +82,20 @@ def colored_kalman_filter(
 
     A (B, n, n), C (B, m, n), var_w, var_v (B,) per-draw variances, y (B, T, m), P0 (B, n, n) (default I).
     """
+    return gaussian_filter(colored_state_space(A, C, var_w, var_v, window, P0), kalman_step, y)
+
+
+def colored_state_space(
+    A: Tensor, C: Tensor, var_w: Tensor, var_v: Tensor, window: int, P0: Tensor | None = None
+) -> StateSpace:
+    """The augmented linear StateSpace (A_aug, C_aug, Q_aug, R_aug = 0, z_0 ~ N(0, P0_aug)); shapes as
+    colored_kalman_filter."""
     B, n, m = A.shape[0], A.shape[-1], C.shape[-2]
     P0 = torch.eye(n, dtype=A.dtype, device=A.device).expand(B, n, n) if P0 is None else P0
     A_aug, C_aug, Q_aug, P0_aug = augmented_model(A, C, var_w, var_v, window, P0)
     R_aug = torch.zeros(B, m, m, dtype=A.dtype, device=A.device)
     z0 = torch.zeros(B, A_aug.shape[-1], dtype=A.dtype, device=A.device)
-    model = StateSpace(
+    return StateSpace(
         f=lambda x, u, t: x @ A_aug.mT,
         C=C_aug,
         Q=Q_aug,
@@ -96,7 +104,6 @@ def colored_kalman_filter(
         P0=P0_aug,
         jacobian=lambda x, u, t: A_aug,
     )
-    return gaussian_filter(model, kalman_step, y)
 
 
 @PREDICTORS.register("kalman-colored", needs_system=True)
@@ -108,7 +115,7 @@ class ColoredNoiseKalmanPredictor:
     def __init__(self, name: str = "kalman-colored") -> None:
         self.name = name
 
-    def predict(self, traj: Trajectories) -> Tensor:
+    def _model(self, traj: Trajectories) -> StateSpace:
         need = ("A", "C", "noise_var_w", "noise_var_v", "color_window")
         missing = [k for k in need if k not in traj.params]
         if missing:
@@ -121,13 +128,19 @@ class ColoredNoiseKalmanPredictor:
         if windows.numel() != 1:
             raise MopError(f"kalman-colored: systems of one batch must share color_window, got {windows}")
         P0 = p["P0"].double() if "P0" in p else None
-        yhat, _ = colored_kalman_filter(
+        return colored_state_space(
             p["A"].double(),
             p["C"].double(),
             p["noise_var_w"].double(),
             p["noise_var_v"].double(),
             int(windows.item()),
-            traj.y.double(),
             P0,
         )
+
+    def predict(self, traj: Trajectories) -> Tensor:
+        yhat, _ = gaussian_filter(self._model(traj), kalman_step, traj.y.double())
         return yhat.to(traj.y.dtype)
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): the augmented model's Kalman forecast (mop.filters.gaussian.gaussian_forecast)."""
+        return filter_forecast(self._model(traj), kalman_step, traj, steps)[0]

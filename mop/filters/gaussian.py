@@ -40,18 +40,26 @@ def condition_on(m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor) -> tuple
 
 
 def gaussian_filter(
-    model: StateSpace, step: Step, y: Tensor, u: Tensor | None = None, project: bool = True
+    model: StateSpace,
+    step: Step,
+    y: Tensor,
+    u: Tensor | None = None,
+    project: bool = True,
+    at_prior: Callable[[int, Tensor, Tensor, Projection | None], None] | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Predictive means yhat (B, T+1, m) and covariances S (B, T+1, m, m) of y_t given y_{<t}, u_{<t}.
 
     y (B, T+1, m), u (B, T+1, k) or None; `project` applies the model's state projection (if any) to m_0 and
-    inside `step`.
+    inside `step`. at_prior(t, m_t, P_t, projection) is called with each prior before it is conditioned on y_t
+    (gaussian_forecast rolls the k-step forecasts out from there).
     """
     proj = model.project if project and model.project is not None else None
     m, P = (model.m0 if proj is None else proj(model.m0)), model.P0
     means, covs = [], []
     for t in range(y.shape[1]):
         C = model.output_matrix(t)
+        if at_prior is not None:
+            at_prior(t, m, P, proj)
         means.append((C @ m[..., None])[..., 0])
         m, P, S = condition_on(m, P, y[:, t], C, model.R)
         covs.append(S)
@@ -119,6 +127,44 @@ def ukf_step_with(alpha: float = 1.0, beta: float = 0.0, kappa: float = 0.0) -> 
     return step
 
 
+def gaussian_forecast(
+    model: StateSpace, step: Step, y: Tensor, u: Tensor | None, steps: int, project: bool = True
+) -> tuple[Tensor, Tensor]:
+    """k-step forecasts: mean (B, T+1, K, m) and covariance (B, T+1, K, m, m), K = steps.
+
+    From the prior (m_t, P_t) of x_t given y_{<t} the filter's own time update is applied j times with no
+    measurement (inputs u_t..u_{t+j-1}, the same projection as the filter):
+        mean[:, t, j] = C_{t+j} m_{t+j|t-1},  cov[:, t, j] = C_{t+j} P_{t+j|t-1} C_{t+j}^T + R
+    (linear: m_{t+j|t-1} = A^j m_t, P_{t+j|t-1} = A^j P_t A^j^T + sum_{i<j} A^i Q A^i^T). j = 0 is the
+    filter's one-step prediction. Entries with t + j > T (no such output) are NaN.
+    """
+    B, T1, m_out = y.shape
+    nan = float("nan")
+    mean = y.new_full((B, T1, steps, m_out), nan)
+    cov = y.new_full((B, T1, steps, m_out, m_out), nan)
+
+    def roll(t: int, m: Tensor, P: Tensor, proj: Projection | None) -> None:
+        last = min(steps, T1 - t)
+        for j in range(last):
+            C = model.output_matrix(t + j)
+            mean[:, t, j] = (C @ m[..., None])[..., 0]
+            cov[:, t, j] = C @ P @ C.mT + model.R
+            if j + 1 < last:
+                m, P = step(model, m, P, None if u is None else u[:, t + j], t + j, proj)
+
+    gaussian_filter(model, step, y, u, project, at_prior=roll)
+    return mean, cov
+
+
+def filter_forecast(
+    model: StateSpace, step: Step, traj: Trajectories, steps: int, project: bool = True
+) -> tuple[Tensor, Tensor]:
+    """(mean, var) each (B, T+1, K, m) in traj.y's dtype: gaussian_forecast's means and diagonal variances."""
+    u = None if traj.u is None else traj.u.double()
+    mean, cov = gaussian_forecast(model, step, traj.y.double(), u, steps, project)
+    return mean.to(traj.y.dtype), torch.diagonal(cov, dim1=-2, dim2=-1).to(traj.y.dtype)
+
+
 def filter_distribution(
     model: StateSpace, step: Step, traj: Trajectories, project: bool = True
 ) -> tuple[Tensor, Tensor]:
@@ -140,3 +186,11 @@ class GaussianFilterPredictor:
 
     def predict(self, traj: Trajectories) -> Tensor:
         return self.predict_distribution(traj)[0]
+
+    def forecast_distribution(self, traj: Trajectories, steps: int) -> tuple[Tensor, Tensor]:
+        """(mean, var) each (B, T+1, K, m): gaussian_forecast of the family's StateSpace."""
+        return filter_forecast(state_space_of(traj), self.step, traj, steps, self.project)
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): forecast[:, t, j] predicts y_{t+j} from y_{<t} (NaN where t + j > T)."""
+        return self.forecast_distribution(traj, steps)[0]

@@ -59,6 +59,27 @@ def pf_predict(
 
     y (B, T+1, m), u (B, T+1, k) or None; `project` applies the model's projection to every particle.
     """
+    return pf_forecast(model, y, u, 1, num_particles=num_particles, seed=seed, project=project)[:, :, 0]
+
+
+def pf_forecast(
+    model: StateSpace,
+    y: Tensor,
+    u: Tensor | None,
+    steps: int,
+    *,
+    num_particles: int = 1000,
+    seed: int = 0,
+    project: bool = True,
+) -> Tensor:
+    """k-step forecasts (B, T+1, K, m), float64: the prior particles of x_t (given y_{<t}) propagated j times
+    through f with process-noise draws (and the projection), no resampling; forecast[:, t, j] = C_{t+j}
+    mean_i X^i. The roll-out draws come from a second generator (seed + 1), so j = 0 is pf_predict exactly
+    and the filter's own draws do not depend on `steps`. Entries with t + j > T are NaN.
+    """
+    from mop.predictors import nan_beyond_horizon
+
+    ahead_gen = torch.Generator(device=y.device).manual_seed(seed + 1)
     generator = torch.Generator(device=y.device).manual_seed(seed)
     proj = model.project if project and model.project is not None else (lambda x: x)
     y, u = y.double(), None if u is None else u.double()
@@ -68,14 +89,20 @@ def pf_predict(
     eps = torch.randn((B, num_particles, n), generator=generator, device=generator.device, dtype=y.dtype)
     X = proj(model.m0[:, None] + eps @ L_0.mT)  # (B, N, n)
     R_inv = torch.linalg.inv(model.R)  # (B, m, m)
-    preds = []
-    for t in range(y.shape[1]):
+    T1 = y.shape[1]
+    out = y.new_full((B, T1, steps, model.R.shape[-1]), float("nan"))
+    for t in range(T1):
         C = model.output_matrix(t)
-        preds.append((C @ X.mean(1)[..., None])[..., 0])  # (B, m)
+        out[:, t, 0] = (C @ X.mean(1)[..., None])[..., 0]  # (B, m)
+        Xj = X
+        for j in range(1, min(steps, T1 - t)):
+            f = lambda x, v, s=t + j - 1: model.f(x, v, s)  # noqa: E731
+            Xj = proj(_predict(Xj, None if u is None else u[:, t + j - 1], f, L_Q, ahead_gen))
+            out[:, t, j] = (model.output_matrix(t + j) @ Xj.mean(1)[..., None])[..., 0]
         X = _condition_on(X, y[:, t], C, R_inv, generator)
         f = lambda x, v, t=t: model.f(x, v, t)  # noqa: E731
         X = proj(_predict(X, None if u is None else u[:, t], f, L_Q, generator))
-    return torch.stack(preds, dim=1)
+    return nan_beyond_horizon(out)
 
 
 @PREDICTORS.register("pf", needs_system=True)
@@ -97,6 +124,19 @@ class ParticleFilterPredictor:
             project=self.project,
         )
         return yhat.to(traj.y.dtype)
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): particles propagated through f with seeded noise draws, averaged (pf_forecast)."""
+        out = pf_forecast(
+            state_space_of(traj),
+            traj.y,
+            traj.u,
+            steps,
+            num_particles=self.num_particles,
+            seed=self.seed,
+            project=self.project,
+        )
+        return out.to(traj.y.dtype)
 
 
 PREDICTORS.add(

@@ -39,18 +39,47 @@ def rls_update(theta: Tensor, P: Tensor, phi: Tensor, target: Tensor) -> tuple[T
     return theta, 0.5 * (P + P.mT)
 
 
-def rls_predict(y: Tensor, order: int = 2) -> Tensor:
-    """One-step matrix RLS-AR(order) predictions yhat (B, T, m) for outputs y (B, T, m)."""
+def _rls_run(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
+    """(yhat (B, T, m), phi (B, T, p*m), {t: theta (B, d, m) used for yhat_t, t >= p + 1})."""
     B, T, m = y.shape
     phi = regressors(y, order)  # (B, T, p*m)
     d = order * m
     theta = y.new_zeros(B, d, m)
     P = torch.eye(d, dtype=y.dtype, device=y.device).repeat(B, 1, 1)  # (B, d, d)
     preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(order + 1, T))]
+    thetas = {}
     for t in range(order + 1, T):
         theta, P = rls_update(theta, P, phi[:, t - 2], y[:, t - 1])  # the newest pair (phi_{t-2}, y_{t-1})
+        thetas[t] = theta
         preds.append((theta.mT @ phi[:, t - 1, :, None])[..., 0])
-    return torch.stack(preds, dim=1)
+    return torch.stack(preds, dim=1), phi, thetas
+
+
+def rls_predict(y: Tensor, order: int = 2) -> Tensor:
+    """One-step matrix RLS-AR(order) predictions yhat (B, T, m) for outputs y (B, T, m)."""
+    return _rls_run(y, order)[0]
+
+
+def rls_forecast(y: Tensor, order: int = 2, steps: int = 1) -> Tensor:
+    """k-step forecasts (B, T, K, m): from t >= p + 1 the AR recursion fitted to y_{<t} iterated on its own
+    predictions, yhat_{t+j} = theta_t^T [yhat_{t+j-1}; ...] (observed y_{t-1}, ... where the regressor reaches
+    back before t). During the start-up (t <= p, no regression yet) the one-step prediction (y_{t-1}, 0 at
+    t = 0) is repeated for every horizon. j = 0 is rls_predict; entries with t + j >= T are NaN."""
+    from mop.predictors import nan_beyond_horizon
+
+    preds, phi, thetas = _rls_run(y, order)
+    m = y.shape[2]
+    out = preds[:, :, None].repeat(1, 1, steps, 1)  # (B, T, K, m)
+    if thetas:
+        ts = sorted(thetas)
+        Th = torch.stack([thetas[t] for t in ts], dim=1)  # (B, n_t, d, m)
+        ph = phi[:, [t - 1 for t in ts]]  # (B, n_t, d)
+        pred = preds[:, ts]  # (B, n_t, m): j = 0 exactly as predicted
+        for j in range(1, steps):
+            ph = torch.cat([pred, ph[..., :-m]], dim=-1)
+            pred = (Th.mT @ ph[..., None])[..., 0]
+            out[:, ts, j] = pred
+    return nan_beyond_horizon(out)
 
 
 def adaptive_order_rls_predict(y: Tensor, max_order: int = 5) -> tuple[Tensor, Tensor]:
@@ -59,12 +88,24 @@ def adaptive_order_rls_predict(y: Tensor, max_order: int = 5) -> tuple[Tensor, T
     start-up copies do not count) is lowest, per system; ties -> lowest order. Returns yhat (B, T, m),
     order (B, T)."""
     all_preds = torch.stack([rls_predict(y, p) for p in range(1, max_order + 1)], dim=1)  # (B, P, T, m)
+    return _best_order(y, all_preds, max_order)
+
+
+def _best_order(y: Tensor, all_preds: Tensor, max_order: int) -> tuple[Tensor, Tensor]:
     sq_err = ((all_preds - y[:, None]) ** 2).sum(-1)  # (B, P, T)
     sq_err[:, :, : max_order + 1] = 0  # score only where every order predicts by regression
     past = torch.cumsum(sq_err, dim=-1) - sq_err  # (B, P, T): errors strictly before t
     best = past.argmin(dim=1)  # (B, T), argmin returns the first (lowest) order on ties
     yhat = torch.gather(all_preds, 1, best[:, None, :, None].expand(-1, 1, -1, y.shape[2]))[:, 0]
     return yhat, best + 1
+
+
+def adaptive_order_rls_forecast(y: Tensor, max_order: int = 5, steps: int = 1) -> Tensor:
+    """k-step forecasts (B, T, K, m) of rls-best: at each t, the rls_forecast of the order chosen at t."""
+    fc = torch.stack([rls_forecast(y, p, steps) for p in range(1, max_order + 1)], dim=1)  # (B, P, T, K, m)
+    _, order = _best_order(y, fc[:, :, :, 0], max_order)  # (B, T)
+    idx = (order - 1)[:, None, :, None, None].expand(-1, 1, -1, *fc.shape[3:])
+    return torch.gather(fc, 1, idx)[:, 0]
 
 
 @PREDICTORS.register("rls")
@@ -77,6 +118,10 @@ class RLSPredictor:
     def predict(self, traj: Trajectories) -> Tensor:
         return rls_predict(traj.y.double(), self.order).to(traj.y.dtype)
 
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): the fitted AR recursion iterated on its own predictions (see rls_forecast)."""
+        return rls_forecast(traj.y.double(), self.order, steps).to(traj.y.dtype)
+
 
 @PREDICTORS.register("rls-best")
 class AdaptiveOrderRLSPredictor:
@@ -87,3 +132,7 @@ class AdaptiveOrderRLSPredictor:
 
     def predict(self, traj: Trajectories) -> Tensor:
         return adaptive_order_rls_predict(traj.y.double(), self.max_order)[0].to(traj.y.dtype)
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): rls_forecast of the order chosen at each t."""
+        return adaptive_order_rls_forecast(traj.y.double(), self.max_order, steps).to(traj.y.dtype)

@@ -18,7 +18,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
-from mop.filters.rls import rls_predict
+from mop.filters.rls import rls_forecast
 from mop.predictors import PREDICTORS
 from mop.systems.base import Trajectories
 
@@ -91,12 +91,32 @@ def n4sid_kalman_predict(
     select: per system, use the identified predictor at t only if its out-of-sample one-step squared errors
     over t_0..t-1 sum below RLS's over the same steps (causal; ties -> RLS), as rls-best chooses its order.
     """
+    args = (order, num_block_rows, min_prefix, every, min_columns, select)
+    return n4sid_kalman_forecast(y, 1, *args)[:, :, 0]
+
+
+def n4sid_kalman_forecast(
+    y: Tensor,
+    steps: int,
+    order: int = 4,
+    num_block_rows: int | None = None,
+    min_prefix: int = 20,
+    every: int = 1,
+    min_columns: int | None = None,
+    select: bool = True,
+) -> Tensor:
+    """k-step forecasts (B, T, K, m): where n4sid_kalman_predict uses the identified model at t, its state m_t
+    is propagated with no measurement, yhat_{t+j} = C A^j m_t; where it uses RLS-AR(2), rls_forecast's
+    iterated AR recursion. j = 0 is n4sid_kalman_predict; entries with t + j >= T are NaN."""
+    from mop.predictors import nan_beyond_horizon
+
     B, T, m = y.shape
     i = num_block_rows or max(2, math.ceil(order / m) + 1)
     min_columns = 2 * i * m if min_columns is None else min_columns
     start = max(min_prefix, 2 * i - 1 + min_columns, 2 * i - 1 + order + 2)
-    fallback = rls_predict(y, order=2)  # (B, T, m)
-    preds = list(fallback[:, :start].unbind(1))
+    fallback_k = rls_forecast(y, 2, steps)  # (B, T, K, m)
+    fallback = fallback_k[:, :, 0]  # (B, T, m) = rls_predict(y, 2)
+    out = fallback_k.clone()
     A = C = K = state = stable = None
     score = y.new_zeros(B)  # sum over past steps of (model error^2 - RLS error^2)
     for t in range(start, T):
@@ -107,10 +127,14 @@ def n4sid_kalman_predict(
         kf = (C @ state[..., None])[..., 0]  # (B, m)
         model = torch.where(stable[:, None], kf, fallback[:, t])
         use = score < 0 if select else torch.ones_like(stable)
-        preds.append(torch.where(use[:, None], model, fallback[:, t]))
+        out[:, t, 0] = torch.where(use[:, None], model, fallback[:, t])
+        ahead, use_kf = state, (use & stable)[:, None]
+        for j in range(1, min(steps, T - t)):
+            ahead = (A @ ahead[..., None])[..., 0]
+            out[:, t, j] = torch.where(use_kf, (C @ ahead[..., None])[..., 0], fallback_k[:, t, j])
         score = score + ((model - y[:, t]) ** 2).sum(-1) - ((fallback[:, t] - y[:, t]) ** 2).sum(-1)
         state = (A @ state[..., None] + K @ (y[:, t] - kf)[..., None])[..., 0]
-    return torch.stack(preds, dim=1)
+    return nan_beyond_horizon(out)
 
 
 @PREDICTORS.register("n4sid-kf")
@@ -150,5 +174,19 @@ class N4SIDKalmanPredictor:
         y = traj.y.double()
         out = n4sid_kalman_predict(
             y, self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select
+        )
+        return out.to(traj.y.dtype)
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): the identified model propagated with no measurement (n4sid_kalman_forecast)."""
+        out = n4sid_kalman_forecast(
+            traj.y.double(),
+            steps,
+            self.order,
+            self.num_block_rows,
+            self.min_prefix,
+            self.every,
+            self.min_columns,
+            self.select,
         )
         return out.to(traj.y.dtype)

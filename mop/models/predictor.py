@@ -140,6 +140,40 @@ class LearnedPredictor:
             return self._pad(mu, traj.y, 0.0), self._pad(var, traj.y, 1.0)
         return self._pad(mu, traj.y, 0.0, norm.y_mean), self._pad(var, traj.y, 1.0, norm.y_std**2)
 
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m) k-step forecasts, rolled out autoregressively on the model's own predictions.
+
+        j = 0 is predict(traj). For j >= 1 the model reads z_0..z_{t-1} followed by
+        [yhat_t, u_t], ..., [yhat_{t+j-1}, u_{t+j-1}] (the given future inputs, the predicted outputs) and
+        yhat_{t+j} is its output at the last position, with the window semantics of predict: a
+        context-limited model sees the last C of those inputs, a recurrent one all of them (in "stream" mode
+        too). A Gaussian read-out feeds back its mean only (no sampling), so the forecast is the mean path,
+        not the predictive mean of y_{t+j}. Entries with t + j > T are NaN. One forward per (t, j).
+        """
+        yhat = self.predict(traj)  # (B, T+1, m)
+        B, T1, m = yhat.shape
+        out = yhat.new_full((B, T1, steps, m), float("nan"))
+        out[:, :, 0] = yhat
+        z = traj.model_inputs().double()  # (B, T+1, d_in) in data units
+        u = None if traj.u is None else traj.u.double()
+        context = self.cfg.context if self.model.context_limited else None
+        for t in range(T1 - 1):
+            hist, pred = z[:, :t], yhat[:, t].double()
+            for j in range(1, min(steps, T1 - t)):
+                new = pred if u is None else torch.cat([pred, u[:, t + j - 1]], dim=-1)
+                hist = torch.cat([hist, new[:, None]], dim=1)
+                pred = self._last_output(hist if context is None else hist[:, -context:])
+                out[:, t, j] = pred.to(out.dtype)
+        return out
+
+    def _last_output(self, z: Tensor) -> Tensor:
+        """The model's mean output (B, m) in data units, float64, at the last position of z (B, L, d_in)."""
+        if self.normalization is not None:
+            z = self.normalization.inputs(z)
+        p = next(self.model.parameters())
+        mu, _ = self._run(z.to(device=p.device, dtype=p.dtype), gaussian=False)
+        return mu[:, -1].double().cpu()
+
 
 def stream(model: nn.Module, z: Tensor, gaussian: bool = False) -> tuple[Tensor, Tensor | None]:
     """Step the model's cache over z (B, T, d_in) -> mean, var|None each (B, T, m)."""

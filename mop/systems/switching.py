@@ -86,12 +86,21 @@ class KalmanKeepingSystem1:
 
     name = "kalman-system1"
 
+    @staticmethod
+    def _model(traj: Trajectories) -> StateSpace:
+        p = traj.params
+        return linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"])
+
     def predict_distribution(self, traj: Trajectories) -> tuple[Tensor, Tensor]:
         from mop.filters.gaussian import filter_distribution, kalman_step
 
-        p = traj.params
-        model = linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"])
-        return filter_distribution(model, kalman_step, traj)
+        return filter_distribution(self._model(traj), kalman_step, traj)
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): system 1's Kalman forecast (mop.filters.gaussian.gaussian_forecast)."""
+        from mop.filters.gaussian import filter_forecast, kalman_step
+
+        return filter_forecast(self._model(traj), kalman_step, traj, steps)[0]
 
     def predict(self, traj: Trajectories) -> Tensor:
         return self.predict_distribution(traj)[0]

@@ -1,0 +1,194 @@
+"""k-step-ahead forecasts: forecast[:, t, j] predicts y_{t+j} from y_{<t}; j = 0 is predict; NaN past T."""
+
+import numpy as np
+import pytest
+import torch
+
+from mop.config import RunConfig, SystemConfig, apply_overrides
+from mop.errors import MopError
+from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor
+from mop.systems import FAMILIES
+from mop.systems.base import Trajectories, linear_state_space
+
+K = 4
+
+
+def generate(family: str, n: int = 3, horizon: int = 24, seed: int = 0, **knobs) -> Trajectories:
+    fam = FAMILIES.get(family)(SystemConfig(family=family, **knobs))
+    return fam.generate(n, horizon, generator=torch.Generator().manual_seed(seed))
+
+
+@pytest.fixture(scope="module")
+def tiny_gru(tmp_path_factory):
+    from mop.train import train
+
+    cfg = apply_overrides(
+        RunConfig(),
+        [
+            "system.output_dim=2",
+            "system.state_dim=2",
+            "model.arch=gru",
+            "model.num_layers=1",
+            "model.width=16",
+            "model.context=10",
+            "train.steps=5",
+            "train.horizon=10",
+        ],
+    )
+    return train(cfg, tmp_path_factory.mktemp("gru") / "tiny", progress=False)
+
+
+def numpy_kalman_priors(A, C, Q, R, P0, y):
+    """Plain numpy KF (one system): prior means / covariances of x_t given y_{<t}, t = 0..T."""
+    m, P = np.zeros(A.shape[0]), P0.copy()
+    means, covs = [], []
+    for yt in y:
+        means.append(m.copy())
+        covs.append(P.copy())
+        S = C @ P @ C.T + R
+        Kg = P @ C.T @ np.linalg.inv(S)
+        m = m + Kg @ (yt - C @ m)
+        P = (np.eye(len(m)) - Kg @ C) @ P
+        m, P = A @ m, A @ P @ A.T + Q
+    return means, covs
+
+
+def test_kalman_forecast_equals_C_A_power_prior_and_its_covariance():
+    traj = generate("linear")
+    mean, var = make_predictor("kalman").forecast_distribution(traj, K)
+    T = traj.horizon
+    for b in range(traj.num_systems):
+        A, C, Q, R, P0 = (traj.params[k][b].double().numpy() for k in ("A", "C", "Q", "R", "P0"))
+        means, covs = numpy_kalman_priors(A, C, Q, R, P0, traj.y[b].double().numpy())
+        for t in (0, 1, 7, T - 2):
+            for k in range(K):
+                if t + k > T:
+                    assert torch.isnan(mean[b, t, k]).all()
+                    continue
+                Ak = np.linalg.matrix_power(A, k)
+                expected = C @ Ak @ means[t]
+                Pk = Ak @ covs[t] @ Ak.T + sum(
+                    np.linalg.matrix_power(A, i) @ Q @ np.linalg.matrix_power(A, i).T for i in range(k)
+                )
+                np.testing.assert_allclose(mean[b, t, k].numpy(), expected, rtol=1e-4, atol=1e-5)
+                np.testing.assert_allclose(
+                    var[b, t, k].numpy(), np.diag(C @ Pk @ C.T + R), rtol=1e-4, atol=1e-6
+                )
+
+
+def test_rollout_of_a_perfect_one_step_predictor_is_exact():
+    """Noiseless linear system, KF with Q = R ~ 0: once x is known the k-step forecast is exact."""
+    traj = generate("linear", n=2, horizon=30, noise_var_w=0.0, noise_var_v=0.0)
+    p = traj.params
+    B, n = p["A"].shape[:2]
+    p["Q"] = 1e-12 * torch.eye(n, dtype=p["Q"].dtype).expand(B, n, n).clone()
+    p["R"] = 1e-10 * torch.eye(p["C"].shape[1], dtype=p["R"].dtype).expand_as(p["R"]).clone()
+    f = forecast(make_predictor("kalman"), traj, 6)
+    for j in range(6):
+        err = (f[:, 10 : traj.horizon + 1 - j, j] - traj.y[:, 10 + j :]).abs().max()
+        assert err < 1e-4 * traj.y[:, 10:].abs().max(), (j, err)
+    assert (f[:, 10:20, 5] - f[:, 10:20, 0]).abs().max() > 1e-2  # the horizons differ
+
+
+def test_rls_rollout_is_exact_on_a_noiseless_ar2():
+    """y_t = a1 y_{t-1} + a2 y_{t-2} (undamped, so y does not die out): after RLS has identified
+    the recursion its k-step roll-out is exact."""
+    T, a1, a2 = 80, 2 * np.cos(0.3), -1.0
+    y = torch.zeros(1, T + 1, 1, dtype=torch.float64)
+    y[0, 0, 0], y[0, 1, 0] = 100.0, 30.0  # large: RLS's ridge prior (P_0 = I) then biases theta by ~1e-6
+    for t in range(2, T + 1):
+        y[0, t] = a1 * y[0, t - 1] + a2 * y[0, t - 2]
+    traj = Trajectories(y=y)
+    f = forecast(make_predictor("rls"), traj, 8)
+    for j in range(8):
+        err = (f[0, 40 : T + 1 - j, j] - y[0, 40 + j :]).abs().max()
+        assert err < 1e-3 * y.abs().max(), (j, err)  # a wrong roll-out misses by ~1e2
+    assert y[0, 40:].abs().max() > 50
+    assert (f[0, 5:, 3] - f[0, 5:, 0]).abs().nansum() > 0  # the horizons differ (not a copy of j = 0)
+
+
+def _trajectory_for(name: str, tiny_run) -> Trajectories:
+    if is_learned(name):
+        return generate("linear", n=2, horizon=14, output_dim=2, state_dim=2)  # 14 > context 10
+    return generate("switching", n=2, horizon=14, switch_time=6)
+
+
+@pytest.mark.parametrize("name", PREDICTORS.names())
+def test_horizon_zero_is_predict_for_every_predictor(name, tiny_run, tiny_gru):
+    run_dir = {"mop": tiny_run, "gru": tiny_gru}.get(name)
+    p = make_predictor(name, run_dir=run_dir, num_particles=50)
+    traj = _trajectory_for(name, tiny_run)
+    f = forecast(p, traj, K)
+    T = traj.horizon
+    assert f.shape == (traj.num_systems, T + 1, K, traj.output_dim)
+    torch.testing.assert_close(f[:, :, 0], p.predict(traj), rtol=1e-5, atol=1e-6)
+    for j in range(1, K):
+        assert torch.isnan(f[:, T + 1 - j :, j]).all() and torch.isfinite(f[:, : T + 1 - j, j]).all()
+
+
+def test_ekf_and_ukf_on_a_linear_family_equal_the_kalman_forecast():
+    traj = generate("switching", switch_time=9)
+    kf = forecast(make_predictor("kalman"), traj, 6)
+    for name in ("ekf", "ukf"):
+        torch.testing.assert_close(forecast(make_predictor(name), traj, 6), kf, equal_nan=True)
+
+
+def test_kalman_system1_forecast_keeps_system_1_after_the_switch():
+    traj = generate("switching", switch_time=9)
+    p = traj.params
+    one = traj.select(slice(None))
+    one.family = "linear"  # the linear family's state space is system 1's
+    ref = forecast(make_predictor("kalman"), one, 5)
+    torch.testing.assert_close(forecast(make_predictor("kalman-system1"), traj, 5), ref, equal_nan=True)
+    assert linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"]).m0.shape[-1] == p["A"].shape[-1]
+
+
+def test_quadrotor_ekf_forecast_steps_through_f_with_the_inputs():
+    """Independent roll-out of the EKF mean: j steps of project(f(project(m), u)) from the prior at t."""
+    from mop.filters.gaussian import ekf_step, gaussian_filter
+    from mop.systems.base import state_space_of
+
+    traj = generate("quadrotor", n=2, horizon=12)
+    model = state_space_of(traj)
+    priors = {}
+    gaussian_filter(
+        model, ekf_step, traj.y.double(), traj.u.double(), at_prior=lambda t, m, P, _: priors.setdefault(t, m)
+    )
+    f = forecast(make_predictor("ekf"), traj, 4)
+    t = 5
+    m = priors[t]
+    for j in range(1, 4):
+        x = model.project(m)
+        m = model.project(model.f(x[:, None], traj.u.double()[:, t + j - 1, None], t + j - 1)[:, 0])
+        torch.testing.assert_close(f[:, t, j], (model.C @ m[..., None])[..., 0].to(f.dtype))
+
+
+def test_learned_forecast_rolls_out_on_its_own_predictions(tiny_run):
+    """Independent: feed the model [y_0..y_{t-1}, yhat_t, yhat_{t+1}] (last C) and read the last output."""
+    from mop.runs import load_model
+
+    model, cfg = load_model(tiny_run)
+    traj = generate("linear", n=2, horizon=14, output_dim=2, state_dim=2)
+    f = forecast(make_predictor("mop", run_dir=tiny_run), traj, 3)
+    y = traj.y.float()
+    with torch.no_grad():
+        for t in (0, 3, 9, 11):
+            seq = y[:, :t]
+            for j in range(1, 3):
+                seq = torch.cat([seq, f[:, t, j - 1, None].float()], dim=1)
+                out = model(seq[:, -cfg.context :])[:, -1]
+                torch.testing.assert_close(f[:, t, j].float(), out, rtol=1e-5, atol=1e-5)
+
+
+def test_forecast_helper_refuses_predictors_without_one_and_bad_steps():
+    class OneStep:
+        name = "one-step"
+
+        def predict(self, traj):
+            return traj.y
+
+    traj = generate("linear", n=1, horizon=5)
+    with pytest.raises(MopError, match="one-step.*no k-step forecast"):
+        forecast(OneStep(), traj, 2)
+    with pytest.raises(MopError, match="steps"):
+        forecast(make_predictor("last"), traj, 0)
