@@ -36,7 +36,8 @@ LINEAR = Experiment(
     title="Fig. 2a",
     train={"system.family": "linear"},
     predictors=LINEAR_PREDICTORS,
-    analyses=("floor",),
+    analyses=("floor", "forecast"),
+    figures=("error", "forecast"),
     claims=(
         Claim("MOP matches the KF after ~20 steps", ratio(), "<=", 1.05),
         early_claim(True),
@@ -86,6 +87,8 @@ QUADROTOR = Experiment(
     predictors=("mop", "gru", "ekf", "ekf-noclip", "ukf", "pf", "zero", "last"),
     reference="ekf",
     panel=("mop", "", "last"),
+    analyses=("forecast",),
+    figures=("error", "forecast"),
     claims=(
         Claim("MOP beats the EKF, which is misspecified here", ratio(bound="high"), "<", 1.0),
         early_claim(False),

@@ -248,6 +248,8 @@ def _sections(exp: Experiment, results: dict, figures: list[Path]) -> list[str]:
             sections.append(_calibration_table(r.extras["calibration"]))
         if "floor" in r.extras:
             sections.append(_floor_table(r.extras["floor"]))
+        if "forecast" in r.extras:
+            sections.append(_forecast_table(r.extras["forecast"]))
     shared = [f for f in pngs if not any(f in s for s in sections)]
     if shared:
         sections.append("\n".join(f"![{f}]({f})" for f in shared))
@@ -273,6 +275,20 @@ def _floor_table(floor: dict) -> str:
         "|---" * (len(wins) + 1) + "|",
     ]
     lines += [f"| {n} | " + " | ".join(f"{e[w]:+.4f}" for w in wins) + " |" for n, e in excess.items()]
+    return "\n".join(lines) + "\n"
+
+
+def _forecast_table(forecast: dict) -> str:
+    ks = forecast["k"]
+    lines = [
+        f"k-step forecast error: mean ||y_(t+k-1) - forecast|| over origins t >= {forecast['start']}:",
+        "",
+        "| predictor | " + " | ".join(f"k={k}" for k in ks) + " |",
+        "|---" * (len(ks) + 1) + "|",
+    ]
+    lines += [
+        f"| {n} | " + " | ".join(f"{e:.4f}" for e in errs) + " |" for n, errs in forecast["error"].items()
+    ]
     return "\n".join(lines) + "\n"
 
 

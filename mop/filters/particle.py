@@ -59,7 +59,7 @@ def pf_predict(
 
     y (B, T+1, m), u (B, T+1, k) or None; `project` applies the model's projection to every particle.
     """
-    return pf_forecast(model, y, u, 1, num_particles=num_particles, seed=seed, project=project)[:, :, 0]
+    return pf_forecast(model, y, u, 1, num_particles=num_particles, seed=seed, project=project)[0][:, :, 0]
 
 
 def pf_forecast(
@@ -71,11 +71,14 @@ def pf_forecast(
     num_particles: int = 1000,
     seed: int = 0,
     project: bool = True,
-) -> Tensor:
-    """k-step forecasts (B, T+1, K, m), float64: the prior particles of x_t (given y_{<t}) propagated j times
+) -> tuple[Tensor, Tensor]:
+    """(k-step forecasts (B, T+1, K, m), one-step predictive variances (B, T+1, m)), float64.
+
+    Forecasts: the prior particles of x_t (given y_{<t}) propagated j times
     through f with process-noise draws (and the projection), no resampling; forecast[:, t, j] = C_{t+j}
     mean_i X^i. The roll-out draws come from a second generator (seed + 1), so j = 0 is pf_predict exactly
-    and the filter's own draws do not depend on `steps`. Entries with t + j > T are NaN.
+    and the filter's own draws do not depend on `steps`. Entries with t + j > T are NaN. Variances: the
+    diagonal of C Cov_i(X^i) C^T + R over the prior particles of x_t.
     """
     from mop.predictors import nan_beyond_horizon
 
@@ -91,9 +94,11 @@ def pf_forecast(
     R_inv = torch.linalg.inv(model.R)  # (B, m, m)
     T1 = y.shape[1]
     out = y.new_full((B, T1, steps, model.R.shape[-1]), float("nan"))
+    var = y.new_empty(B, T1, model.R.shape[-1])
     for t in range(T1):
         C = model.output_matrix(t)
         out[:, t, 0] = (C @ X.mean(1)[..., None])[..., 0]  # (B, m)
+        var[:, t] = (X @ C.mT).var(1, unbiased=False) + model.R.diagonal(dim1=-2, dim2=-1)
         Xj = X
         for j in range(1, min(steps, T1 - t)):
             f = lambda x, v, s=t + j - 1: model.f(x, v, s)  # noqa: E731
@@ -102,10 +107,10 @@ def pf_forecast(
         X = _condition_on(X, y[:, t], C, R_inv, generator)
         f = lambda x, v, t=t: model.f(x, v, t)  # noqa: E731
         X = proj(_predict(X, None if u is None else u[:, t], f, L_Q, generator))
-    return nan_beyond_horizon(out)
+    return nan_beyond_horizon(out), var
 
 
-@PREDICTORS.register("pf", needs_system=True)
+@PREDICTORS.register("pf", needs_system=True, gaussian=True)
 class ParticleFilterPredictor:
     """Bootstrap particle filter knowing each system; seeded, `num_particles` per system. project=True
     ("pf") also knows the simulator's state projection (the quadrotor's clipping), False ("pf-noclip") not."""
@@ -115,19 +120,25 @@ class ParticleFilterPredictor:
         self.name = "pf" if project else "pf-noclip"
 
     def predict(self, traj: Trajectories) -> Tensor:
-        yhat = pf_predict(
+        return self.predict_distribution(traj)[0]
+
+    def predict_distribution(self, traj: Trajectories) -> tuple[Tensor, Tensor]:
+        """(mean, var) each (B, T+1, m): the particle mean of C x_t and the particles' spread plus R (the
+        moment-matched Gaussian of the particle predictive)."""
+        out, var = pf_forecast(
             state_space_of(traj),
             traj.y,
             traj.u,
+            1,
             num_particles=self.num_particles,
             seed=self.seed,
             project=self.project,
         )
-        return yhat.to(traj.y.dtype)
+        return out[:, :, 0].to(traj.y.dtype), var.to(traj.y.dtype)
 
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): particles propagated through f with seeded noise draws, averaged (pf_forecast)."""
-        out = pf_forecast(
+        out, _ = pf_forecast(
             state_space_of(traj),
             traj.y,
             traj.u,
