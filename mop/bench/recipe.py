@@ -9,7 +9,8 @@ Time-limited schedule: the run's progress is p = elapsed / budget (or step / ste
 deterministic); lr(p) = lr * p / warmup for p < warmup, then lr (train.lr_schedule=constant) or a cosine from
 lr down to final_lr * lr at p = 1 (cosine); training stops at p >= 1. The clock starts before the model and
 the training data are built (the paper's M = 20000 source systems count against its budget); evaluation is
-not timed. warmup and final_lr of the built-in recipes come from the preset (warmup_steps / steps).
+not timed. The built-in "small" takes its warm-up fraction from the preset (warmup_steps / steps) and ends the
+cosine at 0.1 lr as mop.train.learning_rate does, so it is the preset's schedule stretched over the budget.
 
 A recipe is data: a name, RunConfig overrides and three schedule knobs, e.g.
     mop bench recipe --recipe tiny base=small model.num_layers=2 model.width=64 train.lr=3e-3 warmup=0.05
@@ -63,7 +64,7 @@ class Recipe:
 
 
 BUILTIN = {
-    "small": Recipe("small"),
+    "small": Recipe("small", final_lr=0.1),  # mop.train.learning_rate: cosine down to 0.1 lr
     "paper": Recipe(
         "paper",
         base="paper",
@@ -90,9 +91,10 @@ def parse_recipe(words: list[str]) -> Recipe:
     return recipe
 
 
-def train_for(recipe: Recipe, seconds: float | None = None, steps: int | None = None):
+def train_for(recipe: Recipe, seconds: float | None = None, steps: int | None = None, show: bool = False):
     """Train `recipe` until `seconds` of wall clock or `steps` steps; returns (model, info dict)."""
     from mop import train as mt
+    from mop.progress import progress as progress_bar
 
     if recipe.threads:
         torch.set_num_threads(recipe.threads)
@@ -105,6 +107,7 @@ def train_for(recipe: Recipe, seconds: float | None = None, steps: int | None = 
     loss_fn = mt.maybe_compile(mt.LossModule(model), cfg, device)
     data = mt.TrainingData(config, device)
     step, loss, ema = 0, float("nan"), None
+    bar = progress_bar(steps, recipe.name, disable=not show)
     while True:
         elapsed = time.perf_counter() - start
         progress = max(elapsed / seconds if seconds else 0.0, step / steps if steps else 0.0)
@@ -117,6 +120,9 @@ def train_for(recipe: Recipe, seconds: float | None = None, steps: int | None = 
             raise MopError(f"recipe {recipe.name}: loss became {loss} at step {step}; lower train.lr")
         ema = loss if ema is None else 0.98 * ema + 0.02 * loss
         step += 1
+        bar.update(1)
+        bar.set_postfix(loss=f"{ema:.4g}", lr=f"{optimizer.param_groups[0]['lr']:.2g}")
+    bar.close()
     elapsed = time.perf_counter() - start
     info = {"steps": step, "seconds": elapsed, "steps_per_s": step / elapsed, "train_loss": ema}
     return model.eval(), info
