@@ -184,7 +184,7 @@ def plot(rows: list[dict], out_dir: Path) -> list[Path]:
         ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=name)
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
     ax.set(yscale="log", xlabel="training wall clock (s)", ylabel="MOP / KF MSE ratio, t in [20, 50]")
-    ax.set_title(f"mop bench recipe ({torch.get_num_threads()} threads)")
+    ax.set_title(f"mop bench recipe (torch threads: {torch.get_num_threads()})")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, which="both")
     return save(fig, out_dir, "bench-recipe")
