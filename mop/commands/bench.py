@@ -10,6 +10,7 @@ BENCHMARKS = {
     "filters": "KF, RLS and EKF over test systems vs. per-system loops (filterpy)",
     "train": "ms per training step vs. a plain Hugging Face GPT2Model loop",
     "stream": "streaming (KV cache) vs. window recomputation, predictions per second",
+    "recipe": "MOP/KF MSE ratio reached within wall-clock budgets, training recipe vs. recipe",
 }
 
 

@@ -1,0 +1,237 @@
+"""`mop bench recipe`: the MOP/KF MSE ratio each training recipe reaches within a wall-clock budget.
+
+Every recipe trains from scratch once per budget (default 60, 120, 180 s), then predicts the same N = 500
+seeded linear test systems (T = 50); the score is the MOP/KF MSE ratio over t in [20, 50] with a paired
+bootstrap 95% CI (mop.metrics.mse_ratio_ci). Built in: "small" (PRESETS["small"], mop's CPU recipe) and
+"paper" (12 layers, width 256, 8 heads, AdamW 3e-4 constant, wd 0.01, clip 1, batch 64, M = 20000).
+
+Time-limited schedule: the run's progress is p = elapsed / budget (or step / steps with --steps, which is
+deterministic); lr(p) = lr * p / warmup for p < warmup, then lr (train.lr_schedule=constant) or a cosine from
+lr down to final_lr * lr at p = 1 (cosine); training stops at p >= 1. The clock starts before the model and
+the training data are built (the paper's M = 20000 source systems count against its budget); evaluation is
+not timed. The built-in "small" takes its warm-up fraction from the preset (warmup_steps / steps) and ends the
+cosine at 0.1 lr as mop.train.learning_rate does, so it is the preset's schedule stretched over the budget.
+
+A recipe is data: a name, RunConfig overrides and three schedule knobs, e.g.
+    mop bench recipe --recipe tiny base=small model.num_layers=2 model.width=64 train.lr=3e-3 warmup=0.05
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import torch
+
+from mop.config import RunConfig, SystemConfig, apply_overrides
+from mop.errors import MopError
+
+WINDOW = (20, 51)  # t in [20, 50]
+
+
+@dataclasses.dataclass(frozen=True)
+class Recipe:
+    """A RunConfig (base preset + key=value overrides) and its budget-fraction schedule."""
+
+    name: str
+    base: str = "small"  # preset whose model and train settings start the config
+    overrides: tuple[str, ...] = ()  # RunConfig overrides, "model.num_layers=2"
+    warmup: float | None = None  # warm-up fraction of the budget; None: the preset's warmup_steps / steps
+    final_lr: float = 0.0  # cosine end as a fraction of train.lr
+    threads: int = 0  # torch.set_num_threads; 0 keeps the default
+
+    def config(self) -> RunConfig:
+        from mop.experiments import get_preset
+
+        p = get_preset(self.base)
+        model = dataclasses.replace(p.model, context=p.train.horizon)
+        train = dataclasses.replace(p.train, compile="off", device="cpu")
+        return apply_overrides(RunConfig(SystemConfig(), model, train), list(self.overrides))
+
+    def lr_factor(self, progress: float, cfg) -> float:
+        """Multiplier of train.lr at budget fraction `progress` in [0, 1); cfg: the recipe's TrainConfig."""
+        warmup = self.warmup if self.warmup is not None else cfg.warmup_steps / cfg.steps
+        if progress < warmup:
+            return max(progress / warmup, 1e-3)
+        if cfg.lr_schedule == "constant":
+            return 1.0
+        frac = (progress - warmup) / max(1e-9, 1 - warmup)
+        return self.final_lr + (1 - self.final_lr) * 0.5 * (1 + math.cos(math.pi * frac))
+
+
+BUILTIN = {
+    "small": Recipe("small", final_lr=0.1),  # mop.train.learning_rate: cosine down to 0.1 lr
+    "paper": Recipe(
+        "paper",
+        base="paper",
+        overrides=("train.lr=3e-4", "train.lr_schedule=constant", "train.warmup_steps=0"),
+        warmup=0.0,
+    ),
+}
+
+
+def parse_recipe(words: list[str]) -> Recipe:
+    """["NAME", "key=value", ...] -> Recipe (base, warmup, final_lr, threads: recipe; others: config)."""
+    if not words or "=" in words[0]:
+        raise MopError("--recipe takes a NAME first, then key=value overrides")
+    name, fields, overrides = words[0], {}, []
+    for word in words[1:]:
+        key, _, value = word.partition("=")
+        if key in ("base", "warmup", "final_lr", "threads"):
+            fields[key] = value if key == "base" else (int(value) if key == "threads" else float(value))
+        else:
+            overrides.append(word)
+    start = BUILTIN.get(name, Recipe(name))
+    recipe = dataclasses.replace(start, **fields, overrides=start.overrides + tuple(overrides))
+    recipe.config()  # validate now, not after the first budget
+    return recipe
+
+
+def train_for(recipe: Recipe, seconds: float | None = None, steps: int | None = None, show: bool = False):
+    """Train `recipe` until `seconds` of wall clock or `steps` steps; returns (model, info dict)."""
+    from mop import train as mt
+    from mop.progress import progress as progress_bar
+
+    if recipe.threads:
+        torch.set_num_threads(recipe.threads)
+    start = time.perf_counter()
+    config = mt.resolve_config(recipe.config())
+    cfg, device = config.train, torch.device("cpu")
+    torch.manual_seed(cfg.seed)
+    model = mt.build_model(config.model).to(device).train()
+    optimizer = mt.make_optimizer(model, cfg, device)
+    loss_fn = mt.maybe_compile(mt.LossModule(model), cfg, device)
+    data = mt.TrainingData(config, device)
+    step, loss, ema = 0, float("nan"), None
+    bar = progress_bar(steps, recipe.name, disable=not show)
+    while True:
+        elapsed = time.perf_counter() - start
+        progress = max(elapsed / seconds if seconds else 0.0, step / steps if steps else 0.0)
+        if progress >= 1 and step > 0:  # at least one step, however long the set-up took
+            break
+        for group in optimizer.param_groups:
+            group["lr"] = cfg.lr * recipe.lr_factor(min(progress, 1.0), cfg)
+        loss = float(mt.train_step(model, loss_fn, optimizer, *data.batch(), cfg, device))
+        if not math.isfinite(loss):
+            raise MopError(f"recipe {recipe.name}: loss became {loss} at step {step}; lower train.lr")
+        ema = loss if ema is None else 0.98 * ema + 0.02 * loss
+        step += 1
+        bar.update(1)
+        bar.set_postfix(loss=f"{ema:.4g}", lr=f"{optimizer.param_groups[0]['lr']:.2g}")
+    bar.close()
+    elapsed = time.perf_counter() - start
+    info = {"steps": step, "seconds": elapsed, "steps_per_s": step / elapsed, "train_loss": ema}
+    return model.eval(), info
+
+
+class TestSet:
+    """N seeded linear test systems (float64) and the Kalman filter's errors on them, built once."""
+
+    def __init__(self, num_systems: int, seed: int) -> None:
+        from mop.evaluate import make_baseline
+        from mop.experiments import TEST_SEED_OFFSET
+        from mop.metrics import errors
+        from mop.systems import generator, make_family
+
+        family = make_family(SystemConfig(), dtype=torch.float64)
+        self.traj = family.generate(num_systems, 50, generator=generator(seed + TEST_SEED_OFFSET))
+        self.e_kf = errors(make_baseline("kalman").predict(self.traj), self.traj.y)
+        self.seed = seed
+
+    def ratio(self, model) -> tuple[float, float, float]:
+        from mop.learned import LearnedPredictor
+        from mop.metrics import errors, mse_ratio_ci
+
+        e = errors(LearnedPredictor(model).predict(self.traj), self.traj.y)
+        return mse_ratio_ci(e, self.e_kf, *WINDOW, seed=self.seed)
+
+
+def measure(recipes: list[Recipe], budgets: list[float], test: TestSet, unit: str = "seconds", log=print):
+    rows = []
+    for budget in budgets:
+        for recipe in recipes:
+            limit = {"seconds": float(budget)} if unit == "seconds" else {"steps": int(budget)}
+            model, info = train_for(recipe, **limit)
+            ratio, low, high = test.ratio(model)
+            row = {"recipe": recipe.name, "budget": budget, "unit": unit, **info}
+            rows.append(row | {"ratio": ratio, "ci_low": low, "ci_high": high})
+            log(_line(rows[-1]))
+    return rows
+
+
+def _line(r: dict) -> str:
+    budget = f"{r['budget']:g} {'s' if r['unit'] == 'seconds' else 'steps'}"
+    return (
+        f"{r['recipe']:<12} {budget:>10} {r['steps']:>7d} {r['seconds']:>7.1f} {r['steps_per_s']:>8.2f}   "
+        f"{r['ratio']:.4f} [{r['ci_low']:.4f}, {r['ci_high']:.4f}]"
+    )
+
+
+def plot(rows: list[dict], out_dir: Path) -> list[Path]:
+    import matplotlib.pyplot as plt
+
+    from mop.plots import save
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name in dict.fromkeys(r["recipe"] for r in rows):
+        rs = [r for r in rows if r["recipe"] == name]
+        x, y = [r["seconds"] for r in rs], [r["ratio"] for r in rs]
+        err = [[r["ratio"] - r["ci_low"] for r in rs], [r["ci_high"] - r["ratio"] for r in rs]]
+        ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=name)
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set(yscale="log", xlabel="training wall clock (s)", ylabel="MOP / KF MSE ratio, t in [20, 50]")
+    ax.set_title(f"mop bench recipe (torch threads: {torch.get_num_threads()})")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, which="both")
+    return save(fig, out_dir, "bench-recipe")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--budgets", type=float, nargs="+", default=[60, 120, 180], help="seconds (60 120 180)"
+    )
+    parser.add_argument(
+        "--steps", type=int, nargs="+", default=None, help="step budgets instead of seconds (deterministic)"
+    )
+    parser.add_argument(
+        "--recipe",
+        nargs="+",
+        action="append",
+        metavar="NAME [KEY=VALUE ...]",
+        help="a recipe: a built-in (small, paper) or a new name, then overrides (model.*, train.*, base=, "
+        "warmup=, final_lr=, threads=); repeatable (default: small and paper)",
+    )
+    parser.add_argument("--systems", type=int, default=500, help="test systems N (500)")
+    parser.add_argument("--seed", type=int, default=0, help="test systems use seed + 7000001 (0)")
+    parser.add_argument("--out", default="runs/bench/recipe", help="plot directory (runs/bench/recipe)")
+
+
+def run(args: argparse.Namespace) -> int:
+    recipes = [parse_recipe(words) for words in args.recipe] if args.recipe else list(BUILTIN.values())
+    unit, budgets = ("steps", args.steps) if args.steps else ("seconds", args.budgets)
+    if min(budgets) <= 0 or args.systems <= 0:
+        raise MopError("budgets and --systems must be positive")
+    test = TestSet(args.systems, args.seed)
+    if not args.json:
+        print(f"{'recipe':<12} {'budget':>10} {'steps':>7} {'wall s':>7} {'steps/s':>8}   ratio [95% CI]")
+    rows = measure(recipes, budgets, test, unit, log=(lambda _: None) if args.json else print)
+    paths = plot(rows, Path(args.out))
+    result = {
+        "device": "cpu",
+        "threads": torch.get_num_threads(),
+        "num_test_systems": args.systems,
+        "window": list(WINDOW),
+        "unit": unit,
+        "recipes": [dataclasses.asdict(r) for r in recipes],
+        "results": rows,
+        "plot": [str(p) for p in paths],
+    }
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"plot: {', '.join(result['plot'])}")
+    return 0

@@ -1,0 +1,54 @@
+"""mop bench recipe: time-limited training per recipe, scored by the MOP/KF ratio on seeded test systems."""
+
+import json
+import math
+
+import pytest
+
+from mop.bench.recipe import BUILTIN, parse_recipe
+from mop.cli import main
+from mop.errors import MopError
+
+TINY = ["tiny", "model.num_layers=1", "model.width=16", "model.num_heads=2", "train.batch_size=8"]
+
+
+def test_json_schema_steps_grow_with_budget(tmp_path, capsys):
+    argv = ["bench", "recipe", "--budgets", "1", "3", "--systems", "16", "--recipe", *TINY]
+    assert main([*argv, "--out", str(tmp_path), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["unit"] == "seconds" and result["num_test_systems"] == 16 and result["window"] == [20, 51]
+    assert [r["name"] for r in result["recipes"]] == ["tiny"]
+    rows = result["results"]
+    assert [r["budget"] for r in rows] == [1, 3]
+    keys = {"recipe", "budget", "unit", "steps", "seconds", "steps_per_s", "train_loss", "ratio", "ci_low"}
+    assert keys <= set(rows[0])
+    assert 1 <= rows[0]["steps"] < rows[1]["steps"]
+    for r in rows:
+        assert math.isfinite(r["ratio"]) and r["ratio"] > 0 and r["ci_low"] <= r["ratio"] <= r["ci_high"]
+        assert r["seconds"] >= r["budget"]
+    assert all((tmp_path / f"bench-recipe.{ext}").exists() for ext in ("png", "pdf"))
+
+
+def test_step_budgets_are_deterministic(tmp_path, capsys):
+    argv = ["bench", "recipe", "--steps", "3", "--systems", "8", "--recipe", *TINY, "--json"]
+    ratios = []
+    for _ in range(2):
+        assert main([*argv, "--out", str(tmp_path)]) == 0
+        (row,) = json.loads(capsys.readouterr().out)["results"]
+        assert row["steps"] == 3 and row["unit"] == "steps"
+        ratios.append(row["ratio"])
+    assert ratios[0] == ratios[1]
+
+
+def test_recipes_are_data():
+    r = parse_recipe(["mine", "base=paper", "model.num_layers=2", "warmup=0.1", "final_lr=0.1"])
+    cfg = r.config()
+    assert (cfg.model.num_layers, cfg.model.width, r.warmup) == (2, 256, 0.1)
+    assert r.lr_factor(0.05, cfg.train) == pytest.approx(0.5)
+    paper = BUILTIN["paper"].config()
+    assert (paper.model.num_layers, paper.train.lr, paper.train.lr_schedule) == (12, 3e-4, "constant")
+    assert BUILTIN["paper"].lr_factor(0.0, paper.train) == 1.0
+    cosine = parse_recipe(["c", "train.lr_schedule=cosine", "warmup=0", "final_lr=0"])
+    assert cosine.lr_factor(0.5, cosine.config().train) == pytest.approx(0.5)
+    with pytest.raises(MopError):
+        parse_recipe(["bad", "model.nope=1"])
