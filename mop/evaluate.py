@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import time
 
-from tqdm import tqdm
-
 from mop.errors import MopError
 from mop.metrics import error_curves, errors, mse_ratio_ci, window_mean
 from mop.predictors import Predictor
+from mop.progress import progress as make_progress
 from mop.systems.base import Trajectories
 
 
@@ -23,7 +22,9 @@ def evaluate(predictors: list[Predictor], traj: Trajectories, progress: bool = T
     Every predictor sees the same trajectories.
     """
     out = {}
-    for p in tqdm(predictors, desc="evaluate", unit="predictor", disable=not progress, leave=False):
+    bar = make_progress(len(predictors), "evaluate", disable=not progress)
+    for p in predictors:
+        bar.set_postfix(predictor=p.name)
         start = time.perf_counter()
         yhat = p.predict(traj)  # (N, T+1, m)
         if yhat.shape != traj.y.shape:
@@ -31,6 +32,8 @@ def evaluate(predictors: list[Predictor], traj: Trajectories, progress: bool = T
                 f"predictor {p.name} returned shape {tuple(yhat.shape)}, expected {tuple(traj.y.shape)}"
             )
         out[p.name] = {"e": errors(yhat, traj.y), "seconds": time.perf_counter() - start}
+        bar.update(1)
+    bar.close()
     return out
 
 

@@ -28,6 +28,7 @@ from torch import Tensor, nn
 from mop.config import RunConfig
 from mop.errors import MopError
 from mop.models import build_model
+from mop.progress import progress as make_progress
 from mop.train.data import TrainingData, validation_batch
 from mop.train.device import init_distributed, setup_device
 from mop.train.optim import (
@@ -38,7 +39,6 @@ from mop.train.optim import (
     train_step,
     validation_loss,
 )
-from mop.train.progress import make_progress
 from mop.train.rundir import (
     MetricsLog,
     check_run_dir,
@@ -114,7 +114,7 @@ def _start(config: RunConfig, out_dir: Path, device: torch.device, rank: int, wo
 def _loop(state: TrainState, progress: bool) -> None:
     cfg = state.config.train
     state.model.train()
-    bar = make_progress(cfg.steps, state.step, "train", enabled=state.rank == 0 and progress)
+    bar = make_progress(cfg.steps, "train", initial=state.step, disable=not (state.rank == 0 and progress))
     loss_sum = torch.zeros((), device=state.device)
     last_good, since, t0 = state.step, 0, time.perf_counter()
     with stop_signals() as flag:
