@@ -29,6 +29,7 @@ import torch
 
 from mop.config import RunConfig, SystemConfig, apply_overrides
 from mop.errors import MopError
+from mop.models import build_model
 
 WINDOW = (20, 51)  # t in [20, 50]
 
@@ -102,7 +103,7 @@ def train_for(recipe: Recipe, seconds: float | None = None, steps: int | None = 
     config = mt.resolve_config(recipe.config())
     cfg, device = config.train, torch.device("cpu")
     torch.manual_seed(cfg.seed)
-    model = mt.build_model(config.model).to(device).train()
+    model = build_model(config.model).to(device).train()
     optimizer = mt.make_optimizer(model, cfg, device)
     loss_fn = mt.maybe_compile(mt.LossModule(model), cfg, device)
     data = mt.TrainingData(config, device)
@@ -132,14 +133,14 @@ class TestSet:
     """N seeded linear test systems (float64) and the Kalman filter's errors on them, built once."""
 
     def __init__(self, num_systems: int, seed: int) -> None:
-        from mop.evaluate import make_baseline
         from mop.experiments import TEST_SEED_OFFSET
         from mop.metrics import errors
+        from mop.predictors import make_predictor
         from mop.systems import generator, make_family
 
         family = make_family(SystemConfig(), dtype=torch.float64)
         self.traj = family.generate(num_systems, 50, generator=generator(seed + TEST_SEED_OFFSET))
-        self.e_kf = errors(make_baseline("kalman").predict(self.traj), self.traj.y)
+        self.e_kf = errors(make_predictor("kalman").predict(self.traj), self.traj.y)
         self.seed = seed
 
     def ratio(self, model) -> tuple[float, float, float]:
