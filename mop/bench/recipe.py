@@ -144,7 +144,7 @@ class TestSet:
         self.seed = seed
 
     def ratio(self, model) -> tuple[float, float, float]:
-        from mop.learned import LearnedPredictor
+        from mop.models.predictor import LearnedPredictor
         from mop.metrics import errors, mse_ratio_ci
 
         e = errors(LearnedPredictor(model).predict(self.traj), self.traj.y)
