@@ -1,6 +1,7 @@
 """Slow, independent reference implementations used only by the tests, in one place: a per-system filterpy
 Kalman filter, the authors' quadrotor step written coordinate by coordinate in numpy, and seeded batches."""
 
+import csv
 import math
 
 import numpy as np
@@ -64,3 +65,22 @@ def linear_traj(num_systems=6, horizon=30, seed=0, **kw):
     return make_family(
         SystemConfig(family="linear", state_dim=4, output_dim=2, **kw), torch.float64
     ).generate(num_systems, horizon, generator=generator(seed))
+
+
+def write_long_csv(path, ys) -> None:
+    """Trajectories ys [(T_i+1, 2)] as the long CSV `trajectory,t,y0,y1` (names r0, r1, ...)."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["trajectory", "t", "y0", "y1"])
+        for i, y in enumerate(ys):
+            for t, row in enumerate(y):
+                w.writerow([f"r{i}", t, *row])
+
+
+def read_long_csv(path) -> dict:
+    """{trajectory: array of the value columns after `trajectory,t`} from a long CSV mop writes."""
+    out = {}
+    with open(path) as f:
+        for r in list(csv.reader(f))[1:]:
+            out.setdefault(r[0], []).append([float(v) for v in r[2:]])
+    return {k: np.array(v) for k, v in out.items()}

@@ -1,28 +1,10 @@
-import csv
-
 import numpy as np
 import torch
 
 from mop.cli import main
 from mop.runs import load_model, load_predictor
 from mop.systems.base import Trajectories
-
-
-def _write_csv(path, ys):
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["trajectory", "t", "y0", "y1"])
-        for i, y in enumerate(ys):
-            for t, row in enumerate(y):
-                w.writerow([f"r{i}", t, *row])
-
-
-def _read_pred(path):
-    out = {}
-    with open(path) as f:
-        for r in list(csv.reader(f))[1:]:
-            out.setdefault(r[0], []).append([float(v) for v in r[2:]])
-    return {k: np.array(v) for k, v in out.items()}
+from tests.reference import read_long_csv, write_long_csv
 
 
 def explicit_window(model, y: np.ndarray, context: int) -> np.ndarray:
@@ -38,9 +20,9 @@ def explicit_window(model, y: np.ndarray, context: int) -> np.ndarray:
 def test_predict_csv_matches_explicit_window_and_lengths_differ(tiny_run, tmp_path):
     rng = np.random.default_rng(0)
     ys = [rng.normal(size=(13, 2)), rng.normal(size=(7, 2))]  # 13 > context 10: the window slides
-    _write_csv(tmp_path / "d.csv", ys)
+    write_long_csv(tmp_path / "d.csv", ys)
     assert main(["predict", str(tiny_run), str(tmp_path / "d.csv"), "--out", str(tmp_path / "p.csv")]) == 0
-    pred = _read_pred(tmp_path / "p.csv")
+    pred = read_long_csv(tmp_path / "p.csv")
     model, cfg = load_model(tiny_run)
     for i, y in enumerate(ys):
         np.testing.assert_allclose(

@@ -10,32 +10,16 @@ import torch
 from mop.cli import main
 from mop.predictors import forecast, make_predictor
 from mop.systems.base import Trajectories
-
-
-def _write_csv(path, ys):
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["trajectory", "t", "y0", "y1"])
-        for i, y in enumerate(ys):
-            for t, row in enumerate(y):
-                w.writerow([f"r{i}", t, *row])
-
-
-def _read_pred(path, steps=False):
-    out = {}
-    with open(path) as f:
-        for r in list(csv.reader(f))[1:]:
-            out.setdefault(r[0], []).append([float(v) for v in r[2:]])
-    return {k: np.array(v) for k, v in out.items()}
+from tests.reference import read_long_csv, write_long_csv
 
 
 @pytest.mark.parametrize("name", ["rls", "rls-best", "last", "zero", "n4sid-kf"])
 def test_baseline_on_a_csv_equals_the_predictor_in_python(name, tmp_path):
     rng = np.random.default_rng(0)
     ys = [rng.normal(size=(40, 2)), rng.normal(size=(33, 2))]
-    _write_csv(tmp_path / "d.csv", ys)
+    write_long_csv(tmp_path / "d.csv", ys)
     assert main(["predict", name, str(tmp_path / "d.csv"), "--out", str(tmp_path / "p.csv")]) == 0
-    pred = _read_pred(tmp_path / "p.csv")
+    pred = read_long_csv(tmp_path / "p.csv")
     for i, y in enumerate(ys):
         ref = make_predictor(name).predict(Trajectories(y=torch.tensor(y[None], dtype=torch.float32)))
         np.testing.assert_allclose(pred[f"r{i}"], ref[0].numpy(), rtol=1e-6, atol=1e-6)
@@ -84,14 +68,14 @@ def test_missing_params_and_csv_give_one_line_and_exit_2(tmp_path, capsys):
     assert main(["predict", "kalman", str(tmp_path / "bad.npz")]) == 2
     err = capsys.readouterr().err.strip()
     assert "kalman needs param_A, param_C in" in err and "mop simulate" in err and "\n" not in err
-    _write_csv(tmp_path / "d.csv", [np.zeros((5, 2))])
+    write_long_csv(tmp_path / "d.csv", [np.zeros((5, 2))])
     assert main(["predict", "ekf", str(tmp_path / "d.csv")]) == 2
     err = capsys.readouterr().err.strip()
     assert "a CSV has no system parameters" in err and "\n" not in err
 
 
 def test_unknown_predictor_lists_the_registered_ones(tmp_path, capsys):
-    _write_csv(tmp_path / "d.csv", [np.zeros((5, 2))])
+    write_long_csv(tmp_path / "d.csv", [np.zeros((5, 2))])
     assert main(["predict", "kalmann", str(tmp_path / "d.csv")]) == 2
     err = capsys.readouterr().err
     assert "'kalmann'" in err and "rls-best" in err and "kalman" in err

@@ -144,8 +144,8 @@ class TestSet:
         self.seed = seed
 
     def ratio(self, model) -> tuple[float, float, float]:
-        from mop.models.predictor import LearnedPredictor
         from mop.metrics import errors, mse_ratio_ci
+        from mop.models.predictor import LearnedPredictor
 
         e = errors(LearnedPredictor(model).predict(self.traj), self.traj.y)
         return mse_ratio_ci(e, self.e_kf, *WINDOW, seed=self.seed)

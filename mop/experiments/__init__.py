@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from mop.config import RunConfig, apply_overrides
+from mop.config import DataConfig, RunConfig, apply_overrides
 from mop.experiments.presets import PRESETS, Preset, get_preset
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.registry import Registry
@@ -52,6 +52,7 @@ def run_config(
 ) -> RunConfig:
     """The RunConfig that trains `exp`'s model (architecture `arch`) for `condition` under `preset`.
 
+    A "data.path" key trains on that file of recorded trajectories instead of simulating the family.
     Layers, later wins: the preset's model and train settings < the experiment's `train` < its per-preset
     overrides < the condition's `train` < `overrides` (key=value strings from the command line).
     The model's context is the training horizon unless a layer sets it.
@@ -61,6 +62,8 @@ def run_config(
         model=dataclasses.replace(p.model, arch=arch), train=dataclasses.replace(p.train, seed=seed)
     )
     layers = {**exp.train, **exp.presets.get(preset, {}), **(condition.train if condition else {})}
+    if "data.path" in layers:  # trained on recorded trajectories (mop train --data)
+        base = dataclasses.replace(base, data=DataConfig(path=layers["data.path"]))
     config = apply_overrides(base, overrides_list(layers) + list(overrides))
     if "model.context" not in layers and not any(o.startswith("model.context=") for o in overrides):
         config = dataclasses.replace(

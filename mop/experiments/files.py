@@ -45,7 +45,18 @@ def load_experiment(path: str | Path) -> Experiment:
     data = _read(path)
     for plugin in data.pop("plugins", []):
         import_plugin(path.parent / plugin)
+    _resolve_paths(data, path.parent)
     return experiment_from_dict(data, str(path))
+
+
+def _resolve_paths(data: dict[str, Any], root: Path) -> None:
+    """Data files named in the experiment (train "data.path", conditions' "data") are relative to it."""
+    at = lambda p: p if not p or Path(p).is_absolute() else str(root / p)  # noqa: E731
+    if isinstance(data.get("train"), dict) and "data.path" in data["train"]:
+        data["train"]["data.path"] = at(data["train"]["data.path"])
+    for condition in data.get("conditions", []):
+        if isinstance(condition, dict) and "data" in condition:
+            condition["data"] = at(condition["data"])
 
 
 def _read(path: Path) -> dict[str, Any]:

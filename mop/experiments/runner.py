@@ -22,13 +22,14 @@ import torch
 
 from mop.atomic import write_json, write_text
 from mop.config import RunConfig, SystemConfig, apply_overrides, to_dict
+from mop.errors import MopError
 from mop.evaluate import evaluate, summarize
 from mop.experiments import TEST_SEED_OFFSET, get_preset, overrides_list, run_config
 from mop.experiments.analyses import ANALYSES
 from mop.experiments.figures import FIGURES
 from mop.experiments.measures import describe, measure_value, slope_fit
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
-from mop.predictors import PREDICTORS, is_learned, make_predictor
+from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
 from mop.report import build_report, claim_line, summary_section
 from mop.systems.base import Trajectories
 
@@ -69,7 +70,8 @@ def wanted(session: Session, condition: Condition) -> list[str]:
     """The predictors evaluated under `condition` (the GRU only where the preset or --gru asks for it)."""
     names = list(condition.predictors or session.exp.predictors)
     train_gru = get_preset(session.preset).train_gru if session.with_gru is None else session.with_gru
-    return [n for n in names if n != "gru" or train_gru]
+    names = [n for n in names if n != "gru" or train_gru]
+    return [n for n in names if not (condition.data and needs_system(n))]  # recordings carry no system
 
 
 def learned_predictor(session: Session, name: str, condition: Condition):
@@ -103,6 +105,19 @@ def test_trajectories(system: SystemConfig, num_systems: int, horizon: int, seed
     return family.generate(num_systems, horizon, generator=generator(seed + TEST_SEED_OFFSET))
 
 
+def recorded_trajectories(path: str, horizon: int) -> Trajectories:
+    """The recordings of `path` with at least horizon + 1 outputs, cut to y_0..y_horizon (float64)."""
+    from mop.io import read_trajectories
+
+    _, data = read_trajectories(path)
+    long = [(y, u) for y, u in data if len(y) > horizon]
+    if not long:
+        raise MopError(f"{path}: no trajectory has {horizon + 1} steps; lower the condition's horizon")
+    y = torch.tensor(np.stack([y[: horizon + 1] for y, _ in long]), dtype=torch.float64)
+    u = None if long[0][1] is None else torch.tensor(np.stack([u[: horizon + 1] for _, u in long]))
+    return Trajectories(y=y, u=None if u is None else u.double())
+
+
 def run_condition(session: Session, condition: Condition) -> ConditionResult:
     exp, preset = session.exp, get_preset(session.preset)
     predictors = []
@@ -112,11 +127,15 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
         else:
             options = {"seed": session.seed, **preset.predictor_options.get(name, {})}
             predictors.append(make_predictor(name, **options))
-    system = test_system(session, condition)
     horizon = (
         condition.horizon or run_config(exp, session.preset, session.seed, condition=condition).train.horizon
     )
-    traj = test_trajectories(system, preset.num_test_systems, horizon, session.seed)
+    if condition.data:
+        traj = recorded_trajectories(condition.data, horizon)
+    else:
+        traj = test_trajectories(
+            test_system(session, condition), preset.num_test_systems, horizon, session.seed
+        )
     raw = evaluate(predictors, traj, session.progress)
     summary = summarize(raw, reference=exp.reference, seed=session.seed)
     result = ConditionResult(condition, traj, {k: v["e"] for k, v in raw.items()}, summary)

@@ -92,6 +92,9 @@ class Condition:
     where this condition uses another trained model than the experiment's, its training overrides.
 
     x: (axis label, value) places the condition on a sweep axis (noise level, M, T) for sweep figures.
+    data: a file of recorded test trajectories (.csv / .npz, as `mop predict` reads) used instead of simulated
+        systems: every trajectory with at least horizon + 1 outputs, cut to that length; predictors that need
+        the system are skipped there.
     """
 
     name: str = "test"
@@ -100,6 +103,7 @@ class Condition:
     train: dict[str, Any] = dataclasses.field(default_factory=dict)
     x: tuple[str, float] | None = None
     predictors: tuple[str, ...] = ()  # () = every predictor of the experiment
+    data: str = ""
 
     def __post_init__(self) -> None:
         check(bool(self.name), "a condition needs a name")
