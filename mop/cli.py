@@ -13,9 +13,9 @@ from mop.errors import MopError
 COMMANDS = {
     "simulate": ("mop.commands.simulate", "simulate trajectories of a system family to an .npz file"),
     "train": ("mop.commands.train", "train a meta-output-predictor"),
-    "reproduce": ("mop.commands.reproduce", "reproduce a figure of the paper (train, evaluate, report)"),
-    "predict": ("mop.commands.predict", "one-step predictions on your own trajectories (.csv/.npz)"),
-    "bench": ("mop.commands.bench", "benchmarks: simulate, filters, train, stream"),
+    "reproduce": ("mop.commands.reproduce", "reproduce a paper figure or run an experiment file"),
+    "predict": ("mop.commands.predict", "one- or k-step predictions of a run or baseline on your data"),
+    "bench": ("mop.commands.bench", "benchmarks: simulate, filters, train, stream, recipe"),
 }
 
 
