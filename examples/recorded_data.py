@@ -20,7 +20,13 @@
    DIR/heldout_errors.md.
 
 Budgets: smoke (seconds; a tiny model, for the test suite; its numbers mean little) and full (2 layers of
-width 64, horizon 40, 2000 steps on 1800 training recordings; 2-core CPU: see README "Your own data").
+width 64, horizon 40, 2000 steps on the 1800 training recordings; 136 s on a 2-core CPU, 70 s of it training).
+Measured with the full budget, seed 0 (100 held-out pendulums, 3207 origins per k; the sensor noise alone
+gives ~12.5):
+
+    k  1: MOP 17.4, rls 19.6, n4sid-kf 19.1, last 24.7
+    k  5: MOP 24.2, rls 33.4, n4sid-kf 29.4, last 65.5
+    k 10: MOP 26.7, rls 37.2, n4sid-kf 32.6, last 87.3
 If you record inputs (a torque you applied), add columns u0.. to the CSV: the run reads them, while rls,
 n4sid-kf and last use outputs only.
 """
