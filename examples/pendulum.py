@@ -2,8 +2,8 @@
 damping and torque gain per system. Importing this file registers it (the experiment file
 examples/pendulum.toml names it as a plugin); nothing inside mop/ knows it.
 
-    theta_{t+1} = theta_t + tau omega_t
     omega_{t+1} = omega_t + tau (-(g / l) sin(theta_t) - b omega_t + k u_t)        then + w_t
+    theta_{t+1} = theta_t + tau omega_{t+1}          (semi-implicit Euler: explicit Euler would gain energy)
     y_t = C x_t + v_t,   x = (theta, omega),   C (2 x 2) entries U[0, 1]
 
 l ~ U[0.5, 2], b ~ U[0.1, 0.5], k ~ U[0.5, 2], u_t ~ U[-1, 1], w ~ N(0, q I), v ~ N(0, r I),
@@ -42,7 +42,8 @@ def step(x: Tensor, u: Tensor, length: Tensor, damping: Tensor, gain: Tensor) ->
     """x (..., 2), u (..., 1), parameters broadcastable to (...,) -> next state (..., 2), noise-free."""
     theta, omega = x.unbind(-1)
     accel = -(GRAVITY / length) * torch.sin(theta) - damping * omega + gain * u[..., 0]
-    return torch.stack([theta + TAU * omega, omega + TAU * accel], dim=-1)
+    omega_next = omega + TAU * accel  # semi-implicit Euler: the angle moves with the new rate, so the
+    return torch.stack([theta + TAU * omega_next, omega_next], dim=-1)  # damped swing decays (det 1 - tau b)
 
 
 @register_family("pendulum", PendulumConfig)
