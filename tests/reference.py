@@ -84,3 +84,23 @@ def read_long_csv(path) -> dict:
         for r in list(csv.reader(f))[1:]:
             out.setdefault(r[0], []).append([float(v) for v in r[2:]])
     return {k: np.array(v) for k, v in out.items()}
+
+
+def sigint_during_step(monkeypatch, step: int):
+    """Make TrainingData.batch send SIGINT to this process while it prepares training step `step` (as a
+    Ctrl-C arriving then); returns a function that restores the real batch."""
+    import os
+    import signal
+
+    import mop.train as mt
+
+    batch, calls = mt.TrainingData.batch, []
+
+    def interrupting_batch(self):
+        calls.append(1)
+        if len(calls) == step:
+            os.kill(os.getpid(), signal.SIGINT)
+        return batch(self)
+
+    monkeypatch.setattr(mt.TrainingData, "batch", interrupting_batch)
+    return lambda: monkeypatch.setattr(mt.TrainingData, "batch", batch)

@@ -19,6 +19,7 @@ from mop.config import RunConfig, apply_overrides, from_dict, to_dict
 from mop.errors import MopError
 from mop.models import build_model
 from mop.runs import load_predictor
+from tests.reference import sigint_during_step
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
@@ -77,20 +78,12 @@ def reference(tmp_path_factory):
 def test_resume_equals_uninterrupted(tmp_path, monkeypatch, num_source_systems, reference):
     config = tiny_config(num_source_systems=num_source_systems)
     ref = reference if num_source_systems else mt.train(config, tmp_path / "ref", progress=False)
-    batch, calls = mt.TrainingData.batch, []
-
-    def interrupting_batch(self):  # Ctrl-C arrives during the 4th step
-        calls.append(1)
-        if len(calls) == 4:
-            os.kill(os.getpid(), signal.SIGINT)
-        return batch(self)
-
-    monkeypatch.setattr(mt.TrainingData, "batch", interrupting_batch)
+    restore = sigint_during_step(monkeypatch, 4)  # Ctrl-C arrives during the 4th step
     with pytest.raises(MopError, match="stopped by SIGINT at step 4"):
         mt.train(config, tmp_path / "run", progress=False)
     assert not (tmp_path / "run" / "done.json").exists()
     assert load_checkpoint(tmp_path / "run" / "checkpoint.safetensors", *_fresh(config))[0] == 4
-    monkeypatch.setattr(mt.TrainingData, "batch", batch)
+    restore()
     mt.train(config, tmp_path / "run", progress=False)
     assert_same_weights(ref, tmp_path / "run")
     steps = [

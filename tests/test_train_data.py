@@ -1,8 +1,6 @@
 """`mop train --data FILE`: split, normalisation, windows, equivariance to units, bad files, resume, CLI."""
 
 import json
-import os
-import signal
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +16,7 @@ from mop.runs import load_config, load_predictor
 from mop.systems import make_family
 from mop.systems.base import Trajectories
 from mop.train.data import RecordedData, recorded_data
+from tests.reference import sigint_during_step
 
 TINY = [
     "model.num_layers=1",
@@ -137,18 +136,10 @@ def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, monkey
     config = data_config(path)
     a = mt.train(config, tmp_path / "a", progress=False)
     b = mt.train(config, tmp_path / "b", progress=False)
-    batch, calls = mt.TrainingData.batch, []
-
-    def interrupting_batch(self):
-        calls.append(1)
-        if len(calls) == 4:
-            os.kill(os.getpid(), signal.SIGINT)
-        return batch(self)
-
-    monkeypatch.setattr(mt.TrainingData, "batch", interrupting_batch)
+    restore = sigint_during_step(monkeypatch, 4)  # Ctrl-C arrives during the 4th step
     with pytest.raises(MopError, match="stopped by SIGINT at step 4"):
         mt.train(config, tmp_path / "c", progress=False)
-    monkeypatch.setattr(mt.TrainingData, "batch", batch)
+    restore()
     c = mt.train(config, tmp_path / "c", progress=False)
     wa = load_tensors(a / "model.safetensors")[0]
     for run in (b, c):
