@@ -78,8 +78,7 @@ def learned_predictor(session: Session, name: str, condition: Condition):
     """Train (or reuse) the run of learned predictor `name` for `condition`, and load it once."""
     from mop.train import train
 
-    arch = PREDICTORS.meta(name)["arch"]
-    config = run_config(session.exp, session.preset, session.seed, arch, condition, session.overrides)
+    config = condition_config(session, condition, PREDICTORS.meta(name)["arch"])
     run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
     key = str(run_dir)
     if key not in session.loaded:
@@ -89,12 +88,14 @@ def learned_predictor(session: Session, name: str, condition: Condition):
     return session.loaded[key]
 
 
-def test_system(session: Session, condition: Condition) -> SystemConfig:
+def condition_config(session: Session, condition: Condition, arch: str = "gpt") -> RunConfig:
+    """The RunConfig trained for `condition` (preset < experiment < condition < command-line overrides)."""
+    return run_config(session.exp, session.preset, session.seed, arch, condition, session.overrides)
+
+
+def test_system(trained: RunConfig, condition: Condition) -> SystemConfig:
     """The condition's test family: the trained family's config with the condition's overrides."""
-    trained = run_config(
-        session.exp, session.preset, session.seed, "gpt", condition, session.overrides
-    ).system
-    return apply_overrides(trained, overrides_list(condition.system))
+    return apply_overrides(trained.system, overrides_list(condition.system))
 
 
 def test_trajectories(system: SystemConfig, num_systems: int, horizon: int, seed: int) -> Trajectories:
@@ -114,8 +115,8 @@ def recorded_trajectories(path: str, horizon: int) -> Trajectories:
     if not long:
         raise MopError(f"{path}: no trajectory has {horizon + 1} steps; lower the condition's horizon")
     y = torch.tensor(np.stack([y[: horizon + 1] for y, _ in long]), dtype=torch.float64)
-    u = None if long[0][1] is None else torch.tensor(np.stack([u[: horizon + 1] for _, u in long]))
-    return Trajectories(y=y, u=None if u is None else u.double())
+    u = None if long[0][1] is None else np.stack([u[: horizon + 1] for _, u in long])
+    return Trajectories(y=y, u=None if u is None else torch.tensor(u, dtype=torch.float64))
 
 
 def run_condition(session: Session, condition: Condition) -> ConditionResult:
@@ -127,14 +128,13 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
         else:
             options = {"seed": session.seed, **preset.predictor_options.get(name, {})}
             predictors.append(make_predictor(name, **options))
-    horizon = (
-        condition.horizon or run_config(exp, session.preset, session.seed, condition=condition).train.horizon
-    )
+    trained = condition_config(session, condition)
+    horizon = condition.horizon or trained.train.horizon  # with the command line's overrides, like the run
     if condition.data:
         traj = recorded_trajectories(condition.data, horizon)
     else:
         traj = test_trajectories(
-            test_system(session, condition), preset.num_test_systems, horizon, session.seed
+            test_system(trained, condition), preset.num_test_systems, horizon, session.seed
         )
     raw = evaluate(predictors, traj, session.progress)
     summary = summarize(raw, reference=exp.reference, seed=session.seed)
@@ -185,8 +185,7 @@ def claim_text(c: dict) -> str:
 
 
 def eval_entry(result: ConditionResult) -> dict:
-    extras = {k: v for k, v in result.extras.items()}
-    return {"condition": result.condition.name, **result.summary, **extras}
+    return {"condition": result.condition.name, **result.summary, **result.extras}
 
 
 def run_experiment(

@@ -22,7 +22,6 @@ A new family is one module:
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -327,13 +326,3 @@ def replace_rows(traj: Trajectories, idx: Tensor, new: Trajectories) -> Trajecto
 def cast(traj: Trajectories, dtype: torch.dtype) -> Trajectories:
     """Floating tensors to dtype (integer params such as switch_time stay as they are)."""
     return traj._map(lambda t: t.to(dtype) if t.is_floating_point() else t)
-
-
-def replace_config(config: SystemConfig, **changes: Any) -> SystemConfig:
-    """dataclasses.replace for family configs (a change of family keeps the knobs both families share)."""
-    if "family" in changes and changes["family"] != config.family:
-        target = config_class(changes["family"])
-        shared = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
-        names = {f.name for f in dataclasses.fields(target)}
-        return target(**{k: v for k, v in {**shared, **changes}.items() if k in names})
-    return dataclasses.replace(config, **changes)
