@@ -1,6 +1,7 @@
 import dataclasses
 
 import pytest
+import torch
 
 from mop.config import RunConfig, apply_overrides
 
@@ -38,3 +39,12 @@ def tiny_smoke(monkeypatch):
         num_test_systems=6,
     )
     monkeypatch.setitem(experiments.PRESETS, "smoke", tiny)
+
+
+@pytest.fixture(scope="module")
+def one_thread():
+    """Tiny models run ~100x faster on one thread when the 2 cores are shared (OpenMP spin-waits)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -11,9 +11,11 @@ from mop.errors import MopError
 from mop.models import build_model
 from mop.runs import load_predictor
 from mop.train import make_optimizer, train
-from tests.test_train import one_thread, tiny_config  # noqa: F401 (autouse fixture)
+from tests.test_train import tiny_config
 
 CFG = ModelConfig(num_layers=2, num_heads=2, width=32, context=10, input_dim=5, output_dim=5)
+
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _trained_pair(seed: int):

@@ -89,6 +89,9 @@ class KalmanKeepingSystem1:
     @staticmethod
     def _model(traj: Trajectories) -> StateSpace:
         p = traj.params
+        missing = [k for k in ("A", "C", "Q", "R", "P0") if k not in p]
+        if missing:
+            raise MopError(f"kalman-system1 needs a linear family's {missing}; use it on switching systems")
         return linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"])
 
     def predict_distribution(self, traj: Trajectories) -> tuple[Tensor, Tensor]:
