@@ -36,10 +36,24 @@ def test_reproduce_linear_smoke_and_reuse(tmp_path, tiny_smoke, capsys):
 
     # an override changes the training config, hence the run directory
     assert (
-        cli.main(["reproduce", "linear", "--preset", "smoke", "--out", str(out), "--quiet", "model.width=16"])
+        cli.main(
+            [
+                "reproduce",
+                "linear",
+                "--preset",
+                "smoke",
+                "--out",
+                str(out),
+                "--quiet",
+                "model.width=16",
+                "train.horizon=30",
+            ]
+        )
         == 0
     )
-    (other,) = json.loads((out / "eval.json").read_text())["runs"].values()
+    overridden = json.loads((out / "eval.json").read_text())
+    (other,) = overridden["runs"].values()
+    assert overridden["horizon"] == 30  # the test horizon follows the trained horizon
     assert other != run_dir
 
 
