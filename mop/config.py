@@ -13,7 +13,7 @@ import typing
 from typing import Any, TypeVar
 
 from mop.errors import MopError, check  # noqa: F401  (check: re-exported for config validation)
-from mop.systems.base import SystemConfig
+from mop.systems.base import SystemConfig, config_class
 
 T = TypeVar("T")
 
@@ -81,8 +81,6 @@ def apply_overrides(config: T, overrides: list[str]) -> T:
 
 def _change_family(node: dict[str, Any], family: Any) -> None:
     """Make `node` a config of `family`: keep the knobs both families have, add the new ones' defaults."""
-    from mop.systems.base import config_class
-
     defaults = dataclasses.asdict(config_class(str(family))())
     for key in [k for k in node if k not in defaults]:
         del node[key]

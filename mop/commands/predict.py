@@ -22,8 +22,12 @@ import numpy as np
 import torch
 
 from mop.atomic import atomic_path
+from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.io import read_system, read_trajectories
+from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor, needs_system
+from mop.runs import load_predictor
+from mop.systems import FAMILIES
 from mop.systems.base import Trajectories
 
 
@@ -37,11 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def resolve_predictor(spec: str, stream: bool = False):
     """(predictor, needs_system) for a run directory or a registered (non-learned) predictor name."""
-    from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
-
     if Path(spec).is_dir():
-        from mop.runs import load_predictor
-
         return load_predictor(spec, mode="stream" if stream else "window"), False
     names = PREDICTORS.names()
     if spec not in names:
@@ -56,9 +56,6 @@ def resolve_predictor(spec: str, stream: bool = False):
 
 def system_of(name: str, data_path: Path, num: int) -> tuple[str, dict[str, torch.Tensor]]:
     """The family and params a system-aware predictor needs from DATA, or a one-line MopError."""
-    from mop.config import SystemConfig
-    from mop.systems import FAMILIES
-
     if data_path.suffix == ".csv":
         raise MopError(
             f"{name} needs the system's parameters, and a CSV has no system parameters; "
@@ -94,8 +91,6 @@ def batches(data, family: str, params: dict) -> list[Trajectories]:
 
 def predict_all(predictor, data, steps: int | None = None, family: str = "", params=None) -> list[np.ndarray]:
     """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps), batched where lengths agree."""
-    from mop.predictors import forecast
-
     out = []
     for traj in batches(data, family, params or {}):
         pred = predictor.predict(traj) if steps is None else forecast(predictor, traj, steps)

@@ -11,9 +11,11 @@ runs either through the one generic runner (mop.experiments.runner).
 from __future__ import annotations
 
 import dataclasses
+import json
 from typing import Any
 
 from mop.config import DataConfig, RunConfig, apply_overrides
+from mop.experiments.paper import PAPER_EXPERIMENTS
 from mop.experiments.presets import PRESETS, Preset, get_preset
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.registry import Registry
@@ -21,14 +23,9 @@ from mop.registry import Registry
 TEST_SEED_OFFSET = 7_000_001  # test systems: generator seed + this, apart from training (seed) and validation
 
 
-def _load_builtin() -> None:
-    from mop.experiments.paper import PAPER_EXPERIMENTS
-
-    for exp in PAPER_EXPERIMENTS:
-        EXPERIMENTS.add(exp.name, exp)
-
-
-EXPERIMENTS: Registry = Registry("experiment", loader=_load_builtin, group="mop.experiments")
+EXPERIMENTS: Registry = Registry("experiment", group="mop.experiments")
+for _exp in PAPER_EXPERIMENTS:  # the built-in experiments (plugins: entry points of mop.experiments)
+    EXPERIMENTS.add(_exp.name, _exp)
 
 
 def get_experiment(name: str) -> Experiment:
@@ -37,7 +34,6 @@ def get_experiment(name: str) -> Experiment:
 
 def overrides_list(overrides: dict[str, Any]) -> list[str]:
     """{"train.steps": 5} -> ["train.steps=5"] (values JSON-encoded, as on the command line)."""
-    import json
 
     return [f"{k}={json.dumps(v)}" for k, v in overrides.items()]
 

@@ -10,7 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from mop.errors import MopError
-from mop.metrics import coverage, gaussian_nll, matrix_power_ratio
+from mop.evaluate import windows
+from mop.filters.kalman import optimal_mse_curve
+from mop.metrics import coverage, gaussian_nll, matrix_power_ratio, window_mean
+from mop.predictors import forecast
 from mop.registry import Registry
 
 ANALYSES: Registry = Registry("analysis")
@@ -57,10 +60,6 @@ def floor(result, predictors: list, reference: str) -> dict:
     """The irreducible error of a linear-Gaussian family: mean over test systems of trace(S_t), the optimal
     filter's E||y_t - yhat_t||^2 at each t (mop.filters.kalman.optimal_mse_curve), and every predictor's
     excess MSE over it in the report's windows (what no predictor can remove is subtracted)."""
-    from mop.evaluate import windows
-    from mop.filters.kalman import optimal_mse_curve
-    from mop.metrics import window_mean
-
     p = result.traj.params
     curve = optimal_mse_curve(p["A"], p["C"], p["Q"], p["R"], result.traj.horizon, p.get("P0")).mean(0)
     curve = curve.tolist()  # (T+1,)
@@ -94,8 +93,6 @@ def forecast_analysis(result, predictors: list, reference: str) -> dict:
     """k-step forecast error against k = 1..FORECAST_STEPS (10) per predictor with a forecast: mean over test
     systems and forecast origins t >= FORECAST_START (20) of ||y_{t+k-1} - forecast_{t,k-1}|| (horizon_errors;
     k = 1 is the one-step error over t >= 20). Predictors without a forecast are left out."""
-    from mop.predictors import forecast
-
     steps = min(FORECAST_STEPS, result.traj.horizon + 1 - FORECAST_START)
     start = FORECAST_START if steps >= 1 else 1
     steps = max(steps, 1)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from mop import plots
+from mop.experiments.measures import slope_fit
 from mop.registry import Registry
 
 FIGURES: Registry = Registry("figure")
@@ -89,8 +90,6 @@ def calibration(exp, results: dict, out: Path) -> list[Path]:
 @FIGURES.register("loglog")
 def loglog(exp, results: dict, out: Path) -> list[Path]:
     """Excess MSE against each sweep axis on log-log axes with the fitted slope."""
-    from mop.experiments.measures import slope_fit
-
     paths = []
     for axis in dict.fromkeys(r.condition.x[0] for r in results.values() if r.condition.x):
         fit = slope_fit(results, axis)

@@ -29,9 +29,12 @@ from mop.experiments.analyses import ANALYSES
 from mop.experiments.figures import FIGURES
 from mop.experiments.measures import describe, measure_value, slope_fit
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
+from mop.io import read_trajectories
 from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
 from mop.report import build_report, claim_line, summary_section
+from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
+from mop.train import train
 
 
 @dataclasses.dataclass
@@ -76,8 +79,6 @@ def wanted(session: Session, condition: Condition) -> list[str]:
 
 def learned_predictor(session: Session, name: str, condition: Condition):
     """Train (or reuse) the run of learned predictor `name` for `condition`, and load it once."""
-    from mop.train import train
-
     config = condition_config(session, condition, PREDICTORS.meta(name)["arch"])
     run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
     key = str(run_dir)
@@ -100,16 +101,12 @@ def test_system(trained: RunConfig, condition: Condition) -> SystemConfig:
 
 def test_trajectories(system: SystemConfig, num_systems: int, horizon: int, seed: int) -> Trajectories:
     """Seeded test systems (float64), apart from the training (seed) and validation streams."""
-    from mop.systems import generator, make_family
-
     family = make_family(system, dtype=torch.float64)
     return family.generate(num_systems, horizon, generator=generator(seed + TEST_SEED_OFFSET))
 
 
 def recorded_trajectories(path: str, horizon: int) -> Trajectories:
     """The recordings of `path` with at least horizon + 1 outputs, cut to y_0..y_horizon (float64)."""
-    from mop.io import read_trajectories
-
     _, data = read_trajectories(path)
     long = [(y, u) for y, u in data if len(y) > horizon]
     if not long:

@@ -1,6 +1,6 @@
 """The model registry: each learned architecture registers its class under the name model.arch selects.
 
-    @register_model("gpt")
+    @register_model("gpt", predictor="mop")
     class Transformer(nn.Module):
         def __init__(self, cfg: ModelConfig) -> None: ...
 
@@ -19,18 +19,27 @@ from mop.config import ModelConfig
 from mop.errors import MopError
 
 _MODELS: dict[str, type[nn.Module]] = {}
+_PREDICTORS: dict[str, str] = {}  # arch -> the name of its learned predictor
 
 
-def register_model(name: str) -> Callable[[type[nn.Module]], type[nn.Module]]:
-    """Class decorator: build_model(cfg) with cfg.arch == name builds this class. Names are unique."""
+def register_model(name: str, predictor: str = "") -> Callable[[type[nn.Module]], type[nn.Module]]:
+    """Class decorator: build_model(cfg) with cfg.arch == name builds this class. Names are unique.
+
+    predictor: the name its trained runs go by as a predictor (mop.runs registers it; default: `name`).
+    """
 
     def register(cls: type[nn.Module]) -> type[nn.Module]:
         if name in _MODELS:
             raise MopError(f"model architecture {name!r} is already registered (by {_MODELS[name].__name__})")
-        _MODELS[name] = cls
+        _MODELS[name], _PREDICTORS[name] = cls, predictor or name
         return cls
 
     return register
+
+
+def predictor_names() -> dict[str, str]:
+    """arch -> the predictor name of its trained runs, for every registered architecture."""
+    return dict(_PREDICTORS)
 
 
 def model_names() -> list[str]:

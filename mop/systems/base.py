@@ -241,15 +241,8 @@ class SystemFamily:
         )
 
 
-def _load_builtin_families() -> None:
-    import mop.systems.colored_noise  # noqa: F401
-    import mop.systems.linear  # noqa: F401
-    import mop.systems.quadrotor  # noqa: F401
-    import mop.systems.switching  # noqa: F401
-    import mop.systems.upper_triangular  # noqa: F401
-
-
-FAMILIES: Registry = Registry("system family", loader=_load_builtin_families, group="mop.families")
+# filled by the family modules, which mop.systems imports; plugins through the entry points of mop.families
+FAMILIES: Registry = Registry("system family", group="mop.families")
 
 
 def register_family(name: str, config: type[SystemConfig]) -> Callable[[type], type]:
