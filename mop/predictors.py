@@ -20,6 +20,7 @@ mop.runs.register_learned adds one).
 from __future__ import annotations
 
 import inspect
+from collections.abc import Iterable
 from typing import Any, Protocol, runtime_checkable
 
 from torch import Tensor
@@ -63,6 +64,14 @@ def is_learned(name: str) -> bool:
 
 def needs_system(name: str) -> bool:
     return bool(PREDICTORS.meta(name).get("needs_system"))
+
+
+def first_learned(names: Iterable[str]) -> str:
+    """The first learned predictor among `names` (the model an experiment is about); MopError if none."""
+    for name in names:
+        if name in PREDICTORS and is_learned(name):
+            return name
+    raise MopError(f"no learned predictor among {', '.join(names)}; add one (e.g. a trained model)")
 
 
 def forecast(predictor: Predictor, traj: Trajectories, steps: int) -> Tensor:

@@ -10,7 +10,8 @@ from mop.config import RunConfig
 from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment, get_preset, run_config
 from mop.experiments.files import experiment_from_dict, load_experiment
-from mop.experiments.runner import ConditionResult, check_claim, config_hash
+from mop.experiments.results import ConditionResult
+from mop.experiments.runner import check_claim, config_hash
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.metrics import mse_ratio_ci
 from mop.predictors import PREDICTORS

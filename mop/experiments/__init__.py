@@ -11,10 +11,8 @@ runs either through the one generic runner (mop.experiments.runner).
 from __future__ import annotations
 
 import dataclasses
-import json
-from typing import Any
 
-from mop.config import DataConfig, RunConfig, apply_overrides
+from mop.config import DataConfig, RunConfig, apply_settings, parse_overrides
 from mop.experiments.paper import PAPER_EXPERIMENTS
 from mop.experiments.presets import PRESETS, Preset, get_preset
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
@@ -30,12 +28,6 @@ for _exp in PAPER_EXPERIMENTS:  # the built-in experiments (plugins: entry point
 
 def get_experiment(name: str) -> Experiment:
     return EXPERIMENTS.get(name)
-
-
-def overrides_list(overrides: dict[str, Any]) -> list[str]:
-    """{"train.steps": 5} -> ["train.steps=5"] (values JSON-encoded, as on the command line)."""
-
-    return [f"{k}={json.dumps(v)}" for k, v in overrides.items()]
 
 
 def run_config(
@@ -60,8 +52,9 @@ def run_config(
     layers = {**exp.train, **exp.presets.get(preset, {}), **(condition.train if condition else {})}
     if "data.path" in layers:  # trained on recorded trajectories (mop train --data)
         base = dataclasses.replace(base, data=DataConfig(path=layers["data.path"]))
-    config = apply_overrides(base, overrides_list(layers) + list(overrides))
-    if "model.context" not in layers and not any(o.startswith("model.context=") for o in overrides):
+    settings = {**layers, **parse_overrides(list(overrides))}
+    config = apply_settings(base, settings)  # one merge of the layers' dicts, no key=value strings
+    if "model.context" not in settings:
         config = dataclasses.replace(
             config, model=dataclasses.replace(config.model, context=config.train.horizon)
         )

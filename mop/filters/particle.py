@@ -113,6 +113,8 @@ class ParticleFilterPredictor:
     """Bootstrap particle filter knowing each system; seeded, `num_particles` per system. project=True
     ("pf") also knows the simulator's state projection (the quadrotor's clipping), False ("pf-noclip") not."""
 
+    name = "pf"
+
     def __init__(self, num_particles: int = 1000, seed: int = 0, project: bool = True) -> None:
         self.num_particles, self.seed, self.project = num_particles, seed, project
         self.name = "pf" if project else "pf-noclip"

@@ -110,6 +110,8 @@ def adaptive_order_rls_forecast(y: Tensor, max_order: int = 5, steps: int = 1) -
 class RLSPredictor:
     """Matrix RLS autoregression of a fixed order (the paper's baseline: order 2, 2m regressors)."""
 
+    name = "rls"
+
     def __init__(self, order: int = 2, name: str = "rls") -> None:
         self.order, self.name = order, name
 
@@ -124,6 +126,8 @@ class RLSPredictor:
 @PREDICTORS.register("rls-best")
 class AdaptiveOrderRLSPredictor:
     """Matrix RLS with the order 1..max_order chosen online by the lowest past one-step error ("rls-best")."""
+
+    name = "rls-best"
 
     def __init__(self, max_order: int = 5, name: str = "rls-best") -> None:
         self.max_order, self.name = max_order, name

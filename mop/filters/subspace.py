@@ -145,6 +145,8 @@ class N4SIDKalmanPredictor:
     select: see n4sid_kalman_predict.
     """
 
+    name = "n4sid-kf"
+
     def __init__(
         self,
         order: int = 4,

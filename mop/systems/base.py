@@ -265,7 +265,7 @@ def state_space_of(traj: Trajectories) -> StateSpace:
     if not traj.family:
         raise MopError(
             "these trajectories carry no system family, so a predictor that knows the system cannot run; "
-            "use one that needs no model (rls, rls-best, n4sid-kf, last, zero)"
+            "use one that needs no model (`mop predict --help` lists them)"
         )
     return FAMILIES.get(traj.family).state_space(traj.params)
 
