@@ -19,7 +19,7 @@ from torch import nn
 from mop.checkpoint import load_model_weights
 from mop.config import ModelConfig, RunConfig, from_dict
 from mop.errors import MopError
-from mop.models import build_model, predictor_names
+from mop.models import build_model, predictor_names, skip_presets
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.predictors import PREDICTORS, Predictor
 
@@ -70,15 +70,16 @@ def load_normalization(run_dir: str | os.PathLike) -> Normalization | None:
     return Normalization.from_lists(data.y_mean, data.y_std, data.u_mean, data.u_std)
 
 
-def register_learned(name: str, arch: str) -> None:
+def register_learned(name: str, arch: str, skip_presets: tuple[str, ...] = ()) -> None:
     """Register predictor `name`: a trained run of model architecture `arch` (mop.models), loaded from the
-    run directory given as make_predictor(name, run_dir=...); mode "window" (the paper's) or "stream"."""
+    run directory given as make_predictor(name, run_dir=...); mode "window" (the paper's) or "stream".
+    skip_presets: presets under which experiments train it only when asked."""
 
     def load(run_dir: str, mode: str = "window", device: str = "cpu") -> Predictor:
         return load_predictor(run_dir, device=device, mode=mode)
 
-    PREDICTORS.add(name, load, learned=True, arch=arch, gaussian=True)
+    PREDICTORS.add(name, load, learned=True, arch=arch, gaussian=True, skip_presets=tuple(skip_presets))
 
 
 for _arch, _name in sorted(predictor_names().items()):  # the built-in architectures' predictors (mop, gru)
-    register_learned(_name, _arch)
+    register_learned(_name, _arch, skip_presets(_arch))

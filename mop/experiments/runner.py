@@ -59,11 +59,17 @@ def config_hash(config: RunConfig) -> str:
 
 
 def wanted(session: Session, condition: Condition) -> list[str]:
-    """The predictors evaluated under `condition` (the GRU only where the preset or --gru asks for it)."""
-    names = list(condition.predictors or session.exp.predictors)
-    train_gru = get_preset(session.preset).train_gru if session.with_gru is None else session.with_gru
-    names = [n for n in names if n != "gru" or train_gru]
+    """The predictors evaluated under `condition`: those an entry's skip_presets leave out under this preset
+    (the GRU under small and smoke) only where --gru asks for them; --no-gru drops every such entry."""
+    names = [n for n in condition.predictors or session.exp.predictors if _included(session, n)]
     return [n for n in names if not (condition.data and needs_system(n))]  # recordings carry no system
+
+
+def _included(session: Session, name: str) -> bool:
+    skip = PREDICTORS.meta(name).get("skip_presets", ())
+    if session.with_gru is None:
+        return session.preset not in skip
+    return session.with_gru or not skip
 
 
 def learned_predictor(session: Session, name: str, condition: Condition, trained: RunConfig):
@@ -115,7 +121,8 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
         if is_learned(name):
             predictors.append(learned_predictor(session, name, condition, trained))
         else:
-            options = {"seed": session.seed, **preset.predictor_options.get(name, {})}
+            per_preset = PREDICTORS.meta(name).get("preset_options", {})  # the entry's own options
+            options = {"seed": session.seed, **per_preset.get(session.preset, {})}
             predictors.append(make_predictor(name, **options))
     horizon = condition.horizon or trained.train.horizon  # with the command line's overrides, like the run
     if condition.data:

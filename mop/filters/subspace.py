@@ -135,7 +135,7 @@ def n4sid_kalman_forecast(
     return nan_beyond_horizon(out)
 
 
-@PREDICTORS.register("n4sid-kf")
+@PREDICTORS.register("n4sid-kf", preset_options={"small": {"every": 10}, "smoke": {"every": 10}})
 class N4SIDKalmanPredictor:
     """Subspace identification from the prefix + steady-state Kalman predictor ("n4sid-kf").
 
