@@ -73,10 +73,17 @@ def load_normalization(run_dir: str | os.PathLike) -> Normalization | None:
 def register_learned(name: str, arch: str, skip_presets: tuple[str, ...] = ()) -> None:
     """Register predictor `name`: a trained run of model architecture `arch` (mop.models), loaded from the
     run directory given as make_predictor(name, run_dir=...); mode "window" (the paper's) or "stream".
+    make_predictor(name, run_dir=..., model=m) wraps the trained model `m` handed over by the trainer
+    instead of loading the weights again (the run's config.json still gives a data run's scaling).
     skip_presets: presets under which experiments train it only when asked."""
 
-    def load(run_dir: str, mode: str = "window", device: str = "cpu") -> Predictor:
-        return load_predictor(run_dir, device=device, mode=mode)
+    def load(
+        run_dir: str, mode: str = "window", device: str = "cpu", model: nn.Module | None = None
+    ) -> Predictor:
+        if model is None:
+            return load_predictor(run_dir, device=device, mode=mode)
+        model = model.to(device).eval()
+        return LearnedPredictor(model, name=name, mode=mode, normalization=load_normalization(run_dir))
 
     PREDICTORS.add(name, load, learned=True, arch=arch, gaussian=True, skip_presets=tuple(skip_presets))
 

@@ -4,7 +4,7 @@
     optim.py     AdamW, lr schedule, autocast, compile, train_step, validation_loss
     device.py    the device and the DDP process group
     rundir.py    the run directory: config check and reuse, metrics log, checkpoint of the training state
-    loop.py      train(): the loop (signals, NaN stop, DDP slices)
+    loop.py      train(), train_model(): the loop (signals, NaN stop, DDP slices)
     progress.py  the progress display
 
 Loading a trained run (config, model, predictor) is mop.runs, which does not import the trainer.
@@ -12,7 +12,7 @@ Loading a trained run (config, model, predictor) is mop.runs, which does not imp
 
 from mop.train.data import TrainingData, validation_batch
 from mop.train.device import resolve_device
-from mop.train.loop import TrainState, train
+from mop.train.loop import TrainState, train, train_model
 from mop.train.optim import LossModule, autocast, learning_rate, make_optimizer, maybe_compile, train_step
 from mop.train.rundir import resolve_config
 
@@ -27,6 +27,7 @@ __all__ = [
     "resolve_config",
     "resolve_device",
     "train",
+    "train_model",
     "train_step",
     "validation_batch",
 ]

@@ -29,6 +29,7 @@ from mop.config import RunConfig
 from mop.errors import MopError
 from mop.models import build_model
 from mop.progress import progress as make_progress
+from mop.runs import load_model
 from mop.train.data import TrainingData, validation_batch
 from mop.train.device import init_distributed, setup_device
 from mop.train.optim import (
@@ -70,7 +71,19 @@ class TrainState:
 
 def train(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = True) -> Path:
     """Train `config` into `out_dir` (resuming from its checkpoint if any); returns the run directory."""
-    out_dir = Path(out_dir)
+    _train(config, Path(out_dir), progress)
+    return Path(out_dir)
+
+
+def train_model(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = True) -> nn.Module:
+    """Train like train() and hand back the trained model, in eval mode on the CPU, so a caller predicts
+    with it without reloading it; a run `out_dir` already finished is loaded from there (mop.runs)."""
+    model = _train(config, Path(out_dir), progress)
+    return load_model(out_dir)[0] if model is None else model.to("cpu").eval()
+
+
+def _train(config: RunConfig, out_dir: Path, progress: bool) -> nn.Module | None:
+    """The trained model, or None when `out_dir` holds a finished run of `config` (nothing is trained)."""
     config = resolve_config(config)
     cfg = config.train
     rank, world = init_distributed()
@@ -79,7 +92,7 @@ def train(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = Tru
             f"train.batch_size ({cfg.batch_size}) must be divisible by the number of processes ({world})"
         )
     if check_run_dir(out_dir, config):  # every rank reads it, so all return together
-        return out_dir
+        return None
     device = setup_device(cfg, world)
     if rank == 0:
         write_config(out_dir, config)
@@ -89,7 +102,7 @@ def train(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = Tru
     finally:
         if state.log is not None:
             state.log.close()
-    return out_dir
+    return state.model
 
 
 def _start(config: RunConfig, out_dir: Path, device: torch.device, rank: int, world: int) -> TrainState:
