@@ -189,12 +189,13 @@ def test_bad_experiment_files_are_refused(tmp_path, change, message):
     + [("paper", False, False)],
 )
 def test_which_learned_baselines_a_preset_trains_is_their_metadata(tmp_path, preset, flag, gru):
-    """The GRU declares the presets that skip it (skip_presets); --gru / --no-gru override; the runner
-    names no predictor. Same choice as the presets' former train_gru (paper on, small and smoke off)."""
+    """The GRU declares the presets that skip it (skip_presets); --with gru / --without gru override; the
+    runner names no predictor. Same choice as the presets' former train_gru
+    (paper on, small and smoke off)."""
     from mop.experiments.runner import Session, wanted
 
     exp = get_experiment("linear")
-    session = Session(exp, preset, 0, tmp_path, [], False, flag)
+    session = Session(exp, preset, 0, tmp_path, [], False, {} if flag is None else {"gru": flag})
     names = wanted(session, exp.conditions[0])
     assert ("gru" in names) is gru and "mop" in names and "kalman" in names
     assert PREDICTORS.meta("n4sid-kf")["preset_options"]["small"] == {"every": 10}

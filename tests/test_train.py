@@ -1,5 +1,6 @@
 """The trainer: resume equals not stopping (bit for bit on CPU), SIGKILL + resume, NaN stop, reuse, config."""
 
+import dataclasses
 import json
 import os
 import random
@@ -175,3 +176,33 @@ def test_config_validation(bad, message):
 def test_model_dims_must_match_family():
     with pytest.raises(MopError, match="does not match"):
         mt.resolve_config(apply_overrides(tiny_config(), ["model.output_dim=7"]))
+
+
+def test_handed_over_model_predicts_what_the_reloaded_run_does(tmp_path, monkeypatch):
+    """train_model hands the trained model to its predictor (the runner loads no weights for a run it
+    has just trained); its predictions equal, bit for bit, those of the run reloaded from disk."""
+    import mop.runs
+    from mop.experiments import get_experiment
+    from mop.experiments.runner import Session, learned_predictor
+    from mop.predictors import make_predictor
+    from mop.systems import generator, make_family
+
+    def no_reload(*args, **kwargs):
+        raise AssertionError("the runner reloaded the model it had just trained")
+
+    config = tiny_config()
+    config = dataclasses.replace(config, model=dataclasses.replace(config.model, readout="gaussian"))
+    session = Session(get_experiment("linear"), "smoke", 0, tmp_path, [], False, {})
+    with monkeypatch.context() as patch:
+        patch.setattr(mop.runs, "load_predictor", no_reload)
+        patch.setattr(mop.runs, "load_model", no_reload)
+        handed = learned_predictor(session, "mop", get_experiment("linear").conditions[0], config)
+    (run_dir,) = session.runs.values()
+    reloaded = make_predictor("mop", run_dir=run_dir)
+    assert handed.name == reloaded.name == "mop" and not handed.model.training
+    traj = make_family(config.system).generate(5, 8, generator=generator(11))
+    assert torch.equal(handed.predict(traj), reloaded.predict(traj))
+    for a, b in zip(handed.predict_distribution(traj), reloaded.predict_distribution(traj), strict=True):
+        assert torch.equal(a, b)
+    again = mt.train_model(config, run_dir, progress=False)  # a finished run: loaded from disk
+    assert all(torch.equal(a, b) for a, b in zip(again.parameters(), handed.model.parameters(), strict=True))

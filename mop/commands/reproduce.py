@@ -15,14 +15,17 @@ from pathlib import Path
 import torch
 
 from mop.commands import OverridesAnywhere
+from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.runner import run_experiment
+from mop.predictors import PREDICTORS
 
 EPILOG = """examples:
   mop reproduce linear                                   # GPU: paper preset, else small
   mop reproduce all --preset smoke --out /tmp/all
   mop reproduce quadrotor --preset small train.steps=1000
+  mop reproduce linear --preset small --with gru         # a baseline the preset leaves out
   mop reproduce examples/pendulum.toml --preset smoke     # an experiment file (plugins register a family)
 """
 
@@ -48,16 +51,43 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--runs", default=None, help="directory of the shared trained runs (default OUT/../runs)"
     )
     parser.add_argument("--seed", type=int, default=0, help="training seed; test systems use seed + 7000001")
-    gru = parser.add_mutually_exclusive_group()
-    gru.add_argument(
-        "--gru", dest="gru", action="store_true", default=None, help="also train the GRU baseline"
+    parser.add_argument(
+        "--with",
+        dest="with_",
+        action="append",
+        default=[],
+        metavar="PREDICTOR",
+        help="also train and evaluate PREDICTOR where its preset leaves it out (repeatable)",
     )
-    gru.add_argument("--no-gru", dest="gru", action="store_false", help="skip the GRU baseline")
+    parser.add_argument(
+        "--without", action="append", default=[], metavar="PREDICTOR", help="leave PREDICTOR out (repeatable)"
+    )
+    for name in optional_predictors():  # --NAME / --no-NAME: short for --with NAME / --without NAME
+        parser.add_argument(
+            f"--{name}", dest="with_", action="append_const", const=name, help="--with " + name
+        )
+        parser.add_argument(
+            f"--no-{name}", dest="without", action="append_const", const=name, help="--without " + name
+        )
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def optional_predictors() -> list[str]:
+    """The predictors some preset leaves out (their registry metadata's skip_presets)."""
+    return [name for name in PREDICTORS.names() if PREDICTORS.meta(name).get("skip_presets")]
+
+
+def choices(args: argparse.Namespace) -> dict[str, bool]:
+    """predictor -> in (True) or out (False), from --with / --without (a name in both: MopError)."""
+    both = sorted(set(args.with_) & set(args.without))
+    if both:
+        raise MopError(f"--with and --without both name {', '.join(both)}; give one of them")
+    return {**dict.fromkeys(args.with_, True), **dict.fromkeys(args.without, False)}
 
 
 def run(args: argparse.Namespace) -> int:
     preset = args.preset or ("paper" if torch.cuda.is_available() else "small")
+    chosen = choices(args)
     if is_experiment_file(args.experiment):
         experiments = [load_experiment(args.experiment)]
     elif args.experiment == "all":
@@ -75,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
             runs_dir=Path(args.runs) if args.runs else None,
             overrides=list(args.overrides or []),
             progress=not args.quiet,
-            with_gru=args.gru,
+            choices=chosen,
         )
         print(f"mop reproduce {exp.name} ({preset}): report at {report}")
     return 0

@@ -1,8 +1,14 @@
 """Analyses: extra per-condition results an experiment asks for by name, each a registered function.
 
-    extras = ANALYSES.get("calibration")(result, predictors)   # merged into the condition's eval.json entry
+    extras = ANALYSES.get("calibration")(result, predictors, reference)  # into the condition's eval.json
 
 An analysis sees the condition's test trajectories, its predictors and their errors; it returns a dict.
+It renders and describes itself through its registry metadata, so the runner names none:
+    markdown(extras) -> str        its section of the condition in report.md ("" for none)
+    to_json(results) -> dict       entries it adds to eval.json over all conditions (e.g. "sweeps")
+    sections(entries) -> list[str] report.md sections of those entries
+The measures that read an analysis's extras (coverage, matrix_power_max, slope) are registered here too,
+beside it, so mop.experiments.measures names no analysis; figures read extras through the accessors below.
 """
 
 from __future__ import annotations
@@ -11,9 +17,11 @@ import numpy as np
 
 from mop.errors import MopError
 from mop.evaluate import windows
-from mop.experiments.results import ConditionResult
+from mop.experiments.measures import MEASURES, where
+from mop.experiments.results import ConditionResult, Results
+from mop.experiments.spec import Measure
 from mop.filters.kalman import optimal_mse_curve
-from mop.metrics import coverage, gaussian_nll, matrix_power_ratio, window_mean
+from mop.metrics import coverage, gaussian_nll, loglog_slope, matrix_power_ratio, window_mean
 from mop.predictors import Predictor, first_learned, forecast
 from mop.registry import Registry
 
@@ -21,7 +29,16 @@ ANALYSES: Registry = Registry("analysis")
 COVERAGE_LEVELS = [round(q, 2) for q in np.arange(0.05, 1.0, 0.05)]
 
 
-@ANALYSES.register("calibration")
+def _calibration_table(extras: dict) -> str:
+    lines = ["| predictor | NLL | coverage 50% | 90% | 95% |", "|---|---|---|---|---|"]
+    lines += [
+        f"| {n} | {r['nll']:.4f} | {r['coverage_50']:.3f} | {r['coverage_90']:.3f} | {r['coverage_95']:.3f} |"
+        for n, r in extras["calibration"].items()
+    ]
+    return "\n".join(lines) + "\n"
+
+
+@ANALYSES.register("calibration", markdown=_calibration_table)
 def calibration(result: ConditionResult, predictors: list[Predictor], reference: str) -> dict:
     """Coverage of central intervals and Gaussian NLL over t >= 1, for every predictor with a distribution."""
     y = result.traj.y[:, 1:]
@@ -43,21 +60,135 @@ def calibration(result: ConditionResult, predictors: list[Predictor], reference:
     return {"calibration": table}
 
 
+def calibration_table(result: ConditionResult) -> dict:
+    """predictor -> {"nll", "coverage_50", ..., "levels", "coverage"} of the calibration analysis ({}
+    where it did not run)."""
+    return result.extras.get("calibration", {})
+
+
+def _coverage_text(measure: Measure, reference: str) -> str:
+    return f"{int(measure.level * 100)}% coverage of {measure.predictor}{where(measure)}"
+
+
+@MEASURES.register("coverage", describe=_coverage_text)
+def coverage_measure(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
+    """Empirical coverage of the central `level` interval of `predictor` (interpolated between levels)."""
+    table = calibration_table(result).get(measure.predictor)
+    if table is None:
+        raise MopError(
+            f"coverage of {measure.predictor!r} needs the 'calibration' analysis on a Gaussian predictor"
+        )
+    return float(np.interp(measure.level, table["levels"], table["coverage"]))
+
+
 @ANALYSES.register("matrix_powers")
 def matrix_powers(result: ConditionResult, predictors: list[Predictor], reference: str) -> dict:
     """Fig. 4b: mean over test systems of ||A^k|| / rho(A)^k, k = 0..49 (families with a matrix A)."""
     return {"matrix_power_ratio": matrix_power_ratio(result.traj.params["A"], 50).tolist()}
 
 
-@ANALYSES.register("excess_mse")
+def power_ratio(result: ConditionResult) -> list[float] | None:
+    """The matrix_powers analysis's mean ||A^k|| / rho(A)^k, k = 0..49, or None where it did not run."""
+    return result.extras.get("matrix_power_ratio")
+
+
+@MEASURES.register("matrix_power_max")
+def matrix_power_max(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
+    """max over k of the mean ||A^k|| / rho(A)^k of the condition's test systems."""
+    ratio = power_ratio(result)
+    if ratio is None:
+        raise MopError("matrix_power_max needs the 'matrix_powers' analysis")
+    return float(max(ratio))
+
+
+def sweep(results: Results, axis: str) -> list[ConditionResult]:
+    """The condition results placed on sweep axis `axis`, in the experiment's order."""
+    points = [r for r in results.values() if r.condition.x and r.condition.x[0] == axis]
+    if not points:
+        raise MopError(f"no condition lies on the sweep axis {axis!r}")
+    return points
+
+
+def sweep_axes(results: Results) -> list[str]:
+    """The sweep axes of the conditions, in order of first appearance."""
+    return list(dict.fromkeys(r.condition.x[0] for r in results.values() if r.condition.x))
+
+
+def slope_fit(results: Results, axis: str) -> dict:
+    """Log-log OLS fit of the excess MSE against the axis value, with a Student-t 95% interval (n - 2 dof)."""
+    from scipy.stats.distributions import t as student_t  # imported here, not at `mop` start-up
+
+    points = sweep(results, axis)
+    values = [r.condition.x[1] for r in points]
+    excess = [r.extras["excess_mse"] for r in points]
+    slope, intercept, se = loglog_slope(values, excess)
+    half = float(student_t.ppf(0.975, max(len(values) - 2, 1))) * se
+    return {
+        "values": values,
+        "excess_mse": excess,
+        "slope": slope,
+        "intercept": intercept,
+        "slope_stderr": se,
+        "slope_ci95": [slope - half, slope + half],
+    }
+
+
+def _sweeps(results: Results) -> dict:
+    sweeps = {axis: slope_fit(results, axis) for axis in sweep_axes(results)}
+    return {"sweeps": sweeps} if sweeps else {}
+
+
+def _sweep_sections(entries: dict) -> list[str]:
+    return [_sweep_section(axis, fit) for axis, fit in entries.get("sweeps", {}).items()]
+
+
+def _sweep_section(axis: str, fit: dict) -> str:
+    rows = "\n".join(f"| {v:g} | {e:.5f} |" for v, e in zip(fit["values"], fit["excess_mse"], strict=True))
+    low, high = fit["slope_ci95"]
+    return (
+        f"## against {axis}\n\nExcess MSE = test MSE of MOP minus the reference's, over t in [1,T]; "
+        f"the theorem's bound predicts a slope of -1/2.\n\n| {axis} | excess MSE |\n|---|---|\n{rows}\n\n"
+        f"slope {fit['slope']:.3f} (OLS s.e. {fit['slope_stderr']:.3f}, "
+        f"95% t-interval [{low:.3f}, {high:.3f}], "
+        f"{len(fit['values']) - 2} dof)\n"
+    )
+
+
+@ANALYSES.register("excess_mse", to_json=_sweeps, sections=_sweep_sections)
 def excess_mse(result: ConditionResult, predictors: list[Predictor], reference: str) -> dict:
     """MSE of the learned model (the first learned predictor) minus the reference's over t in [1, T]
-    (floored at 1e-12 for log-log fits)."""
+    (floored at 1e-12 for log-log fits); over all conditions, eval.json's "sweeps": the log-log fit
+    against each sweep axis (slope_fit)."""
     mse = {name: float((e[:, 1:] ** 2).mean()) for name, e in result.errors.items()}
     return {"excess_mse": max(mse[first_learned(result.errors)] - mse[reference], 1e-12)}
 
 
-@ANALYSES.register("floor")
+def _slope_text(measure: Measure, reference: str) -> str:
+    return f"log-log slope against {measure.axis} (95% CI)"
+
+
+@MEASURES.register("slope", over_conditions=True, describe=_slope_text)
+def slope(measure: Measure, results: Results, reference: str, seed: int) -> tuple[float, float]:
+    """95% interval of the log-log slope of the excess MSE over the conditions of sweep axis `axis`
+    (NaN for fewer than 3 points)."""
+    fit = slope_fit(results, measure.axis)
+    return tuple(fit["slope_ci95"]) if len(fit["values"]) > 2 else (float("nan"), float("nan"))
+
+
+def _floor_table(extras: dict) -> str:
+    excess = extras["floor"]["excess_mse"]
+    wins = list(next(iter(excess.values())))
+    lines = [
+        "Excess MSE over the irreducible error (mean trace S_t of the optimal filter of each test system):",
+        "",
+        "| predictor | " + " | ".join(f"t in {w}" for w in wins) + " |",
+        "|---" * (len(wins) + 1) + "|",
+    ]
+    lines += [f"| {n} | " + " | ".join(f"{e[w]:+.4f}" for w in wins) + " |" for n, e in excess.items()]
+    return "\n".join(lines) + "\n"
+
+
+@ANALYSES.register("floor", markdown=_floor_table)
 def floor(result: ConditionResult, predictors: list[Predictor], reference: str) -> dict:
     """The irreducible error of a linear-Gaussian family: mean over test systems of trace(S_t), the optimal
     filter's E||y_t - yhat_t||^2 at each t (mop.filters.kalman.optimal_mse_curve), and every predictor's
@@ -75,6 +206,11 @@ def floor(result: ConditionResult, predictors: list[Predictor], reference: str) 
     return {"floor": {"mse": curve, "excess_mse": excess}}
 
 
+def floor_curve(result: ConditionResult) -> list[float] | None:
+    """The floor analysis's irreducible error per t (T+1,), or None where it did not run."""
+    return result.extras.get("floor", {}).get("mse")
+
+
 FORECAST_STEPS = 10
 FORECAST_START = 20
 
@@ -90,7 +226,22 @@ def horizon_errors(y, f, start: int = FORECAST_START) -> list[float]:
     return out
 
 
-@ANALYSES.register("forecast")
+def _forecast_table(extras: dict) -> str:
+    forecast = extras["forecast"]
+    ks = forecast["k"]
+    lines = [
+        f"k-step forecast error: mean ||y_(t+k-1) - forecast|| over origins t >= {forecast['start']}:",
+        "",
+        "| predictor | " + " | ".join(f"k={k}" for k in ks) + " |",
+        "|---" * (len(ks) + 1) + "|",
+    ]
+    lines += [
+        f"| {n} | " + " | ".join(f"{e:.4f}" for e in errs) + " |" for n, errs in forecast["error"].items()
+    ]
+    return "\n".join(lines) + "\n"
+
+
+@ANALYSES.register("forecast", markdown=_forecast_table)
 def forecast_analysis(result: ConditionResult, predictors: list[Predictor], reference: str) -> dict:
     """k-step forecast error against k = 1..FORECAST_STEPS (10) per predictor with a forecast: mean over test
     systems and forecast origins t >= FORECAST_START (20) of ||y_{t+k-1} - forecast_{t,k-1}|| (horizon_errors;
@@ -104,3 +255,28 @@ def forecast_analysis(result: ConditionResult, predictors: list[Predictor], refe
             continue
         table[p.name] = horizon_errors(result.traj.y, forecast(p, result.traj, steps), start)
     return {"forecast": {"k": list(range(1, steps + 1)), "start": start, "error": table}}
+
+
+def forecast_table(result: ConditionResult) -> dict | None:
+    """The forecast analysis's {"k", "start", "error": predictor -> errors per k}, or None where it did
+    not run."""
+    return result.extras.get("forecast")
+
+
+def condition_sections(analyses: tuple[str, ...], extras: dict) -> list[str]:
+    """The report sections the analyses `analyses` render from one condition's extras, in their order."""
+    texts = [ANALYSES.meta(name).get("markdown", lambda _: "")(extras) for name in analyses]
+    return [t for t in texts if t]
+
+
+def experiment_entries(analyses: tuple[str, ...], results: Results) -> dict:
+    """What the analyses add to eval.json over all conditions (e.g. "sweeps"), merged in order."""
+    entries: dict = {}
+    for name in analyses:
+        entries.update(ANALYSES.meta(name).get("to_json", lambda _: {})(results))
+    return entries
+
+
+def experiment_sections(analyses: tuple[str, ...], entries: dict) -> list[str]:
+    """The report sections of those entries, in the experiment's order."""
+    return [s for name in analyses for s in ANALYSES.meta(name).get("sections", lambda _: [])(entries)]

@@ -2,7 +2,8 @@
 
     paths = FIGURES.get("error")(exp, results, out)
 
-No figure styles a predictor by its name: colours follow the order of the experiment's predictor list.
+No figure styles a predictor by its name: colours follow the order of the experiment's predictor list,
+and figures read the analyses' extras through the analyses' own accessors.
 """
 
 from __future__ import annotations
@@ -10,8 +11,15 @@ from __future__ import annotations
 from pathlib import Path
 
 from mop import plots
-from mop.experiments.measures import slope_fit
-from mop.experiments.results import Results
+from mop.experiments.analyses import (
+    calibration_table,
+    floor_curve,
+    forecast_table,
+    power_ratio,
+    slope_fit,
+    sweep_axes,
+)
+from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Experiment
 from mop.predictors import first_learned
 from mop.registry import Registry
@@ -32,8 +40,7 @@ def error(exp: Experiment, results: Results, out: Path) -> list[Path]:
     for name, r in results.items():
         panel = [p or exp.reference for p in exp.panel]
         title = f"{exp.name} ({exp.title})" + ("" if len(results) == 1 else f", {name}")
-        floor = r.extras.get("floor", {}).get("mse")
-        fig = plots.error_figure(r.summary["predictors"], panel, exp.reference, title, floor)
+        fig = plots.error_figure(r.summary["predictors"], panel, exp.reference, title, floor_curve(r))
         paths += plots.save(fig, out, _stem(exp, results, name, "error"))
     return paths
 
@@ -54,12 +61,17 @@ def ratio_by_condition(exp: Experiment, results: Results, out: Path) -> list[Pat
 @FIGURES.register("matrix_powers")
 def matrix_powers(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Fig. 4b: mean ||A^k|| / rho(A)^k against k, one line per condition."""
-    curves = {
-        name: r.extras["matrix_power_ratio"]
-        for name, r in results.items()
-        if "matrix_power_ratio" in r.extras
-    }
+    curves = {name: power_ratio(r) for name, r in results.items() if power_ratio(r) is not None}
     return plots.save(plots.matrix_power_figure(curves, f"{exp.title}b"), out, "fig4b_powers")
+
+
+def trained_level(exp: Experiment, point: ConditionResult) -> float | None:
+    """The training value of what a sweep condition varies: the experiment's `train` value of the first
+    system setting the condition overrides (e.g. the noise variance trained at), None if it trains none."""
+    for key in point.condition.system:
+        if f"system.{key}" in exp.train:
+            return exp.train[f"system.{key}"]
+    return None
 
 
 @FIGURES.register("noise_levels")
@@ -69,7 +81,7 @@ def noise_levels(exp: Experiment, results: Results, out: Path) -> list[Path]:
     names = list(points[0].summary["predictors"])
     curves = {n: [r.summary["predictors"][n]["window_error"]["all"] for r in points] for n in names}
     levels = [r.condition.x[1] for r in points]
-    train_level = exp.train.get("system.noise_var_w")
+    train_level = trained_level(exp, points[0])
     fig = plots.noise_level_figure(levels, curves, train_level, f"{exp.title}: {points[0].condition.x[0]}")
     return plots.save(fig, out, "fig5_noise_shift")
 
@@ -79,7 +91,7 @@ def calibration(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Reliability diagram per condition: empirical against nominal coverage of central intervals."""
     paths = []
     for name, r in results.items():
-        table = r.extras.get("calibration", {})
+        table = calibration_table(r)
         if not table:
             continue
         levels = next(iter(table.values()))["levels"]
@@ -94,7 +106,7 @@ def calibration(exp: Experiment, results: Results, out: Path) -> list[Path]:
 def loglog(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Excess MSE against each sweep axis on log-log axes with the fitted slope."""
     paths = []
-    for axis in dict.fromkeys(r.condition.x[0] for r in results.values() if r.condition.x):
+    for axis in sweep_axes(results):
         fit = slope_fit(results, axis)
         fig = plots.loglog_figure(
             fit["values"], fit["excess_mse"], fit["slope"], fit["intercept"], axis, f"excess risk vs {axis}"
@@ -110,7 +122,7 @@ def forecast(exp: Experiment, results: Results, out: Path) -> list[Path]:
 
     paths = []
     for name, r in results.items():
-        table = r.extras.get("forecast")
+        table = forecast_table(r)
         if not table:
             continue
         fig, ax = plt.subplots(figsize=(4.5, 3.2))

@@ -25,9 +25,14 @@ from mop.config import RunConfig, SystemConfig, apply_settings, to_dict
 from mop.errors import MopError
 from mop.evaluate import evaluate, summarize
 from mop.experiments import TEST_SEED_OFFSET, get_preset, run_config
-from mop.experiments.analyses import ANALYSES
+from mop.experiments.analyses import (
+    ANALYSES,
+    condition_sections,
+    experiment_entries,
+    experiment_sections,
+)
 from mop.experiments.figures import FIGURES
-from mop.experiments.measures import describe, measure_value, slope_fit
+from mop.experiments.measures import describe, measure_value
 from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.io import read_trajectories
@@ -35,7 +40,7 @@ from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
 from mop.report import build_report, claim_line, summary_section
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
-from mop.train import train
+from mop.train import train_model
 
 
 @dataclasses.dataclass
@@ -48,7 +53,7 @@ class Session:
     runs_dir: Path
     overrides: list[str]
     progress: bool
-    with_gru: bool | None
+    choices: dict[str, bool]  # predictor -> forced in (True) or out (False), over its skip_presets
     loaded: dict[str, Any] = dataclasses.field(default_factory=dict)
     runs: dict[str, str] = dataclasses.field(default_factory=dict)
 
@@ -60,28 +65,27 @@ def config_hash(config: RunConfig) -> str:
 
 def wanted(session: Session, condition: Condition) -> list[str]:
     """The predictors evaluated under `condition`: those an entry's skip_presets leave out under this preset
-    (the GRU under small and smoke) only where --gru asks for them; --no-gru drops every such entry."""
+    only where `choices` (--with NAME) asks for them; `choices` False (--without NAME) drops one anywhere."""
     names = [n for n in condition.predictors or session.exp.predictors if _included(session, n)]
     return [n for n in names if not (condition.data and needs_system(n))]  # recordings carry no system
 
 
 def _included(session: Session, name: str) -> bool:
-    skip = PREDICTORS.meta(name).get("skip_presets", ())
-    if session.with_gru is None:
-        return session.preset not in skip
-    return session.with_gru or not skip
+    if name in session.choices:
+        return session.choices[name]
+    return session.preset not in PREDICTORS.meta(name).get("skip_presets", ())
 
 
 def learned_predictor(session: Session, name: str, condition: Condition, trained: RunConfig):
     """Train (or reuse) the run of learned predictor `name` for `condition` (its RunConfig `trained`, with
-    the predictor's architecture), and load it once."""
+    the predictor's architecture); the trainer hands the model over (a finished run is loaded once)."""
     arch = PREDICTORS.meta(name)["arch"]
     config = dataclasses.replace(trained, model=dataclasses.replace(trained.model, arch=arch))
     run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
     key = str(run_dir)
     if key not in session.loaded:
-        train(config, run_dir, progress=session.progress)
-        session.loaded[key] = make_predictor(name, run_dir=str(run_dir))
+        model = train_model(config, run_dir, progress=session.progress)
+        session.loaded[key] = make_predictor(name, run_dir=str(run_dir), model=model)
     session.runs[f"{name} [{condition.name}]"] = str(run_dir)
     return session.loaded[key]
 
@@ -192,21 +196,32 @@ def run_experiment(
     runs_dir: Path | None = None,
     overrides: list[str] = (),
     progress: bool = True,
-    with_gru: bool | None = None,
+    choices: dict[str, bool] | None = None,
 ) -> Path:
-    """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path."""
+    """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path.
+
+    choices: predictor -> True to evaluate it where its skip_presets would leave it out (--with NAME),
+    False to leave it out (--without NAME)."""
     get_preset(preset)
+    for name in choices or {}:
+        PREDICTORS.get(name)  # an unknown name stops here, before any training
     start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     session = Session(
-        exp, preset, seed, Path(runs_dir or out.parent / "runs"), list(overrides), progress, with_gru
+        exp,
+        preset,
+        seed,
+        Path(runs_dir or out.parent / "runs"),
+        list(overrides),
+        progress,
+        dict(choices or {}),
     )
     results = {c.name: run_condition(session, c) for c in exp.conditions_for(preset)}
     claims = [check_claim(c, results, exp.reference, seed) for c in exp.claims]
     figures = [p for name in exp.figures for p in FIGURES.get(name)(exp, results, out)]
     first = next(iter(results.values()))
-    sweeps = _sweeps(results) if "excess_mse" in exp.analyses else {}
+    entries = experiment_entries(exp.analyses, results)  # e.g. the sweeps' fits
     data = {
         "experiment": exp.name,
         "title": exp.title,
@@ -214,14 +229,14 @@ def run_experiment(
         "seed": seed,
         **first.summary,
         "conditions": {name: eval_entry(r) for name, r in results.items()},
-        **({"sweeps": sweeps} if sweeps else {}),
+        **entries,
         "claims": claims,
         "runs": session.runs,
         "settings": _settings(session),
     }
     write_json(out / "eval.json", data)
     sections = _sections(exp, results, figures)
-    sections += [_sweep_section(axis, fit) for axis, fit in sweeps.items()]
+    sections += experiment_sections(exp.analyses, entries)
     settings = {"seed": seed, "test seed": seed + TEST_SEED_OFFSET, **data["settings"]}
     title = f"mop reproduce {exp.name} ({exp.title}), preset {preset}"
     text = build_report(
@@ -229,11 +244,6 @@ def run_experiment(
     )
     write_text(out / "report.md", text)
     return out / "report.md"
-
-
-def _sweeps(results: Results) -> dict:
-    axes = dict.fromkeys(r.condition.x[0] for r in results.values() if r.condition.x)
-    return {axis: slope_fit(results, axis) for axis in axes}
 
 
 def _settings(session: Session) -> dict:
@@ -257,61 +267,8 @@ def _sections(exp: Experiment, results: Results, figures: list[Path]) -> list[st
         heading = exp.name if len(results) == 1 else f"{exp.name}: {name}"
         mine = [f for f in pngs if len(results) == 1 or name.replace(" ", "_") in f]
         sections.append(summary_section(heading, r.summary, mine))
-        if "calibration" in r.extras:
-            sections.append(_calibration_table(r.extras["calibration"]))
-        if "floor" in r.extras:
-            sections.append(_floor_table(r.extras["floor"]))
-        if "forecast" in r.extras:
-            sections.append(_forecast_table(r.extras["forecast"]))
+        sections += condition_sections(exp.analyses, r.extras)  # each analysis renders its own table
     shared = [f for f in pngs if not any(f in s for s in sections)]
     if shared:
         sections.append("\n".join(f"![{f}]({f})" for f in shared))
     return sections
-
-
-def _calibration_table(table: dict) -> str:
-    lines = ["| predictor | NLL | coverage 50% | 90% | 95% |", "|---|---|---|---|---|"]
-    lines += [
-        f"| {n} | {r['nll']:.4f} | {r['coverage_50']:.3f} | {r['coverage_90']:.3f} | {r['coverage_95']:.3f} |"
-        for n, r in table.items()
-    ]
-    return "\n".join(lines) + "\n"
-
-
-def _floor_table(floor: dict) -> str:
-    excess = floor["excess_mse"]
-    wins = list(next(iter(excess.values())))
-    lines = [
-        "Excess MSE over the irreducible error (mean trace S_t of the optimal filter of each test system):",
-        "",
-        "| predictor | " + " | ".join(f"t in {w}" for w in wins) + " |",
-        "|---" * (len(wins) + 1) + "|",
-    ]
-    lines += [f"| {n} | " + " | ".join(f"{e[w]:+.4f}" for w in wins) + " |" for n, e in excess.items()]
-    return "\n".join(lines) + "\n"
-
-
-def _forecast_table(forecast: dict) -> str:
-    ks = forecast["k"]
-    lines = [
-        f"k-step forecast error: mean ||y_(t+k-1) - forecast|| over origins t >= {forecast['start']}:",
-        "",
-        "| predictor | " + " | ".join(f"k={k}" for k in ks) + " |",
-        "|---" * (len(ks) + 1) + "|",
-    ]
-    lines += [
-        f"| {n} | " + " | ".join(f"{e:.4f}" for e in errs) + " |" for n, errs in forecast["error"].items()
-    ]
-    return "\n".join(lines) + "\n"
-
-
-def _sweep_section(axis: str, fit: dict) -> str:
-    rows = "\n".join(f"| {v:g} | {e:.5f} |" for v, e in zip(fit["values"], fit["excess_mse"], strict=True))
-    low, high = fit["slope_ci95"]
-    return (
-        f"## against {axis}\n\nExcess MSE = test MSE of MOP minus the reference's, over t in [1,T]; "
-        f"the theorem's bound predicts a slope of -1/2.\n\n| {axis} | excess MSE |\n|---|---|\n{rows}\n\n"
-        f"slope {fit['slope']:.3f} (OLS s.e. {fit['slope_stderr']:.3f}, "
-        f"95% t-interval [{low:.3f}, {high:.3f}], "
-        f"{len(fit['values']) - 2} dof)\n"
-    )
