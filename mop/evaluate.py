@@ -47,8 +47,8 @@ def windows(horizon: int) -> dict[str, tuple[int, int]]:
     }
 
 
-def summarize(result: dict[str, dict], reference: str, model: str = "mop", seed: int = 0) -> dict:
-    """eval.json body: per-predictor curves and window means, and model/reference MSE ratios.
+def summarize(result: dict[str, dict], reference: str, seed: int = 0) -> dict:
+    """eval.json body: per-predictor curves and window means, and every predictor's MSE ratio to `reference`.
 
     Ratios come with paired bootstrap 95% CIs over test systems.
     """

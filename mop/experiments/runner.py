@@ -36,7 +36,7 @@ from mop.experiments.measures import describe, measure_value
 from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.io import read_trajectories
-from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
+from mop.predictors import PREDICTORS, first_learned, is_learned, make_predictor, needs_system
 from mop.report import build_report, claim_line, summary_section
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
@@ -145,10 +145,12 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
 
 def check_claim(claim: Claim, results: Results, reference: str, seed: int) -> dict:
     """{"claim", "measure", "value", "threshold", "holds"} for one claim (holds None for op "info")."""
-    value = measure_value(claim.measure, results, reference, seed)
+    learned = _first_learned(results)
+    measure = learned(claim.measure)
+    value = measure_value(measure, results, reference, seed)
     threshold = claim.threshold
     if isinstance(threshold, Measure):
-        threshold = measure_value(threshold, results, reference, seed)
+        threshold = measure_value(learned(threshold), results, reference, seed)
     ops = {
         "<": lambda v, t: v < t,
         "<=": lambda v, t: v <= t,
@@ -160,12 +162,24 @@ def check_claim(claim: Claim, results: Results, reference: str, seed: int) -> di
     holds = None if claim.op == "info" or _nan(value) else bool(ops[claim.op](value, threshold))
     return {
         "claim": claim.text,
-        "measure": describe(claim.measure, reference),
+        "measure": describe(measure, reference),
         "value": value,
         "op": claim.op,
         "threshold": threshold,
         "holds": holds,
     }
+
+
+def _first_learned(results: Results):
+    """Measure -> the measure with its predictor, "" standing for the results' first learned predictor."""
+    names = [n for r in results.values() for n in r.errors]
+
+    def resolve(measure: Measure) -> Measure:
+        if measure.predictor:
+            return measure
+        return dataclasses.replace(measure, predictor=first_learned(dict.fromkeys(names)))
+
+    return resolve
 
 
 def _nan(value) -> bool:

@@ -39,7 +39,7 @@ class Measure:
     """
 
     metric: str
-    predictor: str = "mop"
+    predictor: str = ""  # "" = the first learned predictor of the results (the model the experiment is about)
     reference: str = ""  # "" = the experiment's reference
     window: tuple[int, int | None] = (20, None)
     condition: str = ""

@@ -23,6 +23,7 @@ import torch
 from torch import Tensor, nn
 
 from mop.errors import MopError
+from mop.models.registry import predictor_names
 from mop.systems.base import Trajectories
 
 
@@ -60,7 +61,7 @@ class LearnedPredictor:
     def __init__(
         self,
         model: nn.Module,
-        name: str = "mop",
+        name: str = "",
         mode: str = "window",
         chunk_size: int = 256,
         normalization: Normalization | None = None,
@@ -69,6 +70,7 @@ class LearnedPredictor:
             raise MopError(f"predictor mode must be 'window' or 'stream', got {mode!r}")
         if chunk_size <= 0:
             raise MopError(f"chunk_size must be positive, got {chunk_size}")
+        name = name or predictor_names().get(model.cfg.arch, model.cfg.arch)  # "": its architecture's entry
         self.model, self.name, self.mode, self.chunk_size = model, name, mode, chunk_size
         self.cfg = model.cfg
         self.normalization = normalization
