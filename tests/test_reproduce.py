@@ -3,6 +3,8 @@
 import json
 from pathlib import Path
 
+import pytest
+
 from mop import cli
 
 
@@ -60,3 +62,23 @@ def test_reproduce_linear_smoke_and_reuse(tmp_path, tiny_smoke, capsys):
 def test_reproduce_rejects_unknown_experiment(capsys):
     assert cli.main(["reproduce", "nope"]) == 2
     assert "unknown experiment 'nope'" in capsys.readouterr().err
+
+
+def test_with_and_without_name_predictors_from_the_registry(tmp_path, capsys):
+    """--with / --without PREDICTOR; --gru / --no-gru are generated from the GRU's skip_presets metadata.
+    An unknown name or one given both ways stops before anything is written."""
+    from mop.commands.reproduce import choices
+    from mop.errors import MopError
+
+    def parse(*flags):
+        return cli.build_parser("reproduce").parse_args(["reproduce", "linear", *flags])
+
+    assert choices(parse()) == {}
+    assert choices(parse("--with", "gru")) == choices(parse("--gru")) == {"gru": True}
+    assert choices(parse("--no-gru", "--without", "rls")) == {"gru": False, "rls": False}
+    with pytest.raises(MopError, match="both name gru"):
+        choices(parse("--gru", "--without", "gru"))
+    out = tmp_path / "linear"
+    argv = ["reproduce", "linear", "--preset", "smoke", "--out", str(out), "--quiet", "--with", "nope"]
+    assert cli.main(argv) == 2
+    assert "unknown predictor 'nope'" in capsys.readouterr().err and not out.exists()
