@@ -199,3 +199,59 @@ def test_which_learned_baselines_a_preset_trains_is_their_metadata(tmp_path, pre
     names = wanted(session, exp.conditions[0])
     assert ("gru" in names) is gru and "mop" in names and "kalman" in names
     assert PREDICTORS.meta("n4sid-kf")["preset_options"]["small"] == {"every": 10}
+
+
+def test_a_new_analysis_and_measure_render_themselves(tmp_path, tiny_smoke, monkeypatch):
+    """An analysis and a measure registered outside the runner reach eval.json and report.md through their
+    own metadata (markdown, to_json, sections, describe): the runner special-cases neither."""
+    from mop.experiments.analyses import ANALYSES
+    from mop.experiments.measures import MEASURES
+    from mop.experiments.runner import run_experiment
+
+    def last_error(result, predictors, reference):
+        return {"last_error": {n: float(e[:, -1].mean()) for n, e in result.errors.items()}}
+
+    def worst(results):
+        return {"worst_last_error": max(v for r in results.values() for v in r.extras["last_error"].values())}
+
+    def read(measure, result, reference, seed):
+        return result.extras["last_error"][measure.predictor]
+
+    for registry, name, entry, meta in [
+        (
+            ANALYSES,
+            "last-error",
+            last_error,
+            {
+                "markdown": lambda extras: f"LAST {sorted(extras['last_error'])}\n",
+                "to_json": worst,
+                "sections": lambda entries: [f"WORST {entries['worst_last_error']:.6f}\n"],
+            },
+        ),
+        (MEASURES, "last", read, {"describe": lambda m, ref: f"last error of {m.predictor}"}),
+    ]:  # registered for this test only
+        monkeypatch.setitem(registry._entries, name, entry)
+        monkeypatch.setitem(registry._meta, name, meta)
+    exp = Experiment(
+        name="t",
+        title="t",
+        train={"system.family": "linear"},
+        predictors=("kalman", "zero"),
+        conditions=(Condition("a"), Condition("b", system={"noise_var_v": 0.5})),
+        analyses=("last-error",),
+        figures=(),
+        panel=("kalman",),
+        claims=(Claim("kalman's last error", Measure("last", predictor="kalman", condition="b")),),
+    )
+    report = run_experiment(exp, "smoke", tmp_path / "t", progress=False).read_text()
+    data = json.loads((tmp_path / "t" / "eval.json").read_text())
+    errors = {c: data["conditions"][c]["predictors"] for c in ("a", "b")}
+    assert data["conditions"]["b"]["last_error"]["kalman"] == pytest.approx(
+        errors["b"]["kalman"]["error"][-1]
+    )
+    worst_seen = max(p["error"][-1] for c in errors.values() for p in c.values())
+    assert data["worst_last_error"] == pytest.approx(worst_seen)
+    assert report.count("LAST ['kalman', 'zero']") == 2 and f"WORST {data['worst_last_error']:.6f}" in report
+    (claim,) = data["claims"]
+    assert claim["measure"] == "last error of kalman" and "last error of kalman" in report
+    assert claim["value"] == data["conditions"]["b"]["last_error"]["kalman"]
