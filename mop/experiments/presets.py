@@ -28,7 +28,7 @@ PRESETS: dict[str, Preset] = {
     ),
     # laptop CPU (2 cores): fresh systems every batch, a 2 x 64 model, lr 3e-3 with warm-up and cosine decay.
     # `mop bench recipe`: as good as the former 4 x 128 preset (linear MOP/KF ratio over t in [20,50]
-    # 1.029 [1.025, 1.032]) at ~1/5 of its FLOPs. The GRU baseline is off (--gru turns it on).
+    # 1.029 [1.025, 1.032]) at ~1/5 of its FLOPs. The GRU baseline is off (--with gru turns it on).
     "small": Preset(
         ModelConfig(num_layers=2, num_heads=4, width=64),
         TrainConfig(

@@ -118,8 +118,8 @@ class Experiment:
     presets: per-preset extra training overrides (e.g. a smaller model for a many-run sweep on the CPU).
     predictors: PREDICTORS names; learned ones ("mop", "gru") are trained (or reused) per distinct config.
     reference: the predictor every MSE ratio divides by (the optimal filter where one exists).
-    analyses: extra per-condition results (mop.experiments.analyses: "calibration", "matrix_powers",
-        "excess_mse", "floor").
+    analyses: names in mop.experiments.analyses.ANALYSES (extra per-condition results, e.g. "floor"); each
+        renders its own report table and eval.json entries.
     figures: figure names (mop.experiments.figures).
     panel: predictors of the paper-style panel (error with +-1 std bands); "" stands for the reference.
     """

@@ -29,7 +29,7 @@ def register_model(
     """Class decorator: build_model(cfg) with cfg.arch == name builds this class. Names are unique.
 
     predictor: the name its trained runs go by as a predictor (mop.runs registers it; default: `name`).
-    skip_presets: presets under which experiments leave it out unless asked (`mop reproduce --gru`).
+    skip_presets: presets under which experiments leave it out unless asked (`mop reproduce --with NAME`).
     """
 
     def register(cls: type[nn.Module]) -> type[nn.Module]:
