@@ -8,8 +8,8 @@ With m_t, P_t the prior mean / covariance of x_t given y_{<t} (and u_{<t}), for 
                                      P <- (I - K C) P (I - K C)^T + K R K^T
     time update (the filter's step):  (m, P) <- step(model, m, P, u_t, t)
 
-Steps: kalman_step (linear f: m <- A_t m, P <- A_t P A_t^T + Q), ekf_step (linearise f at the posterior
-mean; `project` clips means as the simulator clips states), ukf_step (unscented transform).
+Steps: kalman_step (linear f(x, u) = A_t x + B u: m <- A_t m + B u_t, P <- A_t P A_t^T + Q), ekf_step
+(linearise f at the posterior mean; `project` clips means as the simulator clips states), ukf_step (unscented transform).
 """
 
 from __future__ import annotations
@@ -70,10 +70,14 @@ def gaussian_filter(
 def kalman_step(
     model: StateSpace, m: Tensor, P: Tensor, u: Tensor | None, t: int, proj: Projection | None = None
 ) -> tuple[Tensor, Tensor]:
-    """Linear time update: m <- A_t m, P <- A_t P A_t^T + Q (symmetrized), A_t = df/dx."""
+    """Linear time update: m <- f(m, u_t) = A_t m + B u_t, P <- A_t P A_t^T + Q (symmetrized), A_t = df/dx.
+
+    The mean goes through the model's f, which for the linear models this filter is for is exactly
+    A_t m + B u_t (a family with inputs puts B u in f; with no inputs f(m) = A_t m). No projection."""
     A = model.transition_jacobian(m, u, t)  # (B, n, n)
     P = A @ P @ A.mT + model.Q
-    return (A @ m[..., None])[..., 0], 0.5 * (P + P.mT)
+    m_next = model.f(m[:, None], None if u is None else u[:, None], t)[:, 0]  # (B, n)
+    return m_next, 0.5 * (P + P.mT)
 
 
 def ekf_step(

@@ -175,15 +175,33 @@ class StateSpace:
         return summed.permute(1, 0, 2)
 
 
-def linear_state_space(A: Tensor, C: Tensor, Q: Tensor, R: Tensor, P0: Tensor) -> StateSpace:
-    """x_{t+1} = A x_t + w_t, y_t = C x_t + v_t, x_0 ~ N(0, P0); float64."""
+def linear_state_space(
+    A: Tensor,
+    C: Tensor,
+    Q: Tensor,
+    R: Tensor,
+    P0: Tensor,
+    B: Tensor | None = None,
+    m0: Tensor | None = None,
+) -> StateSpace:
+    """x_{t+1} = A x_t + B u_t + w_t, y_t = C x_t + v_t, x_0 ~ N(m0, P0) (m0 default 0); float64.
+
+    A (B, n, n), C (B, m, n), Q (B, n, n), R (B, m, m), P0 (B, n, n), B (B, n, k) or None (no inputs: the
+    inputs, if any, do not act on the state), m0 (B, n) or None."""
     A, C, Q, R, P0 = (M.double() for M in (A, C, Q, R, P0))
+    Bu = None if B is None else B.double()
+
+    def f(x: Tensor, u: Tensor | None, t: int) -> Tensor:
+        if Bu is None or u is None:
+            return x @ A.mT
+        return x @ A.mT + u @ Bu.mT  # (B, N, n)
+
     return StateSpace(
-        f=lambda x, u, t: x @ A.mT,
+        f=f,
         C=C,
         Q=Q,
         R=R,
-        m0=A.new_zeros(A.shape[:-1]),
+        m0=A.new_zeros(A.shape[:-1]) if m0 is None else m0.double(),
         P0=P0,
         jacobian=lambda x, u, t: A,
     )
@@ -244,6 +262,7 @@ class SystemFamily:
 def _load_builtin_families() -> None:
     import mop.systems.colored_noise  # noqa: F401
     import mop.systems.linear  # noqa: F401
+    import mop.systems.linear_inputs  # noqa: F401
     import mop.systems.quadrotor  # noqa: F401
     import mop.systems.switching  # noqa: F401
     import mop.systems.upper_triangular  # noqa: F401
