@@ -9,7 +9,8 @@ With m_t, P_t the prior mean / covariance of x_t given y_{<t} (and u_{<t}), for 
     time update (the filter's step):  (m, P) <- step(model, m, P, u_t, t)
 
 Steps: kalman_step (linear f(x, u) = A_t x + B u: m <- A_t m + B u_t, P <- A_t P A_t^T + Q), ekf_step
-(linearise f at the posterior mean; `project` clips means as the simulator clips states), ukf_step (unscented transform).
+(linearise f at the posterior mean; `project` clips means as the simulator clips states), ukf_step
+(unscented transform).
 """
 
 from __future__ import annotations
