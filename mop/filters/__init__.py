@@ -2,7 +2,7 @@
 the Gaussian filtering core (gaussian.py) with the Kalman filter, EKF and UKF; the particle filter; the exact
 colored-noise filter; RLS; subspace identification; simple baselines."""
 
-from mop.filters import colored, ekf, gaussian, kalman, particle, rls, simple, subspace, ukf  # noqa: F401
+from mop.filters import arx, colored, ekf, gaussian, kalman, particle, rls, simple, subspace, ukf  # noqa: F401
 from mop.filters.kalman import (
     KalmanPredictor,
     KalmanResult,
