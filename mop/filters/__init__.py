@@ -13,7 +13,7 @@ from mop.filters.kalman import (
 )
 from mop.filters.rls import AdaptiveOrderRLSPredictor, RLSPredictor, adaptive_order_rls_predict, rls_predict
 from mop.filters.simple import LastValuePredictor, ZeroPredictor
-from mop.filters.subspace import N4SIDKalmanPredictor, identify, n4sid_kalman_predict
+from mop.filters.subspace import N4SIDKalmanPredictor, identify, identify_with_inputs, n4sid_kalman_predict
 
 __all__ = [
     "KalmanPredictor",
@@ -30,5 +30,6 @@ __all__ = [
     "LastValuePredictor",
     "N4SIDKalmanPredictor",
     "identify",
+    "identify_with_inputs",
     "n4sid_kalman_predict",
 ]
