@@ -54,31 +54,59 @@ def resolve_predictor(spec: str, stream: bool = False):
     return make_predictor(spec), needs_system(spec)
 
 
-def system_of(name: str, data_path: Path, num: int) -> tuple[str, dict[str, torch.Tensor]]:
-    """The family and params a system-aware predictor needs from DATA, or a one-line MopError."""
+def system_of(
+    name: str, data_path: Path, num: int, has_inputs: bool = False
+) -> tuple[str, dict[str, torch.Tensor]]:
+    """The family and params a system-aware predictor needs from DATA, or a one-line MopError.
+
+    A predictor registered with linear_model=True (kalman) also takes any linear-Gaussian model: where DATA
+    has no family, or lacks that family's generator arrays, it needs param_A, param_C, param_Q, param_R
+    (optional param_B, param_P0, param_x0_mean) and runs with family "" (linear_model_from_params)."""
     from mop.config import SystemConfig
+    from mop.predictors import PREDICTORS
     from mop.systems import FAMILIES
+    from mop.systems.base import LINEAR_MODEL_ARRAYS, linear_model_from_params
 
     if data_path.suffix == ".csv":
         raise MopError(
             f"{name} needs the system's parameters, and a CSV has no system parameters; "
-            "give an .npz written by mop simulate, or use rls, rls-best, n4sid-kf, last, zero"
+            "give an .npz written by mop simulate, or use rls, rls-best, arx, n4sid-kf, last, zero"
         )
     family, params = read_system(data_path, num)
-    if not family:
-        raise MopError(f"{name} needs the array family in {data_path}; write the file with mop simulate")
-    if family not in FAMILIES.names():
-        raise MopError(f"{data_path}: family {family!r} is not one of {', '.join(FAMILIES.names())}")
-    sample = FAMILIES.get(family)(SystemConfig(family=family)).sample(1, generator=torch.Generator())
-    missing = [f"param_{k}" for k in sample if k not in params]
-    if missing:
+    linear_ok = bool(PREDICTORS.meta(name).get("linear_model"))
+    missing = ["family"]
+    if family:
+        if family not in FAMILIES.names():
+            raise MopError(f"{data_path}: family {family!r} is not one of {', '.join(FAMILIES.names())}")
+        sample = FAMILIES.get(family)(SystemConfig(family=family)).sample(1, generator=torch.Generator())
+        missing = [f"param_{k}" for k in sample if k not in params]
+        if not missing:
+            return family, {k: torch.from_numpy(v) for k, v in params.items()}
+    if not linear_ok:
         raise MopError(f"{name} needs {', '.join(missing)} in {data_path}; write the file with mop simulate")
-    return family, {k: torch.from_numpy(v) for k, v in params.items()}
+    lacking = [f"param_{k}" for k in LINEAR_MODEL_ARRAYS if k not in params]
+    if lacking:
+        raise MopError(
+            f"{name} needs {', '.join(lacking)} in {data_path} (a linear model: param_A, param_C, param_Q, "
+            "param_R; optional param_B, param_P0, param_x0_mean), or write the file with mop simulate"
+        )
+    if has_inputs != ("B" in params):
+        raise MopError(
+            f"{data_path}: "
+            + (
+                "the inputs u need param_B (B, n, k), the input matrix of the linear model"
+                if has_inputs
+                else "param_B is given but there are no inputs u; add u (B, T+1, k) or drop param_B"
+            )
+        )
+    tensors = {k: torch.from_numpy(v).double() for k, v in params.items()}
+    linear_model_from_params(tensors)  # shapes checked before any work
+    return "", tensors
 
 
 def batches(data, family: str, params: dict) -> list[Trajectories]:
-    """One Trajectories of all trajectories when they share a length (and the system's parameters), else one
-    per trajectory."""
+    """One Trajectories of all trajectories when they share a length, else one per trajectory (each with
+    its own rows of the system's parameters)."""
     if len({len(y) for y, _ in data}) == 1:
         y = torch.tensor(np.stack([y for y, _ in data]), dtype=torch.float32)
         u = None if data[0][1] is None else torch.tensor(np.stack([u for _, u in data]), dtype=torch.float32)
@@ -87,8 +115,10 @@ def batches(data, family: str, params: dict) -> list[Trajectories]:
         Trajectories(
             y=torch.tensor(y[None], dtype=torch.float32),
             u=None if u is None else torch.tensor(u[None], dtype=torch.float32),
+            params={k: v[i : i + 1] for k, v in params.items()},
+            family=family,
         )
-        for y, u in data
+        for i, (y, u) in enumerate(data)
     ]
 
 
@@ -161,7 +191,8 @@ def run(args: argparse.Namespace) -> int:
         raise MopError(f"--steps must be >= 1, got {args.steps}")
     predictor, knows_system = resolve_predictor(args.predictor, args.stream)
     names, data = read_trajectories(data_path)
-    family, params = system_of(args.predictor, data_path, len(data)) if knows_system else ("", {})
+    has_inputs = data[0][1] is not None
+    family, params = system_of(args.predictor, data_path, len(data), has_inputs) if knows_system else ("", {})
     yhat = predict_all(predictor, data, args.steps, family, params)
     if args.steps is None:
         print_errors(names, data, yhat)
