@@ -10,6 +10,9 @@ With --steps K: k-step forecasts, forecast[t, j] predicting y_{t+j} from y_<t (j
 prediction; see mop.predictors.forecast): NPZ yhat (B, T+1, K, m) with NaN where t + j > T; CSV
 `trajectory,t,j,yhat0..` with one row per (t, j), t + j <= T. Prints per-trajectory RMSE and mean ||e|| over
 t >= 1 (one-step), or with --steps the mean ||y_{t+j} - forecast[t, j]|| per horizon k = j + 1 over t >= 1.
+With --simulate C: free-run simulation (mop.predictors.simulate), y_C..y_T predicted from y_0..y_{C-1} and the
+inputs alone: NPZ ysim (B, T+1-C, m), CSV `trajectory,t,ysim0..` for t >= C; prints the simulation RMSE beside
+the one-step RMSE over the same steps t >= C.
 """
 
 from __future__ import annotations
@@ -33,6 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
     parser.add_argument("--stream", action="store_true", help="KV-cache streaming (constant cost per step)")
     parser.add_argument("--steps", type=int, help="k-step forecasts for k = 1..STEPS (see above)")
+    parser.add_argument(
+        "--simulate",
+        type=int,
+        metavar="C",
+        help="free-run simulation of y_C..y_T after a context of C outputs",
+    )
 
 
 def resolve_predictor(spec: str, stream: bool = False):
@@ -133,6 +142,44 @@ def predict_all(predictor, data, steps: int | None = None, family: str = "", par
     return out
 
 
+def simulate_all(predictor, data, context: int, family: str = "", params=None) -> list[np.ndarray]:
+    """[(T_i+1-C, m)] free-run simulations after C outputs, batched where lengths agree."""
+    from mop.predictors import simulate
+
+    out = []
+    for traj in batches(data, family, params or {}):
+        out += list(simulate(predictor, traj, context).double().cpu().numpy())
+    return out
+
+
+def write_simulation(path: Path, names: list[str], sims: list[np.ndarray], context: int) -> None:
+    if path.suffix == ".npz":
+        if len({len(p) for p in sims}) != 1:
+            raise MopError(f"{path}: trajectories differ in length; write a .csv instead")
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, ysim=np.stack(sims), context=np.array(context))
+        return
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["trajectory", "t", *[f"ysim{i}" for i in range(sims[0].shape[-1])]])
+        for name, p in zip(names, sims, strict=True):
+            for j, row in enumerate(p):
+                w.writerow([name, context + j, *[f"{v:.7g}" for v in row]])
+
+
+def print_simulation_errors(names, data, yhat, sims, context: int) -> None:
+    """Per trajectory and overall RMSE over t >= C: one-step (yhat) beside free-run simulation."""
+    print(f"{'trajectory':>12} {'steps':>6} {'one-step rmse':>14} {'simulation rmse':>16}")
+    one, sim = [], []
+    for name, (y, _), p, s in zip(names, data, yhat, sims, strict=True):
+        one.append(y[context:] - p[context:])
+        sim.append(y[context:] - s)
+        rm = lambda e: np.sqrt((e**2).mean())  # noqa: E731
+        print(f"{name:>12} {len(s):>6} {rm(one[-1]):>14.4g} {rm(sim[-1]):>16.4g}")
+    e1, es = np.concatenate(one), np.concatenate(sim)
+    print(f"{'overall':>12} {len(es):>6} {np.sqrt((e1**2).mean()):>14.4g} {np.sqrt((es**2).mean()):>16.4g}")
+
+
 def write_output(path: Path, names: list[str], yhat: list[np.ndarray]) -> None:
     if path.suffix == ".npz":
         if len({len(p) for p in yhat}) != 1:
@@ -189,11 +236,25 @@ def run(args: argparse.Namespace) -> int:
         raise MopError(f"--out {out}: use a .csv or .npz file name")
     if args.steps is not None and args.steps < 1:
         raise MopError(f"--steps must be >= 1, got {args.steps}")
+    if args.simulate is not None and args.steps is not None:
+        raise MopError("give --steps or --simulate, not both")
     predictor, knows_system = resolve_predictor(args.predictor, args.stream)
     names, data = read_trajectories(data_path)
+    if args.simulate is not None:
+        shortest = min(len(y) for y, _ in data) - 1
+        if not 1 <= args.simulate <= shortest:
+            raise MopError(
+                f"--simulate must be in [1, {shortest}] (the shortest trajectory's T), got {args.simulate}"
+            )
     has_inputs = data[0][1] is not None
     family, params = system_of(args.predictor, data_path, len(data), has_inputs) if knows_system else ("", {})
     yhat = predict_all(predictor, data, args.steps, family, params)
+    if args.simulate is not None:
+        sims = simulate_all(predictor, data, args.simulate, family, params)
+        print_simulation_errors(names, data, yhat, sims, args.simulate)
+        write_simulation(out, names, sims, args.simulate)
+        print(f"wrote {out}")
+        return 0
     if args.steps is None:
         print_errors(names, data, yhat)
     else:

@@ -63,6 +63,23 @@ def matrix_power_max(measure: Measure, result, reference: str, seed: int) -> flo
     return float(max(result.extras["matrix_power_ratio"]))
 
 
+def _simulation(result, name: str) -> dict:
+    table = result.extras.get("simulation", {}).get("rmse", {})
+    if name not in table:
+        raise MopError(f"simulation RMSE of {name!r} needs the 'simulation' analysis and a forecast")
+    return table[name]
+
+
+@MEASURES.register("simulation_rmse")
+def simulation_rmse(measure: Measure, result, reference: str, seed: int) -> float:
+    return _simulation(result, measure.predictor)["simulation_rmse"]
+
+
+@MEASURES.register("one_step_rmse")
+def one_step_rmse(measure: Measure, result, reference: str, seed: int) -> float:
+    return _simulation(result, measure.predictor)["one_step_rmse"]
+
+
 def sweep(results: dict, axis: str) -> list:
     """The condition results placed on sweep axis `axis`, in the experiment's order."""
     points = [r for r in results.values() if r.condition.x and r.condition.x[0] == axis]
@@ -119,4 +136,7 @@ def describe(measure: Measure, reference: str) -> str:
         return f"{int(measure.level * 100)}% coverage of {measure.predictor}{where}"
     if measure.metric == "slope":
         return f"log-log slope against {measure.axis} (95% CI)"
+    if measure.metric in ("simulation_rmse", "one_step_rmse"):
+        kind = "simulation" if measure.metric == "simulation_rmse" else "one-step"
+        return f"{kind} RMSE of {measure.predictor} after the context{where}"
     return f"{measure.metric}{where}"

@@ -34,6 +34,8 @@ class Measure:
         "coverage"   fraction of outputs inside the central `level` interval (predictors with a distribution)
         "matrix_power_max"  max over k of the mean ||A^k|| / rho(A)^k of the test systems
         "slope"      log-log slope of the excess MSE over the conditions of sweep axis `axis` (its 95% CI)
+        "simulation_rmse" / "one_step_rmse"  RMSE of `predictor` in free-run simulation after the condition's
+                     context / one-step over the same steps (needs the "simulation" analysis)
     window: [start, stop) in time steps; stop None means T + 1.
     condition: the test condition's name; "" the first one; "*" every condition, combined by `reduce`.
     """
@@ -95,6 +97,8 @@ class Condition:
     data: a file of recorded test trajectories (.csv / .npz, as `mop predict` reads) used instead of simulated
         systems: every trajectory with at least horizon + 1 outputs, cut to that length; predictors that need
         the system are skipped there.
+    context: the context length c of the "simulation" analysis (free-run simulation of y_c..y_T from the
+        inputs alone); None: 4/5 of the horizon (the authors of sysid-transformers: 400 of 500).
     """
 
     name: str = "test"
@@ -104,9 +108,11 @@ class Condition:
     x: tuple[str, float] | None = None
     predictors: tuple[str, ...] = ()  # () = every predictor of the experiment
     data: str = ""
+    context: int | None = None
 
     def __post_init__(self) -> None:
         check(bool(self.name), "a condition needs a name")
+        check(self.context is None or self.context >= 1, f"condition {self.name}: context must be >= 1")
         check(self.horizon is None or self.horizon >= 1, f"condition {self.name}: horizon must be >= 1")
 
 
