@@ -52,12 +52,22 @@ def arx_predict(y: Tensor, u: Tensor | None, p: int = 2, q: int = 2) -> Tensor:
     return _arx_run(y, u, p, q)[0]
 
 
-def arx_forecast(y: Tensor, u: Tensor | None, p: int = 2, q: int = 2, steps: int = 1) -> Tensor:
+def arx_forecast(
+    y: Tensor, u: Tensor | None, p: int = 2, q: int = 2, steps: int = 1, origin: int | None = None
+) -> Tensor:
     """k-step forecasts (B, T, K, m): from t >= r + 1 the model fitted to y_{<t} iterated on its own
     predictions, yhat_{t+j} = theta_t^T [yhat_{t+j-1}; ...; u_{t+j-1}; ...] (observed y where the regressor
     reaches back before t, the known inputs u_{t+j-1}..). During the start-up the one-step prediction is
-    repeated. j = 0 is arx_predict; entries with t + j >= T are NaN."""
-    preds, phi, thetas = _arx_run(y, u, p, q)
+    repeated. j = 0 is arx_predict; entries with t + j >= T are NaN. origin: roll out from that t only (the
+    other origins keep the one-step prediction repeated): what free-run simulation needs."""
+    if origin is None:
+        preds, phi, thetas = _arx_run(y, u, p, q)
+    else:  # fit on y_0..y_origin only; the regressors' input lags come from the full u
+        cut = slice(0, origin + 1)
+        preds, _, thetas = _arx_run(y[:, cut], None if u is None else u[:, cut], p, q)
+        thetas = {t: th for t, th in thetas.items() if t == origin}
+        preds = torch.cat([preds, y.new_zeros(y.shape[0], y.shape[1] - preds.shape[1], y.shape[2])], dim=1)
+        phi = arx_regressors(y, u, p, q)
     B, T, m = y.shape
     out = preds[:, :, None].repeat(1, 1, steps, 1)  # (B, T, K, m)
     if not thetas:
@@ -121,6 +131,12 @@ class ARXPredictor:
         """(B, T+1, K, m): the fitted ARX iterated on its predictions with the known inputs."""
         out = arx_forecast(traj.y.double(), _u(traj), self.order, self.input_order, steps)
         return out.to(traj.y.dtype)
+
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m): forecast[:, c] alone (the model fitted to y_<c, rolled out with the inputs)."""
+        steps = traj.horizon + 1 - context
+        out = arx_forecast(traj.y.double(), _u(traj), self.order, self.input_order, steps, origin=context)
+        return out[:, context].to(traj.y.dtype)
 
 
 @PREDICTORS.register("arx-best")

@@ -148,11 +148,13 @@ def n4sid_kalman_forecast(
     min_columns: int | None = None,
     select: bool = True,
     u: Tensor | None = None,
+    origin: int | None = None,
 ) -> Tensor:
     """k-step forecasts (B, T, K, m): where n4sid_kalman_predict uses the identified model at t, its state m_t
     is propagated with no measurement, yhat_{t+j} = C A^j m_t (with inputs: m <- A m + B u, the known
     future inputs); where it uses RLS-AR(2) (ARX(2, 2)), that model's iterated recursion. j = 0 is
-    n4sid_kalman_predict; entries with t + j >= T are NaN."""
+    n4sid_kalman_predict; entries with t + j >= T are NaN. origin: roll out only from that t (one-step
+    predictions elsewhere; what free-run simulation needs), and stop there."""
     from mop.predictors import nan_beyond_horizon
 
     B, T, m = y.shape
@@ -160,12 +162,15 @@ def n4sid_kalman_forecast(
     i = num_block_rows or max(2, math.ceil(order / m) + 1)
     min_columns = 2 * i * (m + k) if min_columns is None else min_columns
     start = max(min_prefix, 2 * i - 1 + min_columns, 2 * i - 1 + order + k + 2)
-    fallback_k = rls_forecast(y, 2, steps) if u is None else arx_forecast(y, u, 2, 2, steps)  # (B, T, K, m)
+    if u is None:
+        fallback_k = rls_forecast(y, 2, steps)  # (B, T, K, m)
+    else:
+        fallback_k = arx_forecast(y, u, 2, 2, steps, origin)
     fallback = fallback_k[:, :, 0]  # (B, T, m) = rls_predict(y, 2) (arx_predict(y, u, 2, 2))
     out = fallback_k.clone()
     A = Bm = C = K = state = stable = None
     score = y.new_zeros(B)  # sum over past steps of (model error^2 - RLS error^2)
-    for t in range(start, T):
+    for t in range(start, T if origin is None else min(origin + 1, T)):
         if (t - start) % every == 0:
             if u is None:
                 A, C, K = identify(y[:, :t], order, i)
@@ -178,7 +183,7 @@ def n4sid_kalman_forecast(
         use = score < 0 if select else torch.ones_like(stable)
         out[:, t, 0] = torch.where(use[:, None], model, fallback[:, t])
         ahead, use_kf = state, (use & stable)[:, None]
-        for j in range(1, min(steps, T - t)):
+        for j in range(1, min(steps, T - t) if origin in (None, t) else 1):
             ahead = (A @ ahead[..., None])[..., 0]
             if Bm is not None:
                 ahead = ahead + (Bm @ u[:, t + j - 1, :, None])[..., 0]
@@ -228,6 +233,14 @@ class N4SIDKalmanPredictor:
         y, u = traj.y.double(), None if traj.u is None else traj.u.double()
         args = (self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select)
         return n4sid_kalman_predict(y, *args, u=u).to(traj.y.dtype)
+
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m): forecast[:, c] alone (n4sid_kalman_forecast with origin c)."""
+        u = None if traj.u is None else traj.u.double()
+        args = (self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select)
+        steps = traj.horizon + 1 - context
+        out = n4sid_kalman_forecast(traj.y.double(), steps, *args, u=u, origin=context)
+        return out[:, context].to(traj.y.dtype)
 
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): the identified model propagated with no measurement (n4sid_kalman_forecast)."""

@@ -295,6 +295,7 @@ def _load_builtin_families() -> None:
     import mop.systems.colored_noise  # noqa: F401
     import mop.systems.linear  # noqa: F401
     import mop.systems.linear_inputs  # noqa: F401
+    import mop.systems.lti_siso  # noqa: F401
     import mop.systems.quadrotor  # noqa: F401
     import mop.systems.switching  # noqa: F401
     import mop.systems.upper_triangular  # noqa: F401
