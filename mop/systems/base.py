@@ -299,6 +299,7 @@ def _load_builtin_families() -> None:
     import mop.systems.quadrotor  # noqa: F401
     import mop.systems.switching  # noqa: F401
     import mop.systems.upper_triangular  # noqa: F401
+    import mop.systems.wiener_hammerstein  # noqa: F401
 
 
 FAMILIES: Registry = Registry("system family", loader=_load_builtin_families, group="mop.families")
