@@ -117,8 +117,8 @@ def simulation_context(result) -> int:
 @ANALYSES.register("simulation")
 def simulation_analysis(result, predictors: list, reference: str) -> dict:
     """Free-run simulation after the condition's context c (simulation_context), for every predictor with a
-    forecast or a simulate: RMSE over y_c..y_T, outputs and systems (sqrt of the mean squared error per
-    output channel), and beside it the one-step RMSE over the same steps (from the condition's errors).
+    forecast or a simulate: each system's RMSE over y_c..y_T and the outputs, averaged over systems
+    (Forgione et al.'s convention), and beside it the one-step RMSE over the same steps.
     Predictors that can do neither are left out."""
     from mop.predictors import simulate
 
@@ -132,7 +132,7 @@ def simulation_analysis(result, predictors: list, reference: str) -> dict:
         sim = simulate(p, result.traj, c).double()
         one = result.errors[p.name][:, c:]  # (N, T+1-c) ||e_t||
         table[p.name] = {
-            "simulation_rmse": float(((sim - y) ** 2).mean().sqrt()),
-            "one_step_rmse": float(np.sqrt((one**2).mean() / m)),
+            "simulation_rmse": float(((sim - y) ** 2).mean((1, 2)).sqrt().mean()),
+            "one_step_rmse": float(np.sqrt((one**2).mean(1) / m).mean()),
         }
     return {"simulation": {"context": c, "rmse": table}}

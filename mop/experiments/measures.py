@@ -46,6 +46,16 @@ def mean_error(measure: Measure, result, reference: str, seed: int) -> float:
     return float(e[:, start:stop].mean())
 
 
+@MEASURES.register("rmse")
+def rmse(measure: Measure, result, reference: str, seed: int) -> float:
+    """Mean over systems of each system's RMSE over t in `window` and the outputs (Forgione et al.'s
+    metrics.rmse over time, then the mean over sequences)."""
+    e = _errors(result, measure.predictor)  # (N, T+1) ||e_t||
+    start, stop = _span(measure, e.shape[1] - 1)
+    m = result.traj.output_dim
+    return float(np.sqrt((e[:, start:stop] ** 2).mean(1) / m).mean())
+
+
 @MEASURES.register("coverage")
 def coverage(measure: Measure, result, reference: str, seed: int) -> float:
     table = result.extras.get("calibration", {}).get(measure.predictor)
@@ -136,6 +146,8 @@ def describe(measure: Measure, reference: str) -> str:
         return f"{int(measure.level * 100)}% coverage of {measure.predictor}{where}"
     if measure.metric == "slope":
         return f"log-log slope against {measure.axis} (95% CI)"
+    if measure.metric == "rmse":
+        return f"one-step RMSE of {measure.predictor} over {window}{where}"
     if measure.metric in ("simulation_rmse", "one_step_rmse"):
         kind = "simulation" if measure.metric == "simulation_rmse" else "one-step"
         return f"{kind} RMSE of {measure.predictor} after the context{where}"

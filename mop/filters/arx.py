@@ -154,3 +154,6 @@ class AdaptiveOrderARXPredictor:
         """(B, T+1, K, m): arx_forecast of the order chosen at each t."""
         out = adaptive_order_arx_forecast(traj.y.double(), _u(traj), self.max_order, steps)
         return out.to(traj.y.dtype)
+
+
+PREDICTORS.add("arx-10", lambda: ARXPredictor(10, name="arx-10"))  # orders of the lti-siso class: 1..10
