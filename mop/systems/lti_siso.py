@@ -187,11 +187,12 @@ class LtiSisoConfig(SystemConfig):
 
 @register_family("lti-siso", LtiSisoConfig)
 class LtiSisoFamily(SystemFamily):
-    """Forgione et al.'s random SISO LTI class with white-noise input and per-trajectory normalization."""
+    """Forgione et al.'s random SISO LTI class with white-noise input and per-trajectory normalization.
+    Its state is [x; 1] (max_order + 1): the constant carries the normalization offset."""
 
     def __init__(self, config: LtiSisoConfig, dtype: torch.dtype = torch.float32) -> None:
         super().__init__(config, dtype)
-        self.state_dim, self.output_dim, self.input_dim = config.max_order, 1, 1
+        self.state_dim, self.output_dim, self.input_dim = config.max_order + 1, 1, 1  # [x; 1]
 
     def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
         cfg = self.config
@@ -211,6 +212,7 @@ class LtiSisoFamily(SystemFamily):
         y, mean, std = normalize(y_raw)
         y = y + self.config.noise_std * normal(tuple(y.shape), generator)
         params = {**params, "y_mean": mean[:, 0], "y_std": std[:, 0]}
+        x = torch.cat([x, torch.ones_like(x[..., :1])], dim=-1)  # the state of state_space: [x; 1]
         return Trajectories(
             y=y.to(self.dtype), u=u.to(self.dtype), x=x.to(self.dtype), params=params, family=self.name
         )
