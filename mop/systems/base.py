@@ -40,7 +40,8 @@ MAX_REDRAWS = 100
 class Trajectories:
     """A batch of simulated (or measured) trajectories.
 
-    y: (B, T+1, m) outputs y_0..y_T.
+    y: (B, T+1, m) outputs y_0..y_T; NaN marks an output channel not measured at a step (a gap; `observed`
+        is the mask). Every predictor skips what was not measured; inputs u must be complete.
     u: (B, T+1, k) inputs u_0..u_T, or None for families without inputs.
     x: (B, T+1, n) true states, or None for measured data.
     params: per-system parameters, each with leading dim B (e.g. "A": (B, n, n), "C": (B, m, n),
@@ -71,9 +72,29 @@ class Trajectories:
     def input_dim(self) -> int:
         return 0 if self.u is None else self.u.shape[2]
 
-    def model_inputs(self) -> Tensor:
-        """(B, T+1, m + k): [y_t, u_t] per step, the sequence a learned predictor reads."""
-        return self.y if self.u is None else torch.cat([self.y, self.u], dim=-1)
+    @property
+    def observed(self) -> Tensor | None:
+        """(B, T+1, m) bool, True where y was measured; None when every entry was (no gaps)."""
+        seen = ~torch.isnan(self.y)
+        return None if bool(seen.all()) else seen
+
+    @property
+    def num_missing(self) -> int:
+        """How many scalar outputs are missing (NaN in y)."""
+        return int(torch.isnan(self.y).sum())
+
+    def model_inputs(self, mask_channels: bool = False) -> Tensor:
+        """(B, T+1, m + k): [y_t, u_t] per step, the sequence a learned predictor reads.
+
+        mask_channels=True (models trained with missing outputs): (B, T+1, m + k + m)
+        [y_t zero-filled where missing, u_t, observed_t as 0/1]. Without it, y must have no gaps.
+        """
+        y = self.y
+        if mask_channels:
+            seen = ~torch.isnan(y)
+            parts = [torch.where(seen, y, torch.zeros_like(y))] + ([] if self.u is None else [self.u])
+            return torch.cat([*parts, seen.to(y.dtype)], dim=-1)
+        return y if self.u is None else torch.cat([y, self.u], dim=-1)
 
     def _map(self, fn: Callable[[Tensor], Tensor]) -> Trajectories:
         opt = lambda t: None if t is None else fn(t)  # noqa: E731
