@@ -76,9 +76,10 @@ def gaussian_filter(
 ) -> tuple[Tensor, Tensor]:
     """Predictive means yhat (B, T+1, m) and covariances S (B, T+1, m, m) of y_t given y_{<t}, u_{<t}.
 
-    y (B, T+1, m) with NaN where a channel was not measured, u (B, T+1, k) or None; `project` applies the model's state projection (if any) to m_0 and
-    inside `step`. at_prior(t, m_t, P_t, projection) is called with each prior before it is conditioned on y_t
-    (gaussian_forecast rolls the k-step forecasts out from there).
+    y (B, T+1, m) with NaN where a channel was not measured, u (B, T+1, k) or None; `project` applies the
+    model's state projection (if any) to m_0 and inside `step`. at_prior(t, m_t, P_t, projection) is called
+    with each prior before it is conditioned on y_t (gaussian_forecast rolls the k-step forecasts out from
+    there).
     """
     proj = model.project if project and model.project is not None else None
     m, P = (model.m0 if proj is None else proj(model.m0)), model.P0
