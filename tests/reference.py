@@ -156,3 +156,36 @@ def scipy_block_diag(*blocks):
     from scipy.linalg import block_diag
 
     return block_diag(*blocks)
+
+
+def rls_gaps_reference(y, order=2):
+    """The RLS-AR(order) predictor with missing outputs, by batch ridge regression, one system, numpy:
+    theta_i(t) = (I + sum phi phi^T)^{-1} sum phi y_{s,i} over the pairs (phi_{s-1}, y_s), s < t, whose target
+    y_{s,i} and whole regressor phi_{s-1} = [y_{s-1}; ...; y_{s-p}] (zero before y_0) were measured;
+    yhat_t = theta(t)^T phi~_{t-1}, phi~ with each missing entry replaced by its own prediction;
+    yhat_0 = 0, yhat_t = y~_{t-1} for t <= p. y (T, m) with NaN -> (T, m)."""
+    T, m = y.shape
+    filled, preds = np.zeros_like(y), np.zeros_like(y)
+
+    def lagged(values, s):
+        return np.concatenate([values[s - j] if s - j >= 0 else np.zeros(m) for j in range(order)])
+
+    for t in range(T):
+        if t == 0:
+            pred = np.zeros(m)
+        elif t <= order:
+            pred = filled[t - 1]
+        else:
+            pred = np.zeros(m)
+            for i in range(m):
+                G, b = np.eye(order * m), np.zeros(order * m)
+                for s in range(order, t):
+                    phi = lagged(y, s - 1)
+                    if np.isnan(y[s, i]) or np.isnan(phi).any():
+                        continue
+                    G += np.outer(phi, phi)
+                    b += phi * y[s, i]
+                pred[i] = np.linalg.solve(G, b) @ lagged(filled, t - 1)
+        preds[t] = pred
+        filled[t] = np.where(np.isnan(y[t]), pred, y[t])
+    return preds

@@ -83,18 +83,10 @@ class Trajectories:
         """How many scalar outputs are missing (NaN in y)."""
         return int(torch.isnan(self.y).sum())
 
-    def model_inputs(self, mask_channels: bool = False) -> Tensor:
-        """(B, T+1, m + k): [y_t, u_t] per step, the sequence a learned predictor reads.
-
-        mask_channels=True (models trained with missing outputs): (B, T+1, m + k + m)
-        [y_t zero-filled where missing, u_t, observed_t as 0/1]. Without it, y must have no gaps.
-        """
-        y = self.y
-        if mask_channels:
-            seen = ~torch.isnan(y)
-            parts = [torch.where(seen, y, torch.zeros_like(y))] + ([] if self.u is None else [self.u])
-            return torch.cat([*parts, seen.to(y.dtype)], dim=-1)
-        return y if self.u is None else torch.cat([y, self.u], dim=-1)
+    def model_inputs(self) -> Tensor:
+        """(B, T+1, m + k): [y_t, u_t] per step, the sequence a learned predictor reads (NaN where y is
+        missing; mop.missing.masked_inputs gives the layout of a model with an observation mask)."""
+        return self.y if self.u is None else torch.cat([self.y, self.u], dim=-1)
 
     def _map(self, fn: Callable[[Tensor], Tensor]) -> Trajectories:
         opt = lambda t: None if t is None else fn(t)  # noqa: E731
