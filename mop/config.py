@@ -133,8 +133,8 @@ class ModelConfig:
     position: str = (
         "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact relative streaming)
     )
-    # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width m + k + m,
-    # and may be given outputs with gaps; set by the trainer when train.missing_rate or missing_burst_rate > 0
+    # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
+    # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
     observation_mask: bool = False
 
     def __post_init__(self) -> None:

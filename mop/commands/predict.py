@@ -140,15 +140,9 @@ def print_errors(names, data, yhat) -> None:
     for name, (y, _), p in zip(names, data, yhat, strict=True):
         e = y[1:] - p[1:]  # (T, m), skip t=0 (no data)
         errs.append(e)
-        print(
-            f"{name:>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} "
-            f"{observed_norms(e).mean():>10.4g}"
-        )
+        print(f"{name:>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
     e = np.concatenate(errs)
-    print(
-        f"{'overall':>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} "
-        f"{observed_norms(e).mean():>10.4g}"
-    )
+    print(f"{'overall':>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
 
 
 def print_horizon_errors(data, forecasts, steps: int) -> None:

@@ -31,7 +31,8 @@ from mop.systems import make_family
 
 def resolve_config(config: RunConfig) -> RunConfig:
     """Fill model.input_dim / output_dim (0 = from the system family or the data file): d_in = m + k
-    (+ m with model.observation_mask, which training with drop-outs sets), d_out = m; for recorded data also the normalisation fitted on the training split (data.y_mean, ...)."""
+    (+ m with model.observation_mask, which training with drop-outs sets), d_out = m; for recorded data
+    also the normalisation fitted on the training split (data.y_mean, ...)."""
     check_arch(config.model.arch)
     if config.train.drops_outputs and not config.model.observation_mask:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model, observation_mask=True))
