@@ -22,9 +22,10 @@ TEST_SEED_OFFSET = 7_000_001  # test systems: generator seed + this, apart from 
 
 
 def _load_builtin() -> None:
+    from mop.experiments.missing_data import MISSING_DATA
     from mop.experiments.paper import PAPER_EXPERIMENTS
 
-    for exp in PAPER_EXPERIMENTS:
+    for exp in (*PAPER_EXPERIMENTS, MISSING_DATA):
         EXPERIMENTS.add(exp.name, exp)
 
 
