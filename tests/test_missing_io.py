@@ -3,6 +3,7 @@ are refused naming line and column; `mop predict` and `mop train --data` take fi
 
 import numpy as np
 import pytest
+import torch
 
 from mop.cli import main
 from mop.errors import MopError
@@ -97,3 +98,40 @@ def test_train_data_with_gaps_needs_the_mask_then_predicts(tmp_path, capsys):
     assert main(["predict", str(run), str(path), "--out", str(tmp_path / "p.npz"), "--steps", "2"]) == 0
     with np.load(tmp_path / "p.npz") as f:
         assert np.isfinite(f["yhat"][:, :, 0]).all()
+
+
+def test_errors_and_ratios_over_the_measured_outputs_only():
+    from mop.metrics import errors, mse_ratio_ci
+
+    g = np.random.default_rng(0)
+    y, a, b = (g.normal(size=(20, 8, 3)) for _ in range(3))
+    y[g.random(y.shape) < 0.3] = np.nan
+    y[0, 4] = np.nan  # a whole step
+    ea, eb = (errors(torch.from_numpy(p), torch.from_numpy(y)) for p in (a, b))
+    ref = np.sqrt(np.nansum((a - y) ** 2, -1))
+    ref[np.isnan(y).all(-1)] = np.nan
+    np.testing.assert_allclose(ea, ref, rtol=1e-12)
+    assert np.isnan(ea[0, 4])
+    ratio = mse_ratio_ci(ea, eb, 1, 8)[0]
+    expected = np.nansum((a - y)[:, 1:8] ** 2) / np.nansum((b - y)[:, 1:8] ** 2)
+    assert ratio == pytest.approx(expected, rel=1e-12)
+    full = g.normal(size=(5, 6, 2))
+    plain = errors(torch.from_numpy(a[:5, :6, :2]), torch.from_numpy(full))
+    np.testing.assert_allclose(plain, np.linalg.norm(a[:5, :6, :2] - full, axis=-1), rtol=1e-14)
+
+
+def test_condition_missing_is_validated_and_seeded():
+    import dataclasses as dc
+
+    from mop.experiments.runner import with_missing
+    from mop.experiments.spec import Condition
+
+    with pytest.raises(MopError, match="unknown missing keys"):
+        Condition("c", missing={"fraction": 0.3})
+    with pytest.raises(MopError, match="missing.rate must be in"):
+        Condition("c", missing={"rate": 1.5})
+    traj = linear_traj(num_systems=200, horizon=50)
+    a, b = with_missing(traj, {"rate": 0.3}, 0), with_missing(traj, {"rate": 0.3}, 0)
+    assert torch.equal(a.y.isnan(), b.y.isnan()) and not a.y[:, 0].isnan().any()
+    assert abs(float(a.y[:, 1:].isnan().double().mean()) - 0.3) < 0.01
+    assert dc.replace(a, y=traj.y).observed is None

@@ -3,6 +3,7 @@ figures, and the experiment-specific results present and sane."""
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -87,6 +88,21 @@ def test_scaling_fits_a_slope_per_axis(tmp_path, tiny_smoke):
     assert "slope" in report and len(data["runs"]) == 6
 
 
+def test_missing_data_sweeps_p_and_bursts(tmp_path, tiny_smoke):
+    data, report = _reproduce(tmp_path, "missing-data")
+    assert list(data["conditions"]) == ["p=0.00", "p=0.10", "p=0.30", "p=0.50", "bursts"]
+    for entry in data["conditions"].values():
+        _check_schema(entry, {"mop", "kalman", "rls", "last"})
+    kf = [data["conditions"][c]["predictors"]["kalman"]["window_error"]["all"] for c in ("p=0.00", "p=0.50")]
+    assert kf[0] < kf[1], "the KF that sees half the outputs predicts worse"
+    assert (tmp_path / "missing-data" / "missing-data_ratio.png").exists()
+    assert len(data["claims"]) == 5 and "p=0.30" in report
+    runs = set(data["runs"].values())
+    assert len(runs) == 1, "one model trained with drop-outs serves every condition"
+    config = json.loads((Path(runs.pop()) / "config.json").read_text())
+    assert config["model"]["observation_mask"] and config["train"]["missing_rate"] == 0.3
+
+
 def test_every_experiment_is_covered():
     assert set(EXPERIMENTS.names()) == {
         "linear",
@@ -97,4 +113,5 @@ def test_every_experiment_is_covered():
         "noise-shift",
         "calibration",
         "scaling",
+        "missing-data",
     }

@@ -19,7 +19,7 @@ TRAIN_DROP_OUTS = {
 
 
 def _condition(p: float) -> Condition:
-    return Condition(f"p={p:g}", missing={"rate": p} if p else {}, x=("missing fraction p", p))
+    return Condition(f"p={p:.2f}", missing={"rate": p} if p else {}, x=("missing fraction p", p))
 
 
 MISSING_DATA = Experiment(
@@ -38,7 +38,7 @@ MISSING_DATA = Experiment(
     claims=(
         Claim(
             "at p = 0.3 MOP is within 10% of the KF that conditions on what was measured (t in [20, T])",
-            Measure("mse_ratio", condition="p=0.3"),
+            Measure("mse_ratio", condition="p=0.30"),
             "<=",
             1.1,
         ),
@@ -49,9 +49,9 @@ MISSING_DATA = Experiment(
         Claim("with 5-step bursts, MOP against the KF (reported)", Measure("mse_ratio", condition="bursts")),
         Claim(
             "at p = 0.3 MOP's error is below RLS's",
-            Measure("mean_error", condition="p=0.3"),
+            Measure("mean_error", condition="p=0.30"),
             "<",
-            Measure("mean_error", predictor="rls", condition="p=0.3"),
+            Measure("mean_error", predictor="rls", condition="p=0.30"),
         ),
         Claim(
             "with bursts MOP's error is below RLS's",
