@@ -62,34 +62,42 @@ def _rls_run(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     return torch.stack(preds, dim=1), phi, thetas
 
 
-def _rls_run_gaps(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
+def _rls_run_gaps(
+    y: Tensor, order: int, extra: Tensor | None = None, start: int | None = None
+) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """_rls_run for y (B, T, m) with NaN where an output is missing.
 
     The regressors use the filled outputs y~_s = y_s where measured, else the model's own one-step
     prediction yhat_s. The pair (phi_{t-2}, y_{t-1}) updates output channel i only when y_{t-1, i} was
     measured and no entry of phi_{t-2} was filled in; so each channel keeps its own P (B, m, d, d) (equal
-    to the shared P of rls_update while nothing is missing). Start-up as without gaps: yhat_t = y~_{t-1}.
+    to the shared P of rls_update while nothing is missing). Start-up as without gaps: yhat_t = y~_{t-1}
+    for 1 <= t <= start (default: order). extra (B, T, e): complete regressors appended to phi_t (ARX's
+    input lags [u_t; ...; u_{t-q+1}]).
     """
     B, T, m = y.shape
-    d = order * m
+    start = order if start is None else start
+    d = order * m + (0 if extra is None else extra.shape[-1])
     seen = ~torch.isnan(y)  # (B, T, m)
     filled = torch.zeros_like(y)
     theta = y.new_zeros(B, d, m)
     P = torch.eye(d, dtype=y.dtype, device=y.device).repeat(B, m, 1, 1)  # (B, m, d, d)
     preds, thetas = [], {}
 
-    def lagged(s: int, values: Tensor) -> Tensor:  # (B, d): [v_s; v_{s-1}; ...], zero before step 0
+    def lagged(s: int, values: Tensor) -> Tensor:  # (B, p m): [v_s; v_{s-1}; ...], zero before step 0
         rows = [values[:, s - j] if s - j >= 0 else values.new_zeros(B, m) for j in range(order)]
         return torch.cat(rows, dim=-1)
+
+    def regressor(s: int) -> Tensor:  # (B, d): phi_s of the filled outputs (and the extra regressors)
+        return lagged(s, filled) if extra is None else torch.cat([lagged(s, filled), extra[:, s]], dim=-1)
 
     imputed = (~seen).to(y.dtype)
     for t in range(T):
         if t == 0:
             pred = y.new_zeros(B, m)
-        elif t <= order:
+        elif t <= start:
             pred = filled[:, t - 1]
         else:
-            phi, target = lagged(t - 2, filled), y[:, t - 1]
+            phi, target = regressor(t - 2), y[:, t - 1]
             update = seen[:, t - 1] & (lagged(t - 2, imputed) == 0).all(-1, keepdim=True)  # (B, m)
             Pphi = (P @ phi[:, None, :, None])[..., 0]  # (B, m, d)
             k = Pphi / (1 + (phi[:, None] * Pphi).sum(-1, keepdim=True))  # (B, m, d)
@@ -98,10 +106,11 @@ def _rls_run_gaps(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tens
             P_new = P - k[..., None] * Pphi[..., None, :]
             P = torch.where(update[..., None, None], 0.5 * (P_new + P_new.mT), P)
             thetas[t] = theta
-            pred = (theta.mT @ lagged(t - 1, filled)[..., None])[..., 0]
+            pred = (theta.mT @ regressor(t - 1)[..., None])[..., 0]
         preds.append(pred)
         filled[:, t] = torch.where(seen[:, t], y[:, t], pred)
-    return torch.stack(preds, dim=1), regressors(filled, order), thetas
+    phi = regressors(filled, order)
+    return torch.stack(preds, dim=1), phi if extra is None else torch.cat([phi, extra], dim=-1), thetas
 
 
 def rls_predict(y: Tensor, order: int = 2) -> Tensor:
