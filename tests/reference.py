@@ -158,28 +158,35 @@ def scipy_block_diag(*blocks):
     return block_diag(*blocks)
 
 
-def rls_gaps_reference(y, order=2):
+def rls_gaps_reference(y, order=2, u=None, input_order=2):
     """The RLS-AR(order) predictor with missing outputs, by batch ridge regression, one system, numpy:
     theta_i(t) = (I + sum phi phi^T)^{-1} sum phi y_{s,i} over the pairs (phi_{s-1}, y_s), s < t, whose target
     y_{s,i} and whole regressor phi_{s-1} = [y_{s-1}; ...; y_{s-p}] (zero before y_0) were measured;
     yhat_t = theta(t)^T phi~_{t-1}, phi~ with each missing entry replaced by its own prediction;
-    yhat_0 = 0, yhat_t = y~_{t-1} for t <= p. y (T, m) with NaN -> (T, m)."""
+    yhat_0 = 0, yhat_t = y~_{t-1} for t <= p. y (T, m) with NaN -> (T, m). With inputs u (T, k) (ARX):
+    phi also holds [u_{s-1}; ...; u_{s-q}] (q = input_order) and the start-up runs to r = max(p, q)."""
     T, m = y.shape
     filled, preds = np.zeros_like(y), np.zeros_like(y)
+    r = order if u is None else max(order, input_order)
 
     def lagged(values, s):
-        return np.concatenate([values[s - j] if s - j >= 0 else np.zeros(m) for j in range(order)])
+        ys = [values[s - j] if s - j >= 0 else np.zeros(m) for j in range(order)]
+        if u is None:
+            return np.concatenate(ys)
+        us = [u[s - j] if s - j >= 0 else np.zeros(u.shape[1]) for j in range(input_order)]
+        return np.concatenate(ys + us)
 
+    d = len(lagged(y, 0))
     for t in range(T):
         if t == 0:
             pred = np.zeros(m)
-        elif t <= order:
+        elif t <= r:
             pred = filled[t - 1]
         else:
             pred = np.zeros(m)
             for i in range(m):
-                G, b = np.eye(order * m), np.zeros(order * m)
-                for s in range(order, t):
+                G, b = np.eye(d), np.zeros(d)
+                for s in range(r, t):
                     phi = lagged(y, s - 1)
                     if np.isnan(y[s, i]) or np.isnan(phi).any():
                         continue

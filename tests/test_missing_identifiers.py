@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from mop.errors import MopError
-from mop.filters.rls import _rls_run, _rls_run_gaps, rls_forecast, rls_predict
+from mop.filters.rls import _rls_run, _rls_run_gaps, regressors, rls_forecast, rls_predict
 from mop.predictors import make_predictor
 from tests.reference import linear_traj, rls_gaps_reference
 from tests.test_missing_filters import with_gaps
@@ -25,6 +25,16 @@ def test_rls_with_gaps_equals_batch_ridge_on_the_complete_pairs(order):
     yhat = rls_predict(traj.y, order).numpy()
     for b in range(3):
         ref = rls_gaps_reference(traj.y[b].numpy(), order)
+        np.testing.assert_allclose(yhat[b], ref, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("p,q", [(2, 2), (1, 3)])
+def test_gap_path_with_input_regressors_equals_batch_ridge(p, q):
+    traj = with_gaps(linear_traj(num_systems=2, horizon=20, seed=4), rate=0.25)
+    u = torch.randn(2, 21, 1, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    yhat = _rls_run_gaps(traj.y, p, extra=regressors(u, q), start=max(p, q))[0].numpy()
+    for b in range(2):
+        ref = rls_gaps_reference(traj.y[b].numpy(), p, u[b].numpy(), q)
         np.testing.assert_allclose(yhat[b], ref, atol=1e-9, rtol=0)
 
 
