@@ -135,3 +135,14 @@ def test_condition_missing_is_validated_and_seeded():
     assert torch.equal(a.y.isnan(), b.y.isnan()) and not a.y[:, 0].isnan().any()
     assert abs(float(a.y[:, 1:].isnan().double().mean()) - 0.3) < 0.01
     assert dc.replace(a, y=traj.y).observed is None
+
+
+def test_predict_csv_with_empty_cells(tmp_path, capsys):
+    rows = ["trajectory,t,y0,y1"] + [
+        f"r{i},{t},{'' if (t * 7 + i) % 4 == 1 else t},{t * 0.5}" for i in range(2) for t in range(12)
+    ]
+    data = write(tmp_path / "d.csv", "\n".join(rows) + "\n")
+    assert main(["predict", "rls", str(data), "--out", str(tmp_path / "p.csv")]) == 0
+    lines = (tmp_path / "p.csv").read_text().splitlines()
+    assert len(lines) == 1 + 24 and "nan" not in "".join(lines).lower()
+    assert "overall" in capsys.readouterr().out

@@ -155,3 +155,12 @@ def test_resume_with_drop_outs_equals_uninterrupted(tmp_path, monkeypatch):
     b = mt.train(config, tmp_path / "b", progress=False)
     wa, wb = load_tensors(a / "model.safetensors")[0], load_tensors(b / "model.safetensors")[0]
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
+
+
+def test_gru_trains_with_drop_outs_and_streams_gaps_exactly(tmp_path):
+    config = apply_overrides(RunConfig(), [*TINY, *DROPS, "model.arch=gru", "train.steps=2"])
+    run = mt.train(config, tmp_path / "gru", progress=False)
+    traj = gappy(linear_traj(num_systems=2, horizon=20))
+    a = load_predictor(run).predict(traj)
+    assert torch.isfinite(a).all()
+    torch.testing.assert_close(load_predictor(run, mode="stream").predict(traj), a, rtol=0, atol=1e-5)
