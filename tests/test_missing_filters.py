@@ -80,6 +80,17 @@ def test_particle_filter_with_gaps_approaches_the_kalman_filter():
     assert large < 0.05 * scale and large < small / 3
 
 
+def test_particle_filter_with_gaps_and_correlated_noise_weighs_by_the_marginal_of_the_measured():
+    """With correlated R the likelihood of the measured channels is N(y_o; C_o x, R_oo), not R^-1's block."""
+    traj = linear_traj(num_systems=4, horizon=12, seed=5, noise_var_w=0.1, noise_var_v=0.1)
+    R = 0.2 * torch.tensor([[1.0, 0.9], [0.9, 1.0]], dtype=torch.float64)
+    traj = with_gaps(dataclasses.replace(traj, params={**traj.params, "R": R.expand(4, 2, 2).clone()}), 0.4)
+    kf = make_predictor("kalman").predict(traj).numpy()
+    pf = ParticleFilterPredictor(20000, seed=0).predict(traj).numpy()
+    scale = np.nanmean(np.abs(traj.y.numpy() - kf))
+    assert np.abs(pf - kf).mean() < 0.05 * scale
+
+
 def test_no_gaps_takes_the_unchanged_path():
     traj = linear_traj()
     assert traj.observed is None and traj.num_missing == 0
