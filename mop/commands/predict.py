@@ -1,9 +1,9 @@
 """`mop predict PREDICTOR DATA`: predictions yhat_t (of y_t from y_<t, u_<t) for measured or simulated
 trajectories, by a trained run (PREDICTOR a run directory of `mop train`) or a registered predictor (a name).
 
-Predictors that need only y (and u) run on any .csv or .npz: rls, rls-best, n4sid-kf, last, zero. Predictors
-that know the system (kalman, ekf, ukf, pf, ...) read it from the `family` string array and the `param_<name>`
-arrays of an .npz written by `mop simulate`.
+Predictors that need only y (and u) run on any .csv or .npz (those registered with needs_system=False, e.g.
+rls, last). Predictors that know the system (needs_system=True, e.g. kalman, ekf) read it from the `family`
+string array and the `param_<name>` arrays of an .npz written by `mop simulate`.
 
 Output: CSV long format `trajectory,t,yhat0..` or NPZ yhat (B, T+1, m) (all trajectories of one length).
 With --steps K: k-step forecasts, forecast[t, j] predicting y_{t+j} from y_<t (j = 0..K-1, j = 0 the one-step
@@ -25,13 +25,21 @@ import numpy as np
 import torch
 
 from mop.atomic import atomic_path
+from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.io import read_system, read_trajectories
+from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor, needs_system
+from mop.runs import load_predictor
+from mop.systems import FAMILIES
 from mop.systems.base import Trajectories
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("predictor", help="run directory of `mop train`, or a registered predictor name")
+    parser.add_argument(
+        "predictor",
+        help="run directory of `mop train`, or a registered predictor name; these need only the data: "
+        + ", ".join(model_free()),
+    )
     parser.add_argument("data", help="trajectories: .csv (trajectory,t,y0..,u0..) or .npz (y, u[, param_*])")
     parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
     parser.add_argument("--stream", action="store_true", help="KV-cache streaming (constant cost per step)")
@@ -44,13 +52,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def model_free() -> list[str]:
+    """The registered predictors that need neither the system nor a run directory (from their metadata)."""
+    return [n for n in PREDICTORS.names() if not needs_system(n) and not is_learned(n)]
+
+
 def resolve_predictor(spec: str, stream: bool = False):
     """(predictor, needs_system) for a run directory or a registered (non-learned) predictor name."""
-    from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
-
     if Path(spec).is_dir():
-        from mop.runs import load_predictor
-
         return load_predictor(spec, mode="stream" if stream else "window"), False
     names = PREDICTORS.names()
     if spec not in names:
@@ -71,15 +80,13 @@ def system_of(
     A predictor registered with linear_model=True (kalman) also takes any linear-Gaussian model: where DATA
     has no family, or lacks that family's generator arrays, it needs param_A, param_C, param_Q, param_R
     (optional param_B, param_P0, param_x0_mean) and runs with family "" (linear_model_from_params)."""
-    from mop.config import SystemConfig
     from mop.predictors import PREDICTORS
-    from mop.systems import FAMILIES
     from mop.systems.base import LINEAR_MODEL_ARRAYS, linear_model_from_params
 
     if data_path.suffix == ".csv":
         raise MopError(
             f"{name} needs the system's parameters, and a CSV has no system parameters; "
-            "give an .npz written by mop simulate, or use rls, rls-best, arx, n4sid-kf, last, zero"
+            f"give an .npz written by mop simulate, or use {', '.join(model_free())}"
         )
     family, params = read_system(data_path, num)
     linear_ok = bool(PREDICTORS.meta(name).get("linear_model"))
@@ -133,8 +140,6 @@ def batches(data, family: str, params: dict) -> list[Trajectories]:
 
 def predict_all(predictor, data, steps: int | None = None, family: str = "", params=None) -> list[np.ndarray]:
     """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps), batched where lengths agree."""
-    from mop.predictors import forecast
-
     out = []
     for traj in batches(data, family, params or {}):
         pred = predictor.predict(traj) if steps is None else forecast(predictor, traj, steps)
@@ -203,21 +208,23 @@ def write_output(path: Path, names: list[str], yhat: list[np.ndarray]) -> None:
         raise MopError(f"--out {path}: use a .csv or .npz file name")
 
 
+def observed_norms(e: np.ndarray) -> np.ndarray:
+    """||e_t|| over the measured channels (e NaN where y was missing) for the steps with any measured:
+    e (T, m) -> (T',)."""
+    seen = ~np.isnan(e).all(axis=-1)
+    return np.sqrt(np.nansum(e[seen] ** 2, axis=-1))
+
+
 def print_errors(names, data, yhat) -> None:
+    """RMSE and mean ||e_t|| over t >= 1, on the measured outputs only (missing ones, NaN, are skipped)."""
     print(f"{'trajectory':>12} {'steps':>6} {'rmse':>10} {'mean|e|':>10}")
     errs = []
     for name, (y, _), p in zip(names, data, yhat, strict=True):
         e = y[1:] - p[1:]  # (T, m), skip t=0 (no data)
         errs.append(e)
-        print(
-            f"{name:>12} {len(e):>6} {np.sqrt((e**2).mean()):>10.4g} "
-            f"{np.linalg.norm(e, axis=-1).mean():>10.4g}"
-        )
+        print(f"{name:>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
     e = np.concatenate(errs)
-    print(
-        f"{'overall':>12} {len(e):>6} {np.sqrt((e**2).mean()):>10.4g} "
-        f"{np.linalg.norm(e, axis=-1).mean():>10.4g}"
-    )
+    print(f"{'overall':>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
 
 
 def print_horizon_errors(data, forecasts, steps: int) -> None:
@@ -225,7 +232,7 @@ def print_horizon_errors(data, forecasts, steps: int) -> None:
     print(f"{'k':>4} {'count':>8} {'mean|e|':>10}")
     for j in range(steps):
         err = [y[1 + j :] - f[1 : len(y) - j, j] for (y, _), f in zip(data, forecasts, strict=True)]
-        e = np.concatenate([np.linalg.norm(d, axis=-1) for d in err])
+        e = np.concatenate([observed_norms(d) for d in err])
         print(f"{j + 1:>4} {len(e):>8} {e.mean() if len(e) else float('nan'):>10.4g}")
 
 

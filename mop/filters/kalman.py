@@ -152,7 +152,9 @@ class KalmanPredictor(GaussianFilterPredictor):
     """The Kalman filter that knows each system: its family's (linear) StateSpace, x_0 ~ N(0, P0), or for
     data without a family a known linear model (mop.systems.base.linear_model_from_params).
     On switching systems the family's model switches too (the authors' KF that keeps system 1 is the
-    predictor "kalman-system1" of mop.systems.switching)."""
+    predictor "kalman-system1" of mop.filters.system1)."""
+
+    name = "kalman"
 
     def __init__(self) -> None:
         super().__init__(kalman_step, project=False, name="kalman")

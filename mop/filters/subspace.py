@@ -26,7 +26,7 @@ from torch import Tensor
 from mop.errors import MopError
 from mop.filters.arx import arx_forecast
 from mop.filters.rls import rls_forecast
-from mop.predictors import PREDICTORS
+from mop.predictors import PREDICTORS, nan_beyond_horizon
 from mop.systems.base import Trajectories
 
 
@@ -155,8 +155,6 @@ def n4sid_kalman_forecast(
     future inputs); where it uses RLS-AR(2) (ARX(2, 2)), that model's iterated recursion. j = 0 is
     n4sid_kalman_predict; entries with t + j >= T are NaN. origin: roll out only from that t (one-step
     predictions elsewhere; what free-run simulation needs), and stop there."""
-    from mop.predictors import nan_beyond_horizon
-
     B, T, m = y.shape
     k = 0 if u is None else u.shape[-1]
     i = num_block_rows or max(2, math.ceil(order / m) + 1)
@@ -195,7 +193,18 @@ def n4sid_kalman_forecast(
     return nan_beyond_horizon(out)
 
 
-@PREDICTORS.register("n4sid-kf")
+def refuse_gaps(traj: Trajectories) -> Tensor:
+    """traj.y in float64; MopError for missing outputs: the block Hankel matrices of N4SID need every output,
+    and this implementation does not identify from data with gaps."""
+    if traj.observed is not None:
+        raise MopError(
+            f"n4sid-kf needs every output, and these trajectories have {traj.num_missing} missing (NaN / "
+            "empty cells); use rls, rls-best or last, or fill the gaps"
+        )
+    return traj.y.double()
+
+
+@PREDICTORS.register("n4sid-kf", preset_options={"small": {"every": 10}, "smoke": {"every": 10}})
 class N4SIDKalmanPredictor:
     """Subspace identification from the prefix + steady-state Kalman predictor ("n4sid-kf").
 
@@ -204,6 +213,8 @@ class N4SIDKalmanPredictor:
     re-identify every `every` steps (1: at each t, the most accurate; larger is faster); min_columns,
     select: see n4sid_kalman_predict.
     """
+
+    name = "n4sid-kf"
 
     def __init__(
         self,
@@ -230,7 +241,7 @@ class N4SIDKalmanPredictor:
 
     def predict(self, traj: Trajectories) -> Tensor:
         """(B, T+1, m); uses the inputs where traj has them (the model with inputs)."""
-        y, u = traj.y.double(), None if traj.u is None else traj.u.double()
+        y, u = refuse_gaps(traj), None if traj.u is None else traj.u.double()
         args = (self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select)
         return n4sid_kalman_predict(y, *args, u=u).to(traj.y.dtype)
 
@@ -239,13 +250,13 @@ class N4SIDKalmanPredictor:
         u = None if traj.u is None else traj.u.double()
         args = (self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select)
         steps = traj.horizon + 1 - context
-        out = n4sid_kalman_forecast(traj.y.double(), steps, *args, u=u, origin=context)
+        out = n4sid_kalman_forecast(refuse_gaps(traj), steps, *args, u=u, origin=context)
         return out[:, context].to(traj.y.dtype)
 
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): the identified model propagated with no measurement (n4sid_kalman_forecast)."""
         out = n4sid_kalman_forecast(
-            traj.y.double(),
+            refuse_gaps(traj),
             steps,
             self.order,
             self.num_block_rows,
