@@ -28,7 +28,10 @@ from mop.systems.base import Trajectories
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("predictor", help="run directory of `mop train`, or a registered predictor name")
+    parser.add_argument(
+        "predictor",
+        help="run directory of `mop train`, pretrained:NAME (shipped: mop pretrained), or a predictor name",
+    )
     parser.add_argument("data", help="trajectories: .csv (trajectory,t,y0..,u0..) or .npz (y, u[, param_*])")
     parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
     parser.add_argument("--stream", action="store_true", help="KV-cache streaming (constant cost per step)")
@@ -36,10 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def resolve_predictor(spec: str, stream: bool = False):
-    """(predictor, needs_system) for a run directory or a registered (non-learned) predictor name."""
+    """(predictor, needs_system) for a run directory, pretrained:NAME or a registered (non-learned) name."""
     from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
+    from mop.pretrained import is_pretrained
 
-    if Path(spec).is_dir():
+    if is_pretrained(spec) or Path(spec).is_dir():
         from mop.runs import load_predictor
 
         return load_predictor(spec, mode="stream" if stream else "window"), False
@@ -47,7 +51,8 @@ def resolve_predictor(spec: str, stream: bool = False):
     if spec not in names:
         raise MopError(
             f"{spec!r}: run directory {spec} does not exist and no predictor is registered under that name; "
-            f"give a run directory or one of: {', '.join(sorted(names))}"
+            f"give a run directory, pretrained:NAME (mop pretrained lists them) or one of: "
+            f"{', '.join(sorted(names))}"
         )
     if is_learned(spec):
         raise MopError(f"{spec} is a learned predictor: give its run directory (mop train --out DIR)")
