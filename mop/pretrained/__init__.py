@@ -32,13 +32,15 @@ def is_pretrained(spec: str | os.PathLike) -> bool:
     return isinstance(spec, str) and spec.startswith(PREFIX)
 
 
-def shipped_names(root: Path = ROOT) -> list[str]:
+def shipped_names(root: Path | None = None) -> list[str]:
     """The names of the shipped models (directories with a card.json), sorted."""
+    root = ROOT if root is None else root
     return sorted(p.parent.name for p in root.glob("*/card.json"))
 
 
-def shipped_dir(name: str, root: Path = ROOT) -> Path:
+def shipped_dir(name: str, root: Path | None = None) -> Path:
     """The directory of shipped model `name`; MopError naming the shipped ones when there is none."""
+    root = ROOT if root is None else root
     path = root / name
     if not name or "/" in name or not (path / "card.json").is_file():
         known = ", ".join(f"{PREFIX}{n}" for n in shipped_names(root)) or "none"
@@ -46,8 +48,9 @@ def shipped_dir(name: str, root: Path = ROOT) -> Path:
     return path
 
 
-def read_card(name: str, root: Path = ROOT) -> dict[str, Any]:
+def read_card(name: str, root: Path | None = None) -> dict[str, Any]:
     """card.json of shipped model `name` (what its build measured)."""
+    root = ROOT if root is None else root
     path = shipped_dir(name, root) / "card.json"
     try:
         return json.loads(path.read_text())
@@ -64,8 +67,9 @@ def file_digests(run_dir: Path) -> dict[str, str]:
     return {name: sha256(run_dir / name) for name in HASHED_FILES}
 
 
-def verify(name: str, root: Path = ROOT) -> Path:
+def verify(name: str, root: Path | None = None) -> Path:
     """The directory of shipped model `name` after checking its files against the card's SHA-256 digests."""
+    root = ROOT if root is None else root
     path = shipped_dir(name, root)
     expected = read_card(name, root).get("sha256", {})
     for file in HASHED_FILES:
@@ -88,9 +92,10 @@ def resolve_run_dir(spec: str | os.PathLike) -> Path:
     return Path(spec)
 
 
-def find_shipped(config: dict[str, Any], root: Path = ROOT) -> str | None:
+def find_shipped(config: dict[str, Any], root: Path | None = None) -> str | None:
     """`pretrained:NAME` of a shipped model trained on the data distribution of `config` (a RunConfig as a
     dict: the same system config, model architecture and read-out, no recorded data), else None."""
+    root = ROOT if root is None else root
     if config.get("data") is not None:
         return None
     for name in shipped_names(root):
