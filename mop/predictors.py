@@ -64,7 +64,8 @@ def register_learned(name: str, arch: str) -> None:
 def make_predictor(name: str, **options: Any) -> Predictor:
     """The registered predictor `name`, built with the options its constructor accepts (others ignored).
 
-    E.g. make_predictor("pf", seed=3); make_predictor("mop", run_dir="runs/x") for a learned one.
+    E.g. make_predictor("pf", seed=3); make_predictor("mop", run_dir="runs/x") for a learned one, or
+    run_dir="pretrained:linear" for a model shipped with mop (mop.pretrained).
     """
     factory = PREDICTORS.get(name)
     params = inspect.signature(factory).parameters
