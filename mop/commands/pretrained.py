@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mop.commands import OverridesAnywhere
 from mop.errors import MopError
 from mop.pretrained import PREFIX, ROOT, read_card, shipped_dir, shipped_names
 
@@ -21,12 +22,14 @@ EPILOG = """examples:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.__class__ = OverridesAnywhere  # key=value may follow the options
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = EPILOG
     parser.add_argument("action", nargs="?", default="list", choices=("list", "show", "build"))
     parser.add_argument(
         "names", nargs="*", metavar="NAME|key=value", help="models (build: all when none); build overrides"
     )
+    parser.set_defaults(overrides=[])
     parser.add_argument("--threads", type=int, default=2, help="build: torch threads (the card records it)")
     parser.add_argument(
         "--work", default="runs/pretrained-build", help="build: training runs (a finished one is reused)"
@@ -66,7 +69,7 @@ def list_models() -> int:
 
 def run(args: argparse.Namespace) -> int:
     names = [n for n in args.names if "=" not in n]
-    overrides = [n for n in args.names if "=" in n]
+    overrides = [n for n in args.names if "=" in n] + list(args.overrides)
     if args.action == "list":
         return list_models()
     if args.action == "show":
