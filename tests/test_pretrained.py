@@ -279,3 +279,11 @@ def test_build_writes_measured_numbers_and_is_deterministic(tmp_path, tiny_smoke
         late_mse(e_mop) / late_mse(e_kf), rel=1e-6
     )
     assert card["forecast"]["error"]["mop"][0] == pytest.approx(e_mop[:, 20:].mean(), rel=1e-6)
+
+
+def test_build_reads_overrides_after_the_options():
+    from mop.cli import build_parser
+
+    argv = ["pretrained", "build", "quadrotor", "--threads", "1", "train.steps=1500", "--quiet"]
+    args = build_parser().parse_args(argv)
+    assert (args.names, args.overrides, args.threads) == (["quadrotor"], ["train.steps=1500"], 1)
