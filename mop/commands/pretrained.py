@@ -12,6 +12,7 @@ from pathlib import Path
 from mop.commands import OverridesAnywhere
 from mop.errors import MopError
 from mop.pretrained import PREFIX, ROOT, read_card, shipped_dir, shipped_names
+from mop.pretrained.build import build
 
 EPILOG = """examples:
   mop pretrained                              # the shipped models, one line each, and their cards
@@ -79,8 +80,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.threads < 1:
         raise MopError(f"--threads must be >= 1, got {args.threads}")
-    from mop.pretrained.build import build
-
     out = Path(args.out) if args.out else ROOT
     build(
         names,

@@ -18,6 +18,7 @@ from mop.commands import OverridesAnywhere
 from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
+from mop.experiments.runner import run_experiment
 
 EPILOG = """examples:
   mop reproduce linear                                   # GPU: paper preset, else small
@@ -63,8 +64,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mop.experiments.runner import run_experiment
-
     default = "small" if args.pretrained else ("paper" if torch.cuda.is_available() else "small")
     preset = args.preset or default
     if is_experiment_file(args.experiment):

@@ -35,11 +35,12 @@ from mop.experiments.analyses import horizon_errors
 from mop.experiments.runner import config_hash, test_system, test_trajectories
 from mop.experiments.spec import Condition
 from mop.metrics import mse_ratio_ci
-from mop.predictors import forecast, is_learned, make_predictor
+from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor
 from mop.pretrained import PREFIX, ROOT, file_digests
 from mop.pretrained.card import render_card
 from mop.pretrained.catalog import CATALOG, ShippedModel, catalog_entry
 from mop.runs import load_config, load_predictor
+from mop.train import train
 
 FORECAST_STEPS = 10
 FORECAST_START = 20
@@ -88,8 +89,6 @@ def _cpu_name() -> str:
 
 def train_entry(entry: ShippedModel, work: Path, overrides: list[str] = (), progress: bool = True) -> Path:
     """Train (or reuse) the entry's run in work/<name>-<config hash>; build.json records its wall time."""
-    from mop.train import train
-
     config = training_config(entry, overrides)
     run_dir = work / f"{entry.name}-{config_hash(config)}"
     record = run_dir / "build.json"
@@ -130,7 +129,8 @@ def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[s
     model = load_predictor(run_dir)
     model.name = "mop"
     names = [n for n in (condition.predictors or exp.predictors) if not is_learned(n)]
-    others = [make_predictor(n, **{"seed": entry.seed, **preset.predictor_options.get(n, {})}) for n in names]
+    per_preset = {n: PREDICTORS.meta(n).get("preset_options", {}).get(entry.preset, {}) for n in names}
+    others = [make_predictor(n, **{"seed": entry.seed, **per_preset[n]}) for n in names]
     system = test_system(config, condition)
     horizon = condition.horizon or config.train.horizon
     traj = test_trajectories(system, preset.num_test_systems, horizon, entry.seed)
