@@ -285,5 +285,5 @@ def test_build_reads_overrides_after_the_options():
     from mop.cli import build_parser
 
     argv = ["pretrained", "build", "quadrotor", "--threads", "1", "train.steps=1500", "--quiet"]
-    args = build_parser().parse_args(argv)
+    args = build_parser("pretrained").parse_args(argv)
     assert (args.names, args.overrides, args.threads) == (["quadrotor"], ["train.steps=1500"], 1)
