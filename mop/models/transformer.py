@@ -217,7 +217,7 @@ class Transformer(nn.Module):
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m)."""
         mu, var = self._read_out(self.hidden(inputs))
-        return prediction_loss(mu, var, targets)
+        return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
 
     # ---- streaming ----
     def init_cache(self, batch_size: int) -> KVCache:
