@@ -47,7 +47,8 @@ PREDICTORS: Registry = Registry("predictor", group="mop.predictors")
 def make_predictor(name: str, **options: Any) -> Predictor:
     """The registered predictor `name`, built with the options its constructor accepts (others ignored).
 
-    E.g. make_predictor("pf", seed=3); make_predictor("mop", run_dir="runs/x") for a learned one.
+    E.g. make_predictor("pf", seed=3); make_predictor("mop", run_dir="runs/x") for a learned one, or
+    run_dir="pretrained:linear" for a model shipped with mop (mop.pretrained).
     """
     factory = PREDICTORS.get(name)
     params = inspect.signature(factory).parameters
@@ -101,8 +102,6 @@ def simulate(predictor: Predictor, traj: Trajectories, context: int) -> Tensor:
     `simulate(traj, context)` method (the filters and learned models do: one rollout instead of one from
     every origin). MopError unless 1 <= c <= T and the predictor has a forecast or a simulate.
     """
-    from mop.errors import MopError
-
     T = traj.horizon
     if not isinstance(context, int) or not 1 <= context <= T:
         raise MopError(f"simulation context must be an integer in [1, T = {T}], got {context!r}")

@@ -137,6 +137,33 @@ def sigint_during_step(monkeypatch, step: int):
     return lambda: monkeypatch.setattr(mt.TrainingData, "batch", batch)
 
 
+def authors_linear_systems(num_systems, seed, n=10, m=5, horizon=50, noise_std=0.1, bound=50.0):
+    """The authors' linear generator, one system at a time in numpy (DESIGN.md): A ~ U[0,1]^(n x n) scaled to
+    spectral radius 0.95; C ~ U[0,1]^(m x n) redrawn until (A, C) is observable; x_0 ~ N(0, I);
+    w_t, v_t ~ N(0, noise_std^2 I); a trajectory with any |x| or |y| > bound is redrawn. Returns A (B, n, n),
+    C (B, m, n), y (B, horizon + 1, m), independent of mop's generator (numpy's PCG64, not torch)."""
+    rng = np.random.default_rng(seed)
+    As, Cs, ys = [], [], []
+    while len(ys) < num_systems:
+        A = rng.uniform(0, 1, (n, n))
+        A *= 0.95 / np.abs(np.linalg.eigvals(A)).max()
+        while True:
+            C = rng.uniform(0, 1, (m, n))
+            obs = np.vstack([C @ np.linalg.matrix_power(A, k) for k in range(n)])
+            if np.linalg.matrix_rank(obs) == n:
+                break
+        x = rng.standard_normal(n)
+        y = np.zeros((horizon + 1, m))
+        ok = True
+        for t in range(horizon + 1):
+            y[t] = C @ x + noise_std * rng.standard_normal(m)
+            ok = ok and np.abs(x).max() <= bound and np.abs(y[t]).max() <= bound
+            x = A @ x + noise_std * rng.standard_normal(n)
+        if ok:
+            As.append(A), Cs.append(C), ys.append(y)
+    return np.stack(As), np.stack(Cs), np.stack(ys)
+
+
 def filterpy_predict_gaps(A, C, Q, R, y, x0, P0):
     """filterpy_predict for y with NaN: a step with every channel missing is update(None) (filterpy skips it);
     a step with some channels missing conditions on the measured ones through filterpy's update with the

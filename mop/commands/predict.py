@@ -28,17 +28,18 @@ from mop.atomic import atomic_path
 from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.io import read_system, read_trajectories
-from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor, needs_system
+from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor, needs_system, simulate
+from mop.pretrained import is_pretrained
 from mop.runs import load_predictor
 from mop.systems import FAMILIES
-from mop.systems.base import Trajectories
+from mop.systems.base import LINEAR_MODEL_ARRAYS, Trajectories, linear_model_from_params
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "predictor",
-        help="run directory of `mop train`, or a registered predictor name; these need only the data: "
-        + ", ".join(model_free()),
+        help="run directory of `mop train`, pretrained:NAME (shipped: mop pretrained), or a registered "
+        "predictor name; these need only the data: " + ", ".join(model_free()),
     )
     parser.add_argument("data", help="trajectories: .csv (trajectory,t,y0..,u0..) or .npz (y, u[, param_*])")
     parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
@@ -58,14 +59,15 @@ def model_free() -> list[str]:
 
 
 def resolve_predictor(spec: str, stream: bool = False):
-    """(predictor, needs_system) for a run directory or a registered (non-learned) predictor name."""
-    if Path(spec).is_dir():
+    """(predictor, needs_system) for a run directory, pretrained:NAME or a registered (non-learned) name."""
+    if is_pretrained(spec) or Path(spec).is_dir():
         return load_predictor(spec, mode="stream" if stream else "window"), False
     names = PREDICTORS.names()
     if spec not in names:
         raise MopError(
             f"{spec!r}: run directory {spec} does not exist and no predictor is registered under that name; "
-            f"give a run directory or one of: {', '.join(sorted(names))}"
+            f"give a run directory, pretrained:NAME (mop pretrained lists them) or one of: "
+            f"{', '.join(sorted(names))}"
         )
     if is_learned(spec):
         raise MopError(f"{spec} is a learned predictor: give its run directory (mop train --out DIR)")
@@ -80,9 +82,6 @@ def system_of(
     A predictor registered with linear_model=True (kalman) also takes any linear-Gaussian model: where DATA
     has no family, or lacks that family's generator arrays, it needs param_A, param_C, param_Q, param_R
     (optional param_B, param_P0, param_x0_mean) and runs with family "" (linear_model_from_params)."""
-    from mop.predictors import PREDICTORS
-    from mop.systems.base import LINEAR_MODEL_ARRAYS, linear_model_from_params
-
     if data_path.suffix == ".csv":
         raise MopError(
             f"{name} needs the system's parameters, and a CSV has no system parameters; "
@@ -149,8 +148,6 @@ def predict_all(predictor, data, steps: int | None = None, family: str = "", par
 
 def simulate_all(predictor, data, context: int, family: str = "", params=None) -> list[np.ndarray]:
     """[(T_i+1-C, m)] free-run simulations after C outputs, batched where lengths agree."""
-    from mop.predictors import simulate
-
     out = []
     for traj in batches(data, family, params or {}):
         out += list(simulate(predictor, traj, context).double().cpu().numpy())

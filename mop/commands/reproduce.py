@@ -15,12 +15,14 @@ from pathlib import Path
 import torch
 
 from mop.commands import OverridesAnywhere
+from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.runner import run_experiment
 
 EPILOG = """examples:
   mop reproduce linear                                   # GPU: paper preset, else small
+  mop reproduce linear --pretrained                      # the shipped model, no training: seconds
   mop reproduce all --preset smoke --out /tmp/all
   mop reproduce quadrotor --preset small train.steps=1000
   mop reproduce examples/pendulum.toml --preset smoke     # an experiment file (plugins register a family)
@@ -53,11 +55,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--gru", dest="gru", action="store_true", default=None, help="also train the GRU baseline"
     )
     gru.add_argument("--no-gru", dest="gru", action="store_false", help="skip the GRU baseline")
+    parser.add_argument(
+        "--pretrained",
+        action="store_true",
+        help="evaluate the shipped models (mop pretrained) instead of training (default preset: small)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
 def run(args: argparse.Namespace) -> int:
-    preset = args.preset or ("paper" if torch.cuda.is_available() else "small")
+    default = "small" if args.pretrained else ("paper" if torch.cuda.is_available() else "small")
+    preset = args.preset or default
     if is_experiment_file(args.experiment):
         experiments = [load_experiment(args.experiment)]
     elif args.experiment == "all":
@@ -65,17 +73,28 @@ def run(args: argparse.Namespace) -> int:
     else:
         experiments = [get_experiment(args.experiment)]
     root = Path(args.out) if args.out else Path("runs/reproduce") / preset
+    if args.pretrained:
+        root = Path(args.out) if args.out else Path("runs/reproduce") / f"{preset}-pretrained"
+    with_gru = False if args.pretrained and args.gru is None else args.gru  # no GRU is shipped
     for exp in experiments:
         out = root / exp.name if (args.experiment == "all" or not args.out) else root
-        report = run_experiment(
-            exp,
-            preset,
-            out,
-            seed=args.seed,
-            runs_dir=Path(args.runs) if args.runs else None,
-            overrides=list(args.overrides or []),
-            progress=not args.quiet,
-            with_gru=args.gru,
-        )
-        print(f"mop reproduce {exp.name} ({preset}): report at {report}")
+        try:
+            report = run_experiment(
+                exp,
+                preset,
+                out,
+                seed=args.seed,
+                runs_dir=Path(args.runs) if args.runs else None,
+                overrides=list(args.overrides or []),
+                progress=not args.quiet,
+                with_gru=with_gru,
+                pretrained=args.pretrained,
+            )
+        except MopError as err:
+            if not (args.pretrained and args.experiment == "all" and "no pretrained model" in str(err)):
+                raise
+            print(f"mop reproduce {exp.name}: skipped ({err})")  # raised before any work
+            continue
+        suffix = ", pretrained" if args.pretrained else ""
+        print(f"mop reproduce {exp.name} ({preset}{suffix}): report at {report}")
     return 0

@@ -14,7 +14,7 @@ from mop.evaluate import windows
 from mop.experiments.results import ConditionResult
 from mop.filters.kalman import optimal_mse_curve
 from mop.metrics import coverage, gaussian_nll, matrix_power_ratio, window_mean
-from mop.predictors import Predictor, first_learned, forecast
+from mop.predictors import Predictor, first_learned, forecast, simulate
 from mop.registry import Registry
 
 ANALYSES: Registry = Registry("analysis")
@@ -119,8 +119,6 @@ def simulation_analysis(result, predictors: list, reference: str) -> dict:
     forecast or a simulate: each system's RMSE over y_c..y_T and the outputs, averaged over systems
     (Forgione et al.'s convention), and beside it the one-step RMSE over the same steps.
     Predictors that can do neither are left out."""
-    from mop.predictors import simulate
-
     c = simulation_context(result)
     y = result.traj.y[:, c:].double()
     m = y.shape[-1]

@@ -6,6 +6,11 @@ analyses, check the claims, draw the figures, write eval.json and report.md.
 Trained runs are shared by configuration: each lives in RUNS/<predictor>-<hash of its RunConfig>, with RUNS
 the `runs` directory beside `out` unless given. Experiments (or conditions) that train the same config,
 e.g. `switching` and `linear`, reuse one run; a finished run is never trained again.
+
+Nothing is trained for a learned predictor given a run (an experiment's or condition's `runs`: a run
+directory or `pretrained:NAME`), nor with pretrained=True (`mop reproduce --pretrained`), which evaluates the
+shipped model trained on the condition's family (mop.pretrained.find_shipped); every such run is resolved
+before any evaluation, so a missing one is a one-line error before any work.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.io import read_trajectories
 from mop.missing import drop_mask, drop_outputs
 from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
+from mop.pretrained import find_shipped, shipped_names
 from mop.report import build_report, claim_line, summary_section
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
@@ -50,6 +56,7 @@ class Session:
     overrides: list[str]
     progress: bool
     with_gru: bool | None
+    pretrained: bool = False
     loaded: dict[str, Any] = dataclasses.field(default_factory=dict)
     runs: dict[str, str] = dataclasses.field(default_factory=dict)
 
@@ -73,18 +80,42 @@ def _included(session: Session, name: str) -> bool:
     return session.with_gru or not skip
 
 
+def _with_arch(trained: RunConfig, name: str) -> RunConfig:
+    arch = PREDICTORS.meta(name)["arch"]
+    return dataclasses.replace(trained, model=dataclasses.replace(trained.model, arch=arch))
+
+
+def given_run(session: Session, name: str, condition: Condition, trained: RunConfig) -> str:
+    """The run learned predictor `name` uses under `condition` without training ("" = train it): the
+    condition's or experiment's `runs` entry, else with --pretrained the matching shipped model."""
+    given = {**session.exp.runs, **condition.runs}.get(name, "")
+    if given or not session.pretrained:
+        return given
+    config = _with_arch(trained, name)
+    found = find_shipped(to_dict(config))
+    if found is None:
+        shipped = ", ".join(shipped_names()) or "none"
+        raise MopError(
+            f"{session.exp.name} [{condition.name}]: no pretrained model is shipped for {name} trained on "
+            f"this condition's family ({config.system.family}, {config.model.readout} read-out; shipped: "
+            f"{shipped}); run without --pretrained to train it"
+        )
+    return found
+
+
 def learned_predictor(session: Session, name: str, condition: Condition, trained: RunConfig):
     """Train (or reuse) the run of learned predictor `name` for `condition` (its RunConfig `trained`, with
-    the predictor's architecture), and load it once."""
-    arch = PREDICTORS.meta(name)["arch"]
-    config = dataclasses.replace(trained, model=dataclasses.replace(trained.model, arch=arch))
-    run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
-    key = str(run_dir)
-    if key not in session.loaded:
+    the predictor's architecture), or take its given / shipped run, and load it once."""
+    run = given_run(session, name, condition, trained)
+    if not run:
+        config = _with_arch(trained, name)
+        run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
         train(config, run_dir, progress=session.progress)
-        session.loaded[key] = make_predictor(name, run_dir=str(run_dir))
-    session.runs[f"{name} [{condition.name}]"] = str(run_dir)
-    return session.loaded[key]
+        run = str(run_dir)
+    if run not in session.loaded:
+        session.loaded[run] = make_predictor(name, run_dir=run)
+    session.runs[f"{name} [{condition.name}]"] = run
+    return session.loaded[run]
 
 
 def condition_config(session: Session, condition: Condition, arch: str = "gpt") -> RunConfig:
@@ -212,15 +243,23 @@ def run_experiment(
     overrides: list[str] = (),
     progress: bool = True,
     with_gru: bool | None = None,
+    pretrained: bool = False,
 ) -> Path:
-    """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path."""
+    """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path.
+
+    pretrained: evaluate the shipped models instead of training (MopError first when one is missing).
+    """
     get_preset(preset)
     start = time.perf_counter()
     out = Path(out)
+    runs_dir = Path(runs_dir or out.parent / "runs")
+    session = Session(exp, preset, seed, runs_dir, list(overrides), progress, with_gru, pretrained)
+    for condition in exp.conditions_for(preset):  # resolve given / shipped runs before any work
+        trained = condition_config(session, condition)
+        for name in wanted(session, condition):
+            if is_learned(name):
+                given_run(session, name, condition, trained)
     out.mkdir(parents=True, exist_ok=True)
-    session = Session(
-        exp, preset, seed, Path(runs_dir or out.parent / "runs"), list(overrides), progress, with_gru
-    )
     results = {c.name: run_condition(session, c) for c in exp.conditions_for(preset)}
     claims = [check_claim(c, results, exp.reference, seed) for c in exp.claims]
     figures = [p for name in exp.figures for p in FIGURES.get(name)(exp, results, out)]
@@ -243,6 +282,7 @@ def run_experiment(
     sections += [_sweep_section(axis, fit) for axis, fit in sweeps.items()]
     settings = {"seed": seed, "test seed": seed + TEST_SEED_OFFSET, **data["settings"]}
     title = f"mop reproduce {exp.name} ({exp.title}), preset {preset}"
+    title += ", shipped pretrained weights" if pretrained else ""
     text = build_report(
         title, sections, settings, [claim_text(c) for c in claims], time.perf_counter() - start
     )
@@ -262,6 +302,7 @@ def _settings(session: Session) -> dict:
         "overrides": session.overrides,
         "conditions": [dataclasses.asdict(c) for c in exp.conditions_for(session.preset)],
         "num_test_systems": get_preset(session.preset).num_test_systems,
+        "pretrained": session.pretrained,
         "predictors": list(exp.predictors),
         "reference": exp.reference,
     }

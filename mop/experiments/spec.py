@@ -114,6 +114,7 @@ class Condition:
     data: str = ""
     missing: dict[str, float] = dataclasses.field(default_factory=dict)
     context: int | None = None
+    runs: dict[str, str] = dataclasses.field(default_factory=dict)  # as Experiment.runs, for this condition
 
     def __post_init__(self) -> None:
         check(bool(self.name), "a condition needs a name")
@@ -146,6 +147,8 @@ class Experiment:
         "excess_mse", "floor").
     figures: figure names (mop.experiments.figures).
     panel: predictors of the paper-style panel (error with +-1 std bands); "" stands for the reference.
+    runs: learned predictor -> a run directory or `pretrained:NAME` it is loaded from instead of trained,
+        e.g. {"mop": "pretrained:linear"} (a condition's `runs` wins over the experiment's).
     """
 
     name: str
@@ -161,6 +164,7 @@ class Experiment:
     presets: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     preset_conditions: dict[str, tuple[Condition, ...]] = dataclasses.field(default_factory=dict)
     description: str = ""
+    runs: dict[str, str] = dataclasses.field(default_factory=dict)
 
     def conditions_for(self, preset: str) -> tuple[Condition, ...]:
         """The test conditions under `preset` (a sweep may use a smaller grid on a small preset)."""

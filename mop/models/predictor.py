@@ -69,6 +69,7 @@ class LearnedPredictor:
         mode: str = "window",
         chunk_size: int = 256,
         normalization: Normalization | None = None,
+        source: str = "",
     ) -> None:
         if mode not in ("window", "stream"):
             raise MopError(f"predictor mode must be 'window' or 'stream', got {mode!r}")
@@ -77,15 +78,20 @@ class LearnedPredictor:
         self.model, self.name, self.mode, self.chunk_size = model, name, mode, chunk_size
         self.cfg = model.cfg
         self.normalization = normalization
+        self.source = source  # the run directory or pretrained:NAME it was loaded from, for messages
 
     def _inputs(self, traj: Trajectories) -> Tensor:
         z = traj.model_inputs()  # (B, T+1, m + k), NaN where y is missing
-        width = z.shape[-1] + (traj.output_dim if self.cfg.observation_mask else 0)
+        mask = traj.output_dim if self.cfg.observation_mask else 0
+        width = z.shape[-1] + mask
         if width != self.cfg.input_dim or traj.output_dim != self.cfg.output_dim:
+            model = self.source or "the model"
+            k_data = z.shape[-1] - traj.output_dim
+            k_model = self.cfg.input_dim - self.cfg.output_dim - (self.cfg.output_dim if mask else 0)
             raise MopError(
-                f"trajectories have output_dim={traj.output_dim}, input width {width}, "
-                f"but the model expects output_dim={self.cfg.output_dim}, "
-                f"input width {self.cfg.input_dim}; use a model trained on this family"
+                f"the data has output_dim={traj.output_dim} and {k_data} inputs u, but {model} was trained "
+                f"with output_dim={self.cfg.output_dim} and {k_model} inputs u; use a model trained on data "
+                "like yours"
             )
         if not self.cfg.observation_mask and traj.observed is not None:
             raise MopError(
