@@ -17,6 +17,7 @@ import torch
 from mop.commands import OverridesAnywhere
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
+from mop.experiments.runner import run_experiment
 
 EPILOG = """examples:
   mop reproduce linear                                   # GPU: paper preset, else small
@@ -56,8 +57,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mop.experiments.runner import run_experiment
-
     preset = args.preset or ("paper" if torch.cuda.is_available() else "small")
     if is_experiment_file(args.experiment):
         experiments = [load_experiment(args.experiment)]
