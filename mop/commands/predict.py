@@ -6,6 +6,7 @@ rls, last). Predictors that know the system (needs_system=True, e.g. kalman, ekf
 string array and the `param_<name>` arrays of an .npz written by `mop simulate`.
 
 Output: CSV long format `trajectory,t,yhat0..` or NPZ yhat (B, T+1, m) (all trajectories of one length).
+Trajectories of unequal lengths run in padded batches (see batches), equal to one at a time.
 With --steps K: k-step forecasts, forecast[t, j] predicting y_{t+j} from y_<t (j = 0..K-1, j = 0 the one-step
 prediction; see mop.predictors.forecast): NPZ yhat (B, T+1, K, m) with NaN where t + j > T; CSV
 `trajectory,t,j,yhat0..` with one row per (t, j), t + j <= T. Prints per-trajectory RMSE and mean ||e|| over
@@ -28,7 +29,15 @@ from mop.atomic import atomic_path
 from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.io import read_system, read_trajectories
-from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor, needs_system, simulate
+from mop.predictors import (
+    PREDICTORS,
+    forecast,
+    is_learned,
+    make_predictor,
+    nan_beyond_horizon,
+    needs_system,
+    simulate,
+)
 from mop.pretrained import is_pretrained
 from mop.runs import load_predictor
 from mop.systems import FAMILIES
@@ -119,38 +128,59 @@ def system_of(
     return "", tensors
 
 
-def batches(data, family: str, params: dict) -> list[Trajectories]:
-    """One Trajectories of all trajectories when they share a length, else one per trajectory (each with
-    its own rows of the system's parameters)."""
-    if len({len(y) for y, _ in data}) == 1:
+BATCH_SIZE = 256  # trajectories per padded batch of unequal lengths
+
+
+def batches(data, family: str, params: dict) -> list[tuple[list[int], Trajectories]]:
+    """(indices into data, Trajectories) batches. All trajectories at once when they share a length (with
+    the system's parameters); otherwise sorted by length, BATCH_SIZE at a time, each padded at the end to
+    the longest of its batch by repeating its last row. Every predictor is causal (yhat_t reads y_<t, u_<t;
+    forecast[t, j] reads y_<t, u_<t+j), so the entries predict_all keeps (t <= T_i) never read the padding."""
+    lengths = [len(y) for y, _ in data]
+    if len(set(lengths)) == 1:
         y = torch.tensor(np.stack([y for y, _ in data]), dtype=torch.float32)
         u = None if data[0][1] is None else torch.tensor(np.stack([u for _, u in data]), dtype=torch.float32)
-        return [Trajectories(y=y, u=u, params=params, family=family)]
-    return [
-        Trajectories(
-            y=torch.tensor(y[None], dtype=torch.float32),
-            u=None if u is None else torch.tensor(u[None], dtype=torch.float32),
-            params={k: v[i : i + 1] for k, v in params.items()},
-            family=family,
-        )
-        for i, (y, u) in enumerate(data)
-    ]
+        return [(list(range(len(data))), Trajectories(y=y, u=u, params=params, family=family))]
+    order = sorted(range(len(data)), key=lambda i: lengths[i])
+    out = []
+    for start in range(0, len(order), BATCH_SIZE):
+        idx = order[start : start + BATCH_SIZE]
+        longest = lengths[idx[-1]]
+        y = torch.tensor(np.stack([_pad(data[i][0], longest) for i in idx]), dtype=torch.float32)
+        u = None
+        if data[idx[0]][1] is not None:
+            u = torch.tensor(np.stack([_pad(data[i][1], longest) for i in idx]), dtype=torch.float32)
+        rows = {k: v[idx] for k, v in params.items()}
+        out.append((idx, Trajectories(y=y, u=u, params=rows, family=family)))
+    return out
+
+
+def _pad(a: np.ndarray, length: int) -> np.ndarray:
+    """(T_i+1, c) -> (length, c): the last row repeated."""
+    return np.concatenate([a, np.repeat(a[-1:], length - len(a), axis=0)])
 
 
 def predict_all(predictor, data, steps: int | None = None, family: str = "", params=None) -> list[np.ndarray]:
-    """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps), batched where lengths agree."""
-    out = []
-    for traj in batches(data, family, params or {}):
+    """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps, NaN where t + j > T_i), in the
+    order of data, computed in batches (see batches)."""
+    out: list[np.ndarray | None] = [None] * len(data)
+    for idx, traj in batches(data, family, params or {}):
         pred = predictor.predict(traj) if steps is None else forecast(predictor, traj, steps)
-        out += list(pred.double().cpu().numpy())
+        pred = pred.double().cpu()
+        for row, i in enumerate(idx):
+            own = pred[row : row + 1, : len(data[i][0])].clone()  # (1, T_i+1, ...)
+            out[i] = (own if steps is None else nan_beyond_horizon(own))[0].numpy()
     return out
 
 
 def simulate_all(predictor, data, context: int, family: str = "", params=None) -> list[np.ndarray]:
-    """[(T_i+1-C, m)] free-run simulations after C outputs, batched where lengths agree."""
-    out = []
-    for traj in batches(data, family, params or {}):
-        out += list(simulate(predictor, traj, context).double().cpu().numpy())
+    """[(T_i+1-C, m)] free-run simulations after C outputs, in the order of data, computed in batches (see
+    batches: sim[:, j] predicts y_{C+j} from y_<C and u_<C+j, so the kept j <= T_i - C never read padding)."""
+    out: list[np.ndarray | None] = [None] * len(data)
+    for idx, traj in batches(data, family, params or {}):
+        sim = simulate(predictor, traj, context).double().cpu().numpy()
+        for row, i in enumerate(idx):
+            out[i] = sim[row, : len(data[i][0]) - context]
     return out
 
 

@@ -20,6 +20,7 @@ feed back its own predictions as measured. A model without the mask refuses data
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections.abc import Sequence
 
@@ -28,6 +29,7 @@ from torch import Tensor, nn
 
 from mop.errors import MopError
 from mop.missing import masked_inputs
+from mop.models.rollout import can_branch, forecast_batch, transformer_chunk_size
 from mop.systems.base import Trajectories
 
 
@@ -170,9 +172,47 @@ class LearnedPredictor:
         [yhat_t, u_t], ..., [yhat_{t+j-1}, u_{t+j-1}] (the given future inputs, the predicted outputs) and
         yhat_{t+j} is its output at the last position, with the window semantics of predict: a
         context-limited model sees the last C of those inputs, a recurrent one all of them (in "stream" mode
-        too). A Gaussian read-out feeds back its mean only (no sampling), so the forecast is the mean path,
-        not the predictive mean of y_{t+j}. Entries with t + j > T are NaN. One forward per (t, j).
+        too; there j = 0 is the stream's one-step prediction). A Gaussian read-out feeds back its mean only
+        (no sampling), so the forecast is the mean path, not the predictive mean of y_{t+j}. Entries with
+        t + j > T are NaN. All origins advance together at the cost of the new inputs (mop.models.rollout);
+        equal to reference_forecast to float rounding.
         """
+        if not can_branch(self.model):
+            return self.reference_forecast(traj, steps)
+        z = self._inputs(traj)  # (B, T, d_in) normalised, model dtype
+        first = None
+        if self.mode == "stream" and self.model.context_limited and z.shape[1] > self.cfg.context:
+            first = self.predict(traj).double()  # (B, T+1, m) the stream's one-step predictions
+            if self.normalization is not None:
+                norm = self.normalization
+                first = (first - norm.y_mean.to(first.device)) / norm.y_std.to(first.device)
+            first = first.to(z)
+        chunk = self.chunk_size
+        if self.model.context_limited:
+            chunk = min(chunk, transformer_chunk_size(self.cfg, z.shape[1], steps))
+        parts = []
+        with torch.no_grad(), self._eval():
+            for i in range(0, z.shape[0], chunk):
+                part = None if first is None else first[i : i + chunk]
+                parts.append(forecast_batch(self.model, z[i : i + chunk], steps, part))
+        f = torch.cat(parts)  # (B, T+1, K, m) in the model's units
+        if self.normalization is not None:
+            f = self.normalization.outputs(f, None)[0]
+        return f.to(device=traj.y.device, dtype=traj.y.dtype)
+
+    @contextlib.contextmanager
+    def _eval(self):
+        was_training = self.model.training
+        self.model.eval()
+        try:
+            yield
+        finally:
+            self.model.train(was_training)
+
+    def reference_forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """forecast by definition: one forward of the model per (origin t, step j), on the last C inputs of
+        z_0..z_{t-1}, [yhat_t, u_t], .., [yhat_{t+j-1}, u_{t+j-1}] (the slow reference of the tests, and the
+        path of a model without prefill/branch or a recurrent cache)."""
         yhat = self.predict(traj)  # (B, T+1, m)
         B, T1, m = yhat.shape
         out = yhat.new_full((B, T1, steps, m), float("nan"))
