@@ -12,5 +12,6 @@ __version__ = "0.1.0"
 
 
 def load(run_dir, device="cpu"):
-    """Load a trained predictor from a run directory (see mop.runs)."""
+    """Load a trained predictor from a run directory or a shipped one, `pretrained:NAME` (see mop.runs;
+    `mop pretrained` lists the shipped models)."""
     return _load_predictor(run_dir, device=device)

@@ -16,6 +16,7 @@ COMMANDS = {
     "train": ("mop.commands.train", "train a meta-output-predictor"),
     "reproduce": ("mop.commands.reproduce", "reproduce a paper figure or run an experiment file"),
     "predict": ("mop.commands.predict", "one- or k-step predictions of a run or baseline on your data"),
+    "pretrained": ("mop.commands.pretrained", "the predictors shipped with mop: list, show, build"),
     "bench": ("mop.commands.bench", "benchmarks: simulate, filters, train, stream, recipe"),
 }
 

@@ -4,6 +4,8 @@
                        run on recorded data also data.y_mean/y_std/u_mean/u_std -> the predictor's scaling
     model.safetensors  the weights
 
+A run is named by its directory or by `pretrained:NAME`, a run shipped inside the package (mop.pretrained),
+whose files are checked against its card's SHA-256 digests before anything is read.
 Imports neither the trainer nor TensorBoard, so `mop.load` and `mop predict` start fast.
 """
 
@@ -11,7 +13,6 @@ from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 
 import torch
 from torch import nn
@@ -22,11 +23,12 @@ from mop.errors import MopError
 from mop.models import build_model, predictor_names, skip_presets
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.predictors import PREDICTORS, Predictor
+from mop.pretrained import resolve_run_dir
 
 
 def load_config(run_dir: str | os.PathLike) -> RunConfig:
     """The RunConfig saved in `run_dir`/config.json; MopError for a missing or damaged run directory."""
-    run_dir = Path(run_dir)
+    run_dir = resolve_run_dir(run_dir)
     if not run_dir.is_dir():
         raise MopError(f"run directory {run_dir} does not exist; train one with `mop train --out {run_dir}`")
     path = run_dir / "config.json"
@@ -42,9 +44,10 @@ def load_model(
     run_dir: str | os.PathLike, device: str | torch.device = "cpu"
 ) -> tuple[nn.Module, ModelConfig]:
     """The model of a run directory (config.json + model.safetensors), in eval mode on `device`."""
+    run_dir = resolve_run_dir(run_dir)
     config = load_config(run_dir)
     model = build_model(config.model)
-    load_model_weights(Path(run_dir) / "model.safetensors", model)
+    load_model_weights(run_dir / "model.safetensors", model)
     return model.to(device).eval(), config.model
 
 
@@ -54,10 +57,14 @@ def load_predictor(
     """A trained run as a LearnedPredictor (the Predictor interface of the classical filters).
 
     A run on recorded data predicts in the data's units (its normalisation, from config.json, is applied).
+    `run_dir` may be `pretrained:NAME` (checked once, then read from the package).
     """
+    source = str(run_dir)
+    run_dir = resolve_run_dir(run_dir)
     model, config = load_model(run_dir, device)
     name = predictor_names().get(config.arch, config.arch)  # the predictor its architecture registered
-    return LearnedPredictor(model, name=name, mode=mode, normalization=load_normalization(run_dir))
+    normalization = load_normalization(run_dir)
+    return LearnedPredictor(model, name=name, mode=mode, normalization=normalization, source=source)
 
 
 def load_normalization(run_dir: str | os.PathLike) -> Normalization | None:

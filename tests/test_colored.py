@@ -103,3 +103,25 @@ def test_empirical_error_matches_its_covariance_and_beats_the_white_kf():
     white = ((make_predictor("kalman").predict(traj) - traj.y) ** 2).sum(-1).mean()
     assert mse < 0.8 * white, (mse, white)
     torch.testing.assert_close(ColoredNoiseKalmanPredictor().predict(traj), yhat)
+
+
+@pytest.mark.parametrize(("window", "n", "m"), [(1, 3, 2), (2, 3, 2), (5, 4, 3)])
+def test_shift_register_filter_equals_the_dense_augmented_filter(window, n, m, monkeypatch):
+    """The structured filter (colored_filter, used by the predictor) against the generic Gaussian core on
+    the dense augmented model: one-step, S_t and k-step means to 1e-10 over 100 steps, in chunks."""
+    from mop.filters import colored
+    from mop.filters.colored import colored_filter
+
+    monkeypatch.setattr(colored, "CHUNK", 3)
+    traj = family(window, n=n, m=m).generate(7, 100, generator=generator(window))
+    p = traj.params
+    args = (p["A"], p["C"], p["noise_var_w"], p["noise_var_v"], window)
+    ref_yhat, ref_S = colored_kalman_filter(*args, traj.y, p["P0"])
+    means, S = colored_filter(*args, traj.y, p["P0"], steps=1)
+    torch.testing.assert_close(means[:, :, 0], ref_yhat, atol=1e-10, rtol=0)
+    torch.testing.assert_close(S, ref_S, atol=1e-10, rtol=0)
+    predictor = make_predictor("kalman-colored")
+    fast, slow = predictor.forecast(traj, 6), predictor.reference_forecast(traj, 6)
+    assert torch.equal(fast.isnan(), slow.isnan())
+    torch.testing.assert_close(fast, slow, atol=1e-10, rtol=0, equal_nan=True)
+    torch.testing.assert_close(predictor.predict(traj), ref_yhat, atol=1e-10, rtol=0)

@@ -19,6 +19,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mop"
 # lowest first; a module belongs to the layer of its longest matching prefix
 LAYERS: list[tuple[str, ...]] = [
     ("mop.errors", "mop.registry", "mop.atomic", "mop.progress", "mop.metrics", "mop.io", "mop.report"),
+    ("mop.missing",),
+    ("mop.pretrained",),  # the shipped runs' files and cards (mop.runs resolves pretrained:NAME with it)
     ("mop.plots", "mop.checkpoint"),
     ("mop.systems", "mop.config"),
     ("mop.predictors",),
@@ -26,7 +28,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.models", "mop.runs"),
     ("mop.evaluate",),
     ("mop.train",),
-    ("mop.experiments",),
+    ("mop.experiments", "mop.pretrained.build"),
     ("mop.bench",),
     ("mop.commands", "mop.cli", "mop.__main__", "mop"),
 ]

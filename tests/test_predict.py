@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 import torch
 
 from mop.cli import main
@@ -40,3 +41,43 @@ def test_predict_stream_longer_than_context(tiny_run, tmp_path, capsys):
     np.testing.assert_allclose(yhat, ref, rtol=1e-5, atol=1e-6)
     rmse = np.sqrt(((y[:, 1:] - yhat[:, 1:]) ** 2).mean())
     assert f"{rmse:.4g}" in capsys.readouterr().out  # overall RMSE printed
+
+
+def _one_at_a_time(predictor, data, steps):
+    """Each trajectory alone (no padding): predict, or the k-step forecast."""
+    from mop.predictors import forecast
+
+    out = []
+    for y, u in data:
+        traj = Trajectories(
+            y=torch.tensor(y[None], dtype=torch.float32),
+            u=None if u is None else torch.tensor(u[None], dtype=torch.float32),
+        )
+        out.append(
+            (predictor.predict(traj) if steps is None else forecast(predictor, traj, steps))[0].numpy()
+        )
+    return out
+
+
+@pytest.mark.parametrize("steps", [None, 4])
+@pytest.mark.parametrize("name", ["rls", "rls-best", "n4sid-kf", "last", "mop"])
+def test_unequal_lengths_in_padded_batches_equal_one_at_a_time(
+    name, steps, tiny_run, monkeypatch, one_thread
+):
+    """Sorted, padded batches (two of them here) give each trajectory's own predictions: bit for bit for
+    the classical predictors; for the learned model to float32 rounding (the batched matrix products differ
+    in the last bit from one-row ones, as they do for equal lengths)."""
+    from mop.commands import predict
+    from mop.predictors import make_predictor
+
+    monkeypatch.setattr(predict, "BATCH_SIZE", 4)
+    rng = np.random.default_rng(3)
+    data = [(rng.normal(size=(length, 2)), None) for length in (25, 31, 12, 40, 25, 33, 18)]
+    p = load_predictor(tiny_run) if name == "mop" else make_predictor(name)
+    batched, alone = predict.predict_all(p, data, steps), _one_at_a_time(p, data, steps)
+    for (y, _), a, b in zip(data, batched, alone, strict=True):
+        assert a.shape == b.shape and a.shape[0] == len(y)
+        if name == "mop":
+            np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
+        else:
+            np.testing.assert_array_equal(a, b)

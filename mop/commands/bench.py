@@ -11,6 +11,7 @@ BENCHMARKS = {
     "train": "ms per training step vs. a plain Hugging Face GPT2Model loop",
     "stream": "streaming (KV cache) vs. window recomputation, predictions per second",
     "recipe": "MOP/KF MSE ratio reached within wall-clock budgets, training recipe vs. recipe",
+    "forecast": "k-step forecast time against T and K beside one-step predict, learned model and filters",
 }
 
 

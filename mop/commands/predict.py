@@ -6,10 +6,14 @@ rls, last). Predictors that know the system (needs_system=True, e.g. kalman, ekf
 string array and the `param_<name>` arrays of an .npz written by `mop simulate`.
 
 Output: CSV long format `trajectory,t,yhat0..` or NPZ yhat (B, T+1, m) (all trajectories of one length).
+Trajectories of unequal lengths run in padded batches (see batches), equal to one at a time.
 With --steps K: k-step forecasts, forecast[t, j] predicting y_{t+j} from y_<t (j = 0..K-1, j = 0 the one-step
 prediction; see mop.predictors.forecast): NPZ yhat (B, T+1, K, m) with NaN where t + j > T; CSV
 `trajectory,t,j,yhat0..` with one row per (t, j), t + j <= T. Prints per-trajectory RMSE and mean ||e|| over
 t >= 1 (one-step), or with --steps the mean ||y_{t+j} - forecast[t, j]|| per horizon k = j + 1 over t >= 1.
+With --simulate C: free-run simulation (mop.predictors.simulate), y_C..y_T predicted from y_0..y_{C-1} and the
+inputs alone: NPZ ysim (B, T+1-C, m), CSV `trajectory,t,ysim0..` for t >= C; prints the simulation RMSE beside
+the one-step RMSE over the same steps t >= C.
 """
 
 from __future__ import annotations
@@ -25,22 +29,37 @@ from mop.atomic import atomic_path
 from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.io import read_system, read_trajectories
-from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor, needs_system
+from mop.predictors import (
+    PREDICTORS,
+    forecast,
+    is_learned,
+    make_predictor,
+    nan_beyond_horizon,
+    needs_system,
+    simulate,
+)
+from mop.pretrained import is_pretrained
 from mop.runs import load_predictor
 from mop.systems import FAMILIES
-from mop.systems.base import Trajectories
+from mop.systems.base import LINEAR_MODEL_ARRAYS, Trajectories, linear_model_from_params
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "predictor",
-        help="run directory of `mop train`, or a registered predictor name; these need only the data: "
-        + ", ".join(model_free()),
+        help="run directory of `mop train`, pretrained:NAME (shipped: mop pretrained), or a registered "
+        "predictor name; these need only the data: " + ", ".join(model_free()),
     )
     parser.add_argument("data", help="trajectories: .csv (trajectory,t,y0..,u0..) or .npz (y, u[, param_*])")
     parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
     parser.add_argument("--stream", action="store_true", help="KV-cache streaming (constant cost per step)")
     parser.add_argument("--steps", type=int, help="k-step forecasts for k = 1..STEPS (see above)")
+    parser.add_argument(
+        "--simulate",
+        type=int,
+        metavar="C",
+        help="free-run simulation of y_C..y_T after a context of C outputs",
+    )
 
 
 def model_free() -> list[str]:
@@ -49,62 +68,148 @@ def model_free() -> list[str]:
 
 
 def resolve_predictor(spec: str, stream: bool = False):
-    """(predictor, needs_system) for a run directory or a registered (non-learned) predictor name."""
-    if Path(spec).is_dir():
+    """(predictor, needs_system) for a run directory, pretrained:NAME or a registered (non-learned) name."""
+    if is_pretrained(spec) or Path(spec).is_dir():
         return load_predictor(spec, mode="stream" if stream else "window"), False
     names = PREDICTORS.names()
     if spec not in names:
         raise MopError(
             f"{spec!r}: run directory {spec} does not exist and no predictor is registered under that name; "
-            f"give a run directory or one of: {', '.join(sorted(names))}"
+            f"give a run directory, pretrained:NAME (mop pretrained lists them) or one of: "
+            f"{', '.join(sorted(names))}"
         )
     if is_learned(spec):
         raise MopError(f"{spec} is a learned predictor: give its run directory (mop train --out DIR)")
     return make_predictor(spec), needs_system(spec)
 
 
-def system_of(name: str, data_path: Path, num: int) -> tuple[str, dict[str, torch.Tensor]]:
-    """The family and params a system-aware predictor needs from DATA, or a one-line MopError."""
+def system_of(
+    name: str, data_path: Path, num: int, has_inputs: bool = False
+) -> tuple[str, dict[str, torch.Tensor]]:
+    """The family and params a system-aware predictor needs from DATA, or a one-line MopError.
+
+    A predictor registered with linear_model=True (kalman) also takes any linear-Gaussian model: where DATA
+    has no family, or lacks that family's generator arrays, it needs param_A, param_C, param_Q, param_R
+    (optional param_B, param_P0, param_x0_mean) and runs with family "" (linear_model_from_params)."""
     if data_path.suffix == ".csv":
         raise MopError(
             f"{name} needs the system's parameters, and a CSV has no system parameters; "
             f"give an .npz written by mop simulate, or use {', '.join(model_free())}"
         )
     family, params = read_system(data_path, num)
-    if not family:
-        raise MopError(f"{name} needs the array family in {data_path}; write the file with mop simulate")
-    if family not in FAMILIES.names():
-        raise MopError(f"{data_path}: family {family!r} is not one of {', '.join(FAMILIES.names())}")
-    sample = FAMILIES.get(family)(SystemConfig(family=family)).sample(1, generator=torch.Generator())
-    missing = [f"param_{k}" for k in sample if k not in params]
-    if missing:
+    linear_ok = bool(PREDICTORS.meta(name).get("linear_model"))
+    missing = ["family"]
+    if family:
+        if family not in FAMILIES.names():
+            raise MopError(f"{data_path}: family {family!r} is not one of {', '.join(FAMILIES.names())}")
+        sample = FAMILIES.get(family)(SystemConfig(family=family)).sample(1, generator=torch.Generator())
+        missing = [f"param_{k}" for k in sample if k not in params]
+        if not missing:
+            return family, {k: torch.from_numpy(v) for k, v in params.items()}
+    if not linear_ok:
         raise MopError(f"{name} needs {', '.join(missing)} in {data_path}; write the file with mop simulate")
-    return family, {k: torch.from_numpy(v) for k, v in params.items()}
+    lacking = [f"param_{k}" for k in LINEAR_MODEL_ARRAYS if k not in params]
+    if lacking:
+        raise MopError(
+            f"{name} needs {', '.join(lacking)} in {data_path} (a linear model: param_A, param_C, param_Q, "
+            "param_R; optional param_B, param_P0, param_x0_mean), or write the file with mop simulate"
+        )
+    if has_inputs != ("B" in params):
+        raise MopError(
+            f"{data_path}: "
+            + (
+                "the inputs u need param_B (B, n, k), the input matrix of the linear model"
+                if has_inputs
+                else "param_B is given but there are no inputs u; add u (B, T+1, k) or drop param_B"
+            )
+        )
+    tensors = {k: torch.from_numpy(v).double() for k, v in params.items()}
+    linear_model_from_params(tensors)  # shapes checked before any work
+    return "", tensors
 
 
-def batches(data, family: str, params: dict) -> list[Trajectories]:
-    """One Trajectories of all trajectories when they share a length (and the system's parameters), else one
-    per trajectory."""
-    if len({len(y) for y, _ in data}) == 1:
+BATCH_SIZE = 256  # trajectories per padded batch of unequal lengths
+
+
+def batches(data, family: str, params: dict) -> list[tuple[list[int], Trajectories]]:
+    """(indices into data, Trajectories) batches. All trajectories at once when they share a length (with
+    the system's parameters); otherwise sorted by length, BATCH_SIZE at a time, each padded at the end to
+    the longest of its batch by repeating its last row. Every predictor is causal (yhat_t reads y_<t, u_<t;
+    forecast[t, j] reads y_<t, u_<t+j), so the entries predict_all keeps (t <= T_i) never read the padding."""
+    lengths = [len(y) for y, _ in data]
+    if len(set(lengths)) == 1:
         y = torch.tensor(np.stack([y for y, _ in data]), dtype=torch.float32)
         u = None if data[0][1] is None else torch.tensor(np.stack([u for _, u in data]), dtype=torch.float32)
-        return [Trajectories(y=y, u=u, params=params, family=family)]
-    return [
-        Trajectories(
-            y=torch.tensor(y[None], dtype=torch.float32),
-            u=None if u is None else torch.tensor(u[None], dtype=torch.float32),
-        )
-        for y, u in data
-    ]
+        return [(list(range(len(data))), Trajectories(y=y, u=u, params=params, family=family))]
+    order = sorted(range(len(data)), key=lambda i: lengths[i])
+    out = []
+    for start in range(0, len(order), BATCH_SIZE):
+        idx = order[start : start + BATCH_SIZE]
+        longest = lengths[idx[-1]]
+        y = torch.tensor(np.stack([_pad(data[i][0], longest) for i in idx]), dtype=torch.float32)
+        u = None
+        if data[idx[0]][1] is not None:
+            u = torch.tensor(np.stack([_pad(data[i][1], longest) for i in idx]), dtype=torch.float32)
+        rows = {k: v[idx] for k, v in params.items()}
+        out.append((idx, Trajectories(y=y, u=u, params=rows, family=family)))
+    return out
+
+
+def _pad(a: np.ndarray, length: int) -> np.ndarray:
+    """(T_i+1, c) -> (length, c): the last row repeated."""
+    return np.concatenate([a, np.repeat(a[-1:], length - len(a), axis=0)])
 
 
 def predict_all(predictor, data, steps: int | None = None, family: str = "", params=None) -> list[np.ndarray]:
-    """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps), batched where lengths agree."""
-    out = []
-    for traj in batches(data, family, params or {}):
+    """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps, NaN where t + j > T_i), in the
+    order of data, computed in batches (see batches)."""
+    out: list[np.ndarray | None] = [None] * len(data)
+    for idx, traj in batches(data, family, params or {}):
         pred = predictor.predict(traj) if steps is None else forecast(predictor, traj, steps)
-        out += list(pred.double().cpu().numpy())
+        pred = pred.double().cpu()
+        for row, i in enumerate(idx):
+            own = pred[row : row + 1, : len(data[i][0])].clone()  # (1, T_i+1, ...)
+            out[i] = (own if steps is None else nan_beyond_horizon(own))[0].numpy()
     return out
+
+
+def simulate_all(predictor, data, context: int, family: str = "", params=None) -> list[np.ndarray]:
+    """[(T_i+1-C, m)] free-run simulations after C outputs, in the order of data, computed in batches (see
+    batches: sim[:, j] predicts y_{C+j} from y_<C and u_<C+j, so the kept j <= T_i - C never read padding)."""
+    out: list[np.ndarray | None] = [None] * len(data)
+    for idx, traj in batches(data, family, params or {}):
+        sim = simulate(predictor, traj, context).double().cpu().numpy()
+        for row, i in enumerate(idx):
+            out[i] = sim[row, : len(data[i][0]) - context]
+    return out
+
+
+def write_simulation(path: Path, names: list[str], sims: list[np.ndarray], context: int) -> None:
+    if path.suffix == ".npz":
+        if len({len(p) for p in sims}) != 1:
+            raise MopError(f"{path}: trajectories differ in length; write a .csv instead")
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, ysim=np.stack(sims), context=np.array(context))
+        return
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["trajectory", "t", *[f"ysim{i}" for i in range(sims[0].shape[-1])]])
+        for name, p in zip(names, sims, strict=True):
+            for j, row in enumerate(p):
+                w.writerow([name, context + j, *[f"{v:.7g}" for v in row]])
+
+
+def print_simulation_errors(names, data, yhat, sims, context: int) -> None:
+    """Per trajectory and overall RMSE over t >= C: one-step (yhat) beside free-run simulation."""
+    print(f"{'trajectory':>12} {'steps':>6} {'one-step rmse':>14} {'simulation rmse':>16}")
+    one, sim = [], []
+    for name, (y, _), p, s in zip(names, data, yhat, sims, strict=True):
+        one.append(y[context:] - p[context:])
+        sim.append(y[context:] - s)
+        rm = lambda e: np.sqrt((e**2).mean())  # noqa: E731
+        print(f"{name:>12} {len(s):>6} {rm(one[-1]):>14.4g} {rm(sim[-1]):>16.4g}")
+    e1, es = np.concatenate(one), np.concatenate(sim)
+    print(f"{'overall':>12} {len(es):>6} {np.sqrt((e1**2).mean()):>14.4g} {np.sqrt((es**2).mean()):>16.4g}")
 
 
 def write_output(path: Path, names: list[str], yhat: list[np.ndarray]) -> None:
@@ -130,21 +235,23 @@ def write_output(path: Path, names: list[str], yhat: list[np.ndarray]) -> None:
         raise MopError(f"--out {path}: use a .csv or .npz file name")
 
 
+def observed_norms(e: np.ndarray) -> np.ndarray:
+    """||e_t|| over the measured channels (e NaN where y was missing) for the steps with any measured:
+    e (T, m) -> (T',)."""
+    seen = ~np.isnan(e).all(axis=-1)
+    return np.sqrt(np.nansum(e[seen] ** 2, axis=-1))
+
+
 def print_errors(names, data, yhat) -> None:
+    """RMSE and mean ||e_t|| over t >= 1, on the measured outputs only (missing ones, NaN, are skipped)."""
     print(f"{'trajectory':>12} {'steps':>6} {'rmse':>10} {'mean|e|':>10}")
     errs = []
     for name, (y, _), p in zip(names, data, yhat, strict=True):
         e = y[1:] - p[1:]  # (T, m), skip t=0 (no data)
         errs.append(e)
-        print(
-            f"{name:>12} {len(e):>6} {np.sqrt((e**2).mean()):>10.4g} "
-            f"{np.linalg.norm(e, axis=-1).mean():>10.4g}"
-        )
+        print(f"{name:>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
     e = np.concatenate(errs)
-    print(
-        f"{'overall':>12} {len(e):>6} {np.sqrt((e**2).mean()):>10.4g} "
-        f"{np.linalg.norm(e, axis=-1).mean():>10.4g}"
-    )
+    print(f"{'overall':>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
 
 
 def print_horizon_errors(data, forecasts, steps: int) -> None:
@@ -152,7 +259,7 @@ def print_horizon_errors(data, forecasts, steps: int) -> None:
     print(f"{'k':>4} {'count':>8} {'mean|e|':>10}")
     for j in range(steps):
         err = [y[1 + j :] - f[1 : len(y) - j, j] for (y, _), f in zip(data, forecasts, strict=True)]
-        e = np.concatenate([np.linalg.norm(d, axis=-1) for d in err])
+        e = np.concatenate([observed_norms(d) for d in err])
         print(f"{j + 1:>4} {len(e):>8} {e.mean() if len(e) else float('nan'):>10.4g}")
 
 
@@ -163,10 +270,25 @@ def run(args: argparse.Namespace) -> int:
         raise MopError(f"--out {out}: use a .csv or .npz file name")
     if args.steps is not None and args.steps < 1:
         raise MopError(f"--steps must be >= 1, got {args.steps}")
+    if args.simulate is not None and args.steps is not None:
+        raise MopError("give --steps or --simulate, not both")
     predictor, knows_system = resolve_predictor(args.predictor, args.stream)
     names, data = read_trajectories(data_path)
-    family, params = system_of(args.predictor, data_path, len(data)) if knows_system else ("", {})
+    if args.simulate is not None:
+        shortest = min(len(y) for y, _ in data) - 1
+        if not 1 <= args.simulate <= shortest:
+            raise MopError(
+                f"--simulate must be in [1, {shortest}] (the shortest trajectory's T), got {args.simulate}"
+            )
+    has_inputs = data[0][1] is not None
+    family, params = system_of(args.predictor, data_path, len(data), has_inputs) if knows_system else ("", {})
     yhat = predict_all(predictor, data, args.steps, family, params)
+    if args.simulate is not None:
+        sims = simulate_all(predictor, data, args.simulate, family, params)
+        print_simulation_errors(names, data, yhat, sims, args.simulate)
+        write_simulation(out, names, sims, args.simulate)
+        print(f"wrote {out}")
+        return 0
     if args.steps is None:
         print_errors(names, data, yhat)
     else:

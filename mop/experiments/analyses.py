@@ -22,7 +22,7 @@ from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Measure
 from mop.filters.kalman import optimal_mse_curve
 from mop.metrics import coverage, gaussian_nll, loglog_slope, matrix_power_ratio, window_mean
-from mop.predictors import Predictor, first_learned, forecast
+from mop.predictors import Predictor, first_learned, forecast, simulate
 from mop.registry import Registry
 
 ANALYSES: Registry = Registry("analysis")
@@ -280,3 +280,73 @@ def experiment_entries(analyses: tuple[str, ...], results: Results) -> dict:
 def experiment_sections(analyses: tuple[str, ...], entries: dict) -> list[str]:
     """The report sections of those entries, in the experiment's order."""
     return [s for name in analyses for s in ANALYSES.meta(name).get("sections", lambda _: [])(entries)]
+
+
+def simulation_context(result) -> int:
+    """The condition's context c, default 4/5 of the horizon (at least 1)."""
+    T = result.traj.horizon
+    c = result.condition.context
+    return min(max(1, (4 * T) // 5 if c is None else c), T)
+
+
+def _simulation_table(extras: dict) -> str:
+    simulation = extras["simulation"]
+    c = simulation["context"]
+    lines = [
+        f"Free-run simulation after a context of {c} outputs (y_{c}..y_T from the inputs alone), RMSE over "
+        "those steps beside the one-step RMSE over the same steps:",
+        "",
+        "| predictor | one-step RMSE | simulation RMSE |",
+        "|---|---|---|",
+    ]
+    lines += [
+        f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} |"
+        for n, r in simulation["rmse"].items()
+    ]
+    return "\n".join(lines) + "\n"
+
+
+@ANALYSES.register("simulation", markdown=_simulation_table)
+def simulation_analysis(result, predictors: list, reference: str) -> dict:
+    """Free-run simulation after the condition's context c (simulation_context), for every predictor with a
+    forecast or a simulate: each system's RMSE over y_c..y_T and the outputs, averaged over systems
+    (Forgione et al.'s convention), and beside it the one-step RMSE over the same steps.
+    Predictors that can do neither are left out."""
+    c = simulation_context(result)
+    y = result.traj.y[:, c:].double()
+    m = y.shape[-1]
+    table = {}
+    for p in predictors:
+        if not (callable(getattr(p, "simulate", None)) or callable(getattr(p, "forecast", None))):
+            continue
+        sim = simulate(p, result.traj, c).double()
+        one = result.errors[p.name][:, c:]  # (N, T+1-c) ||e_t||
+        table[p.name] = {
+            "simulation_rmse": float(((sim - y) ** 2).mean((1, 2)).sqrt().mean()),
+            "one_step_rmse": float(np.sqrt((one**2).mean(1) / m).mean()),
+        }
+    return {"simulation": {"context": c, "rmse": table}}
+
+
+def _simulation(result: ConditionResult, name: str) -> dict:
+    table = result.extras.get("simulation", {}).get("rmse", {})
+    if name not in table:
+        raise MopError(f"simulation RMSE of {name!r} needs the 'simulation' analysis and a forecast")
+    return table[name]
+
+
+def _simulation_text(measure: Measure, reference: str) -> str:
+    kind = "simulation" if measure.metric == "simulation_rmse" else "one-step"
+    return f"{kind} RMSE of {measure.predictor} after the context{where(measure)}"
+
+
+@MEASURES.register("simulation_rmse", describe=_simulation_text)
+def simulation_rmse(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
+    """The simulation analysis's free-run RMSE of `predictor` after the context."""
+    return _simulation(result, measure.predictor)["simulation_rmse"]
+
+
+@MEASURES.register("one_step_rmse", describe=_simulation_text)
+def one_step_rmse(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
+    """The simulation analysis's one-step RMSE of `predictor` over the same steps."""
+    return _simulation(result, measure.predictor)["one_step_rmse"]

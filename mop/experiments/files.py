@@ -8,6 +8,8 @@
     reference = "ekf"
     [train]
     "system.family" = "pendulum"
+    [runs]                               # optional: load a learned predictor instead of training it
+    mop = "pretrained:linear"            # (a run directory, relative to this file, or a shipped model)
     [[conditions]]
     name = "test"
     horizon = 50
@@ -31,6 +33,7 @@ from typing import Any
 from mop.config import from_dict
 from mop.errors import MopError
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
+from mop.pretrained import is_pretrained
 
 
 def is_experiment_file(name: str) -> bool:
@@ -50,13 +53,17 @@ def load_experiment(path: str | Path) -> Experiment:
 
 
 def _resolve_paths(data: dict[str, Any], root: Path) -> None:
-    """Data files named in the experiment (train "data.path", conditions' "data") are relative to it."""
-    at = lambda p: p if not p or Path(p).is_absolute() else str(root / p)  # noqa: E731
+    """Data files and run directories named in the experiment (train "data.path", conditions' "data",
+    `runs` values other than pretrained:NAME) are relative to it."""
+    at = lambda p: p if not p or Path(p).is_absolute() or is_pretrained(p) else str(root / p)  # noqa: E731
     if isinstance(data.get("train"), dict) and "data.path" in data["train"]:
         data["train"]["data.path"] = at(data["train"]["data.path"])
-    for condition in data.get("conditions", []):
-        if isinstance(condition, dict) and "data" in condition:
-            condition["data"] = at(condition["data"])
+    tables = [data, *data.get("conditions", [])]
+    for table in tables:
+        if isinstance(table, dict) and "data" in table and table is not data:
+            table["data"] = at(table["data"])
+        if isinstance(table, dict) and isinstance(table.get("runs"), dict):
+            table["runs"] = {k: at(v) if isinstance(v, str) else v for k, v in table["runs"].items()}
 
 
 def _read(path: Path) -> dict[str, Any]:

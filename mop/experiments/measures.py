@@ -70,7 +70,22 @@ def mse_ratio(measure: Measure, result: ConditionResult, reference: str, seed: i
 def mean_error(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     e = _errors(result, measure.predictor)
     start, stop = _span(measure, e.shape[1] - 1)
-    return float(e[:, start:stop].mean())
+    part = e[:, start:stop]
+    return float(np.nanmean(part) if np.isnan(part).any() else part.mean())  # NaN: nothing measured
+
+
+def _rmse_text(measure: Measure, reference: str) -> str:
+    return f"one-step RMSE of {measure.predictor} over {window_text(measure)}{where(measure)}"
+
+
+@MEASURES.register("rmse", describe=_rmse_text)
+def rmse(measure: Measure, result, reference: str, seed: int) -> float:
+    """Mean over systems of each system's RMSE over t in `window` and the outputs (Forgione et al.'s
+    metrics.rmse over time, then the mean over sequences)."""
+    e = _errors(result, measure.predictor)  # (N, T+1) ||e_t||
+    start, stop = _span(measure, e.shape[1] - 1)
+    m = result.traj.output_dim
+    return float(np.sqrt((e[:, start:stop] ** 2).mean(1) / m).mean())
 
 
 def measure_value(

@@ -6,6 +6,11 @@ analyses, check the claims, draw the figures, write eval.json and report.md.
 Trained runs are shared by configuration: each lives in RUNS/<predictor>-<hash of its RunConfig>, with RUNS
 the `runs` directory beside `out` unless given. Experiments (or conditions) that train the same config,
 e.g. `switching` and `linear`, reuse one run; a finished run is never trained again.
+
+Nothing is trained for a learned predictor given a run (an experiment's or condition's `runs`: a run
+directory or `pretrained:NAME`), nor with pretrained=True (`mop reproduce --pretrained`), which evaluates the
+shipped model trained on the condition's family (mop.pretrained.find_shipped); every such run is resolved
+before any evaluation, so a missing one is a one-line error before any work.
 """
 
 from __future__ import annotations
@@ -36,7 +41,9 @@ from mop.experiments.measures import describe, measure_value
 from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.io import read_trajectories
+from mop.missing import drop_mask, drop_outputs
 from mop.predictors import PREDICTORS, first_learned, is_learned, make_predictor, needs_system
+from mop.pretrained import find_shipped, shipped_names
 from mop.report import build_report, claim_line, summary_section
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
@@ -54,6 +61,7 @@ class Session:
     overrides: list[str]
     progress: bool
     choices: dict[str, bool]  # predictor -> forced in (True) or out (False), over its skip_presets
+    pretrained: bool = False
     loaded: dict[str, Any] = dataclasses.field(default_factory=dict)
     runs: dict[str, str] = dataclasses.field(default_factory=dict)
 
@@ -76,18 +84,45 @@ def _included(session: Session, name: str) -> bool:
     return session.preset not in PREDICTORS.meta(name).get("skip_presets", ())
 
 
+def _with_arch(trained: RunConfig, name: str) -> RunConfig:
+    arch = PREDICTORS.meta(name)["arch"]
+    return dataclasses.replace(trained, model=dataclasses.replace(trained.model, arch=arch))
+
+
+def given_run(session: Session, name: str, condition: Condition, trained: RunConfig) -> str:
+    """The run learned predictor `name` uses under `condition` without training ("" = train it): the
+    condition's or experiment's `runs` entry, else with --pretrained the matching shipped model."""
+    given = {**session.exp.runs, **condition.runs}.get(name, "")
+    if given or not session.pretrained:
+        return given
+    config = _with_arch(trained, name)
+    found = find_shipped(to_dict(config))
+    if found is None:
+        shipped = ", ".join(shipped_names()) or "none"
+        raise MopError(
+            f"{session.exp.name} [{condition.name}]: no pretrained model is shipped for {name} trained on "
+            f"this condition's family ({config.system.family}, {config.model.readout} read-out; shipped: "
+            f"{shipped}); run without --pretrained to train it"
+        )
+    return found
+
+
 def learned_predictor(session: Session, name: str, condition: Condition, trained: RunConfig):
     """Train (or reuse) the run of learned predictor `name` for `condition` (its RunConfig `trained`, with
-    the predictor's architecture); the trainer hands the model over (a finished run is loaded once)."""
-    arch = PREDICTORS.meta(name)["arch"]
-    config = dataclasses.replace(trained, model=dataclasses.replace(trained.model, arch=arch))
-    run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
-    key = str(run_dir)
-    if key not in session.loaded:
-        model = train_model(config, run_dir, progress=session.progress)
-        session.loaded[key] = make_predictor(name, run_dir=str(run_dir), model=model)
-    session.runs[f"{name} [{condition.name}]"] = str(run_dir)
-    return session.loaded[key]
+    the predictor's architecture), or take its given / shipped run. A run trained here is handed over by the
+    trainer (no reload); a given, shipped or finished run is loaded once."""
+    run = given_run(session, name, condition, trained)
+    if run:
+        if run not in session.loaded:
+            session.loaded[run] = make_predictor(name, run_dir=run)
+    else:
+        config = _with_arch(trained, name)
+        run = str(session.runs_dir / f"{name}-{config_hash(config)}")
+        if run not in session.loaded:
+            model = train_model(config, run, progress=session.progress)
+            session.loaded[run] = make_predictor(name, run_dir=run, model=model)
+    session.runs[f"{name} [{condition.name}]"] = run
+    return session.loaded[run]
 
 
 def condition_config(session: Session, condition: Condition, arch: str = "gpt") -> RunConfig:
@@ -117,6 +152,22 @@ def recorded_trajectories(path: str, horizon: int) -> Trajectories:
     return Trajectories(y=y, u=None if u is None else torch.tensor(u, dtype=torch.float64))
 
 
+MISSING_SEED_OFFSET = 9_000_011  # the test drop-out masks: generator seed + this
+
+
+def with_missing(traj: Trajectories, missing: dict[str, float], seed: int) -> Trajectories:
+    """traj with outputs removed (NaN) as the condition's `missing` says; y_0 always kept; seeded."""
+    g = torch.Generator(device=traj.y.device).manual_seed(seed + MISSING_SEED_OFFSET)
+    drop = drop_mask(
+        tuple(traj.y.shape),
+        missing.get("rate", 0.0),
+        g,
+        missing.get("burst_rate", 0.0),
+        int(missing.get("burst_length", 5)),
+    )
+    return dataclasses.replace(traj, y=drop_outputs(traj.y, drop))
+
+
 def run_condition(session: Session, condition: Condition) -> ConditionResult:
     exp, preset = session.exp, get_preset(session.preset)
     trained = condition_config(session, condition)  # built once: the runs, the test horizon and family
@@ -135,6 +186,8 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
         traj = test_trajectories(
             test_system(trained, condition), preset.num_test_systems, horizon, session.seed
         )
+    if condition.missing:
+        traj = with_missing(traj, condition.missing, session.seed)
     raw = evaluate(predictors, traj, session.progress)
     summary = summarize(raw, reference=exp.reference, seed=session.seed)
     result = ConditionResult(condition, traj, {k: v["e"] for k, v in raw.items()}, summary)
@@ -211,26 +264,27 @@ def run_experiment(
     overrides: list[str] = (),
     progress: bool = True,
     choices: dict[str, bool] | None = None,
+    pretrained: bool = False,
 ) -> Path:
     """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path.
 
     choices: predictor -> True to evaluate it where its skip_presets would leave it out (--with NAME),
-    False to leave it out (--without NAME)."""
+    False to leave it out (--without NAME).
+    pretrained: evaluate the shipped models instead of training (MopError first when one is missing).
+    """
     get_preset(preset)
     for name in choices or {}:
         PREDICTORS.get(name)  # an unknown name stops here, before any training
     start = time.perf_counter()
     out = Path(out)
+    runs_dir = Path(runs_dir or out.parent / "runs")
+    session = Session(exp, preset, seed, runs_dir, list(overrides), progress, dict(choices or {}), pretrained)
+    for condition in exp.conditions_for(preset):  # resolve given / shipped runs before any work
+        trained = condition_config(session, condition)
+        for name in wanted(session, condition):
+            if is_learned(name):
+                given_run(session, name, condition, trained)
     out.mkdir(parents=True, exist_ok=True)
-    session = Session(
-        exp,
-        preset,
-        seed,
-        Path(runs_dir or out.parent / "runs"),
-        list(overrides),
-        progress,
-        dict(choices or {}),
-    )
     results = {c.name: run_condition(session, c) for c in exp.conditions_for(preset)}
     claims = [check_claim(c, results, exp.reference, seed) for c in exp.claims]
     figures = [p for name in exp.figures for p in FIGURES.get(name)(exp, results, out)]
@@ -253,6 +307,7 @@ def run_experiment(
     sections += experiment_sections(exp.analyses, entries)
     settings = {"seed": seed, "test seed": seed + TEST_SEED_OFFSET, **data["settings"]}
     title = f"mop reproduce {exp.name} ({exp.title}), preset {preset}"
+    title += ", shipped pretrained weights" if pretrained else ""
     text = build_report(
         title, sections, settings, [claim_text(c) for c in claims], time.perf_counter() - start
     )
@@ -267,6 +322,7 @@ def _settings(session: Session) -> dict:
         "overrides": session.overrides,
         "conditions": [dataclasses.asdict(c) for c in exp.conditions_for(session.preset)],
         "num_test_systems": get_preset(session.preset).num_test_systems,
+        "pretrained": session.pretrained,
         "predictors": list(exp.predictors),
         "reference": exp.reference,
     }

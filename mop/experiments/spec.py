@@ -20,6 +20,7 @@ from typing import Any
 
 from mop.config import check
 
+MISSING_KEYS = ("rate", "burst_rate", "burst_length")
 OPERATORS = ("<", "<=", ">", ">=", "between", "contains", "info")
 
 
@@ -34,6 +35,8 @@ class Measure:
         "coverage"   fraction of outputs inside the central `level` interval (predictors with a distribution)
         "matrix_power_max"  max over k of the mean ||A^k|| / rho(A)^k of the test systems
         "slope"      log-log slope of the excess MSE over the conditions of sweep axis `axis` (its 95% CI)
+        "simulation_rmse" / "one_step_rmse"  RMSE of `predictor` in free-run simulation after the condition's
+                     context / one-step over the same steps (needs the "simulation" analysis)
     window: [start, stop) in time steps; stop None means T + 1.
     condition: the test condition's name; "" the first one; "*" every condition, combined by `reduce`.
     """
@@ -95,6 +98,11 @@ class Condition:
     data: a file of recorded test trajectories (.csv / .npz, as `mop predict` reads) used instead of simulated
         systems: every trajectory with at least horizon + 1 outputs, cut to that length; predictors that need
         the system are skipped there.
+    missing: outputs of the test trajectories removed before any predictor sees them (mop.missing.drop_mask,
+        seeded apart from the systems): {"rate": p} per channel and step, {"burst_rate": q,
+        "burst_length": L} whole-step bursts; errors are then measured on the measured outputs only.
+    context: the context length c of the "simulation" analysis (free-run simulation of y_c..y_T from the
+        inputs alone); None: 4/5 of the horizon (the authors of sysid-transformers: 400 of 500).
     """
 
     name: str = "test"
@@ -104,9 +112,26 @@ class Condition:
     x: tuple[str, float] | None = None
     predictors: tuple[str, ...] = ()  # () = every predictor of the experiment
     data: str = ""
+    missing: dict[str, float] = dataclasses.field(default_factory=dict)
+    context: int | None = None
+    runs: dict[str, str] = dataclasses.field(default_factory=dict)  # as Experiment.runs, for this condition
 
     def __post_init__(self) -> None:
         check(bool(self.name), "a condition needs a name")
+        check(self.context is None or self.context >= 1, f"condition {self.name}: context must be >= 1")
+        unknown = set(self.missing) - set(MISSING_KEYS)
+        check(
+            not unknown,
+            f"condition {self.name}: unknown missing keys {sorted(unknown)}; use {', '.join(MISSING_KEYS)}",
+        )
+        for key in ("rate", "burst_rate"):
+            value = self.missing.get(key, 0.0)
+            check(0 <= value < 1, f"condition {self.name}: missing.{key} must be in [0, 1), got {value}")
+        length = self.missing.get("burst_length", 5)
+        check(
+            isinstance(length, int) and length >= 1,
+            f"condition {self.name}: missing.burst_length must be an integer >= 1, got {length!r}",
+        )
         check(self.horizon is None or self.horizon >= 1, f"condition {self.name}: horizon must be >= 1")
 
 
@@ -122,6 +147,8 @@ class Experiment:
         renders its own report table and eval.json entries.
     figures: figure names (mop.experiments.figures).
     panel: predictors of the paper-style panel (error with +-1 std bands); "" stands for the reference.
+    runs: learned predictor -> a run directory or `pretrained:NAME` it is loaded from instead of trained,
+        e.g. {"mop": "pretrained:linear"} (a condition's `runs` wins over the experiment's).
     """
 
     name: str
@@ -137,6 +164,7 @@ class Experiment:
     presets: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     preset_conditions: dict[str, tuple[Condition, ...]] = dataclasses.field(default_factory=dict)
     description: str = ""
+    runs: dict[str, str] = dataclasses.field(default_factory=dict)
 
     def conditions_for(self, preset: str) -> tuple[Condition, ...]:
         """The test conditions under `preset` (a sweep may use a smaller grid on a small preset)."""

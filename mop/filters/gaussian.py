@@ -8,8 +8,15 @@ With m_t, P_t the prior mean / covariance of x_t given y_{<t} (and u_{<t}), for 
                                      P <- (I - K C) P (I - K C)^T + K R K^T
     time update (the filter's step):  (m, P) <- step(model, m, P, u_t, t)
 
-Steps: kalman_step (linear f: m <- A_t m, P <- A_t P A_t^T + Q), ekf_step (linearise f at the posterior
-mean; `project` clips means as the simulator clips states), ukf_step (unscented transform).
+Missing outputs (NaN in y): only the measured channels o of y_t are conditioned on, i.e. the rows C_o of C
+and the block R_oo of R; a step with nothing measured keeps the prior (filterpy's update(None)). Batched, with
+a mask M = diag(observed_t) per system, this is condition_on with
+    C~ = M C,  R~ = M R M + (I - M),  y~ = M y      (S~ = blockdiag(S_oo, I), so K~ = [K_o, 0] exactly).
+The predictive covariance S_t returned is still that of all of y_t.
+
+Steps: kalman_step (linear f(x, u) = A_t x + B u: m <- A_t m + B u_t, P <- A_t P A_t^T + Q), ekf_step
+(linearise f at the posterior mean; `project` clips means as the simulator clips states), ukf_step
+(unscented transform).
 """
 
 from __future__ import annotations
@@ -28,14 +35,35 @@ Step = Callable[
 ]
 
 
-def condition_on(m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Measurement update, Joseph form. m (B, n), P (B, n, n), y (B, m) -> (m, P, S (B, m, m))."""
+def condition_on(
+    m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor, observed: Tensor | None = None
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Measurement update, Joseph form. m (B, n), P (B, n, n), y (B, m) -> (m, P, S (B, m, m)).
+
+    observed (B, m) bool or None (all measured): condition only on the measured channels of y (the entries of
+    y elsewhere, NaN, are never read); S is the predictive covariance of the whole y either way.
+    """
+    if observed is not None:
+        return _condition_on_observed(m, P, y, C, R, observed)
     S = C @ P @ C.mT + R  # (B, m, m)
     L = torch.linalg.cholesky(S)  # (B, m, m)
     K = torch.cholesky_solve(C @ P, L).mT  # (B, n, m) = P C^T S^{-1}
     m = m + (K @ (y - (C @ m[..., None])[..., 0])[..., None])[..., 0]
     I_KC = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device) - K @ C  # (B, n, n)
     P = I_KC @ P @ I_KC.mT + K @ R @ K.mT
+    return m, P, S
+
+
+def _condition_on_observed(
+    m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor, observed: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """condition_on for the channels `observed` (B, m) only: C~ = M C, R~ = M R M + (I - M), y~ = M y."""
+    M = observed.to(P.dtype)  # (B, m)
+    C_o = M[..., None] * C  # (B, m, n): rows of unmeasured channels zeroed
+    R_o = M[..., None] * R * M[:, None, :] + torch.diag_embed(1 - M)  # (B, m, m)
+    y_o = torch.where(observed, y, torch.zeros_like(y))
+    S = C @ P @ C.mT + R  # (B, m, m): the predictive covariance of all of y_t, from the prior
+    m, P, _ = condition_on(m, P, y_o, C_o, R_o)
     return m, P, S
 
 
@@ -49,19 +77,22 @@ def gaussian_filter(
 ) -> tuple[Tensor, Tensor]:
     """Predictive means yhat (B, T+1, m) and covariances S (B, T+1, m, m) of y_t given y_{<t}, u_{<t}.
 
-    y (B, T+1, m), u (B, T+1, k) or None; `project` applies the model's state projection (if any) to m_0 and
-    inside `step`. at_prior(t, m_t, P_t, projection) is called with each prior before it is conditioned on y_t
-    (gaussian_forecast rolls the k-step forecasts out from there).
+    y (B, T+1, m) with NaN where a channel was not measured, u (B, T+1, k) or None; `project` applies the
+    model's state projection (if any) to m_0 and inside `step`. at_prior(t, m_t, P_t, projection) is called
+    with each prior before it is conditioned on y_t (gaussian_forecast rolls the k-step forecasts out from
+    there).
     """
     proj = model.project if project and model.project is not None else None
     m, P = (model.m0 if proj is None else proj(model.m0)), model.P0
+    seen = ~torch.isnan(y)  # (B, T+1, m)
+    observed = None if bool(seen.all()) else seen
     means, covs = [], []
     for t in range(y.shape[1]):
         C = model.output_matrix(t)
         if at_prior is not None:
             at_prior(t, m, P, proj)
         means.append((C @ m[..., None])[..., 0])
-        m, P, S = condition_on(m, P, y[:, t], C, model.R)
+        m, P, S = condition_on(m, P, y[:, t], C, model.R, None if observed is None else observed[:, t])
         covs.append(S)
         m, P = step(model, m, P, None if u is None else u[:, t], t, proj)
     return torch.stack(means, dim=1), torch.stack(covs, dim=1)
@@ -70,10 +101,14 @@ def gaussian_filter(
 def kalman_step(
     model: StateSpace, m: Tensor, P: Tensor, u: Tensor | None, t: int, proj: Projection | None = None
 ) -> tuple[Tensor, Tensor]:
-    """Linear time update: m <- A_t m, P <- A_t P A_t^T + Q (symmetrized), A_t = df/dx."""
+    """Linear time update: m <- f(m, u_t) = A_t m + B u_t, P <- A_t P A_t^T + Q (symmetrized), A_t = df/dx.
+
+    The mean goes through the model's f, which for the linear models this filter is for is exactly
+    A_t m + B u_t (a family with inputs puts B u in f; with no inputs f(m) = A_t m). No projection."""
     A = model.transition_jacobian(m, u, t)  # (B, n, n)
     P = A @ P @ A.mT + model.Q
-    return (A @ m[..., None])[..., 0], 0.5 * (P + P.mT)
+    m_next = model.f(m[:, None], None if u is None else u[:, None], t)[:, 0]  # (B, n)
+    return m_next, 0.5 * (P + P.mT)
 
 
 def ekf_step(
@@ -156,6 +191,32 @@ def gaussian_forecast(
     return mean, cov
 
 
+def gaussian_simulate(
+    model: StateSpace, step: Step, y: Tensor, u: Tensor | None, context: int, project: bool = True
+) -> tuple[Tensor, Tensor]:
+    """Free-run simulation after `context` = c outputs: mean (B, T+1-c, m) and covariance (B, T+1-c, m, m)
+    of y_{c+j} given y_{<c} and u_{<c+j}: the filter over y_0..y_{c-1}, then its time update alone
+    (gaussian_forecast's rollout from the one origin c)."""
+    prior: dict[str, object] = {}
+
+    def keep(t: int, m: Tensor, P: Tensor, proj: Projection | None) -> None:
+        if t == context:
+            prior.update(m=m, P=P, proj=proj)
+
+    gaussian_filter(
+        model, step, y[:, : context + 1], None if u is None else u[:, : context + 1], project, keep
+    )
+    m, P, proj = prior["m"], prior["P"], prior["proj"]
+    means, covs = [], []
+    for t in range(context, y.shape[1]):
+        C = model.output_matrix(t)
+        means.append((C @ m[..., None])[..., 0])
+        covs.append(C @ P @ C.mT + model.R)
+        if t + 1 < y.shape[1]:
+            m, P = step(model, m, P, None if u is None else u[:, t], t, proj)
+    return torch.stack(means, dim=1), torch.stack(covs, dim=1)
+
+
 def filter_forecast(
     model: StateSpace, step: Step, traj: Trajectories, steps: int, project: bool = True
 ) -> tuple[Tensor, Tensor]:
@@ -194,3 +255,10 @@ class GaussianFilterPredictor:
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): forecast[:, t, j] predicts y_{t+j} from y_{<t} (NaN where t + j > T)."""
         return self.forecast_distribution(traj, steps)[0]
+
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m): y_{c+j} from y_{<c} and the inputs (gaussian_simulate's mean)."""
+        u = None if traj.u is None else traj.u.double()
+        model = state_space_of(traj)
+        mean, _ = gaussian_simulate(model, self.step, traj.y.double(), u, context, self.project)
+        return mean.to(traj.y.dtype)

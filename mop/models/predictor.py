@@ -12,10 +12,15 @@ the GRU) runs the full recurrence in both modes (streaming it is exact).
 A model trained on recorded data (`mop train --data`) reads normalised inputs: `normalization` maps
 z -> (z - z_mean) / z_std before the model (in float64) and the model's mean mu -> mu * y_std + y_mean
 (variance var * y_std^2) after it, so predictions are in the data's units; yhat[:, 0] is then y_mean.
+
+Missing outputs (NaN in traj.y): a model trained with drop-outs (model.observation_mask) reads
+[y_t zero-filled, u_t, observed_t] (after normalisation) and predicts every step, gaps included; forecasts
+feed back its own predictions as measured. A model without the mask refuses data with gaps in one line.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections.abc import Sequence
 
@@ -23,7 +28,9 @@ import torch
 from torch import Tensor, nn
 
 from mop.errors import MopError
+from mop.missing import masked_inputs
 from mop.models.registry import predictor_names
+from mop.models.rollout import can_branch, forecast_batch, transformer_chunk_size
 from mop.systems.base import Trajectories
 
 
@@ -65,6 +72,7 @@ class LearnedPredictor:
         mode: str = "window",
         chunk_size: int = 256,
         normalization: Normalization | None = None,
+        source: str = "",
     ) -> None:
         if mode not in ("window", "stream"):
             raise MopError(f"predictor mode must be 'window' or 'stream', got {mode!r}")
@@ -74,19 +82,36 @@ class LearnedPredictor:
         self.model, self.name, self.mode, self.chunk_size = model, name, mode, chunk_size
         self.cfg = model.cfg
         self.normalization = normalization
+        self.source = source  # the run directory or pretrained:NAME it was loaded from, for messages
 
     def _inputs(self, traj: Trajectories) -> Tensor:
-        z = traj.model_inputs()  # (B, T+1, d_in)
-        if z.shape[-1] != self.cfg.input_dim or traj.output_dim != self.cfg.output_dim:
+        z = traj.model_inputs()  # (B, T+1, m + k), NaN where y is missing
+        mask = traj.output_dim if self.cfg.observation_mask else 0
+        width = z.shape[-1] + mask
+        if width != self.cfg.input_dim or traj.output_dim != self.cfg.output_dim:
+            model = self.source or "the model"
+            k_data = z.shape[-1] - traj.output_dim
+            k_model = self.cfg.input_dim - self.cfg.output_dim - (self.cfg.output_dim if mask else 0)
             raise MopError(
-                f"trajectories have output_dim={traj.output_dim}, input width {z.shape[-1]}, "
-                f"but the model expects output_dim={self.cfg.output_dim}, "
-                f"input width {self.cfg.input_dim}; use a model trained on this family"
+                f"the data has output_dim={traj.output_dim} and {k_data} inputs u, but {model} was trained "
+                f"with output_dim={self.cfg.output_dim} and {k_model} inputs u; use a model trained on data "
+                "like yours"
             )
-        p = next(self.model.parameters())
-        z = z[:, :-1]  # (B, T, d_in): z_0..z_{T-1}
+        if not self.cfg.observation_mask and traj.observed is not None:
+            raise MopError(
+                f"the trajectories have {traj.num_missing} missing outputs (NaN / empty cells) but this "
+                "model was trained without them; train one with train.missing_rate > 0, or fill the gaps"
+            )
+        return self._model_inputs(z[:, :-1])  # (B, T, d_in): z_0..z_{T-1}
+
+    def _model_inputs(self, z: Tensor) -> Tensor:
+        """z (B, L, m + k) in data units (NaN where y is missing) -> the model's inputs (B, L, d_in):
+        normalised, then zero-filled with the observation mask appended for a model that has one."""
         if self.normalization is not None:
             z = self.normalization.inputs(z)
+        if self.cfg.observation_mask:
+            z = masked_inputs(z, self.cfg.output_dim)
+        p = next(self.model.parameters())
         return z.to(device=p.device, dtype=p.dtype)
 
     @torch.no_grad()
@@ -149,9 +174,47 @@ class LearnedPredictor:
         [yhat_t, u_t], ..., [yhat_{t+j-1}, u_{t+j-1}] (the given future inputs, the predicted outputs) and
         yhat_{t+j} is its output at the last position, with the window semantics of predict: a
         context-limited model sees the last C of those inputs, a recurrent one all of them (in "stream" mode
-        too). A Gaussian read-out feeds back its mean only (no sampling), so the forecast is the mean path,
-        not the predictive mean of y_{t+j}. Entries with t + j > T are NaN. One forward per (t, j).
+        too; there j = 0 is the stream's one-step prediction). A Gaussian read-out feeds back its mean only
+        (no sampling), so the forecast is the mean path, not the predictive mean of y_{t+j}. Entries with
+        t + j > T are NaN. All origins advance together at the cost of the new inputs (mop.models.rollout);
+        equal to reference_forecast to float rounding.
         """
+        if not can_branch(self.model):
+            return self.reference_forecast(traj, steps)
+        z = self._inputs(traj)  # (B, T, d_in) normalised, model dtype
+        first = None
+        if self.mode == "stream" and self.model.context_limited and z.shape[1] > self.cfg.context:
+            first = self.predict(traj).double()  # (B, T+1, m) the stream's one-step predictions
+            if self.normalization is not None:
+                norm = self.normalization
+                first = (first - norm.y_mean.to(first.device)) / norm.y_std.to(first.device)
+            first = first.to(z)
+        chunk = self.chunk_size
+        if self.model.context_limited:
+            chunk = min(chunk, transformer_chunk_size(self.cfg, z.shape[1], steps))
+        parts = []
+        with torch.no_grad(), self._eval():
+            for i in range(0, z.shape[0], chunk):
+                part = None if first is None else first[i : i + chunk]
+                parts.append(forecast_batch(self.model, z[i : i + chunk], steps, part))
+        f = torch.cat(parts)  # (B, T+1, K, m) in the model's units
+        if self.normalization is not None:
+            f = self.normalization.outputs(f, None)[0]
+        return f.to(device=traj.y.device, dtype=traj.y.dtype)
+
+    @contextlib.contextmanager
+    def _eval(self):
+        was_training = self.model.training
+        self.model.eval()
+        try:
+            yield
+        finally:
+            self.model.train(was_training)
+
+    def reference_forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """forecast by definition: one forward of the model per (origin t, step j), on the last C inputs of
+        z_0..z_{t-1}, [yhat_t, u_t], .., [yhat_{t+j-1}, u_{t+j-1}] (the slow reference of the tests, and the
+        path of a model without prefill/branch or a recurrent cache)."""
         yhat = self.predict(traj)  # (B, T+1, m)
         B, T1, m = yhat.shape
         out = yhat.new_full((B, T1, steps, m), float("nan"))
@@ -168,12 +231,25 @@ class LearnedPredictor:
                 out[:, t, j] = pred.to(out.dtype)
         return out
 
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m) free-run simulation: forecast[:, c] alone (the model reads z_0..z_{c-1}, then its own
+        predicted outputs with the given inputs), one forward per simulated step."""
+        z = traj.model_inputs().double()  # (B, T+1, d_in)
+        u = None if traj.u is None else traj.u.double()
+        limit = self.cfg.context if self.model.context_limited else None
+        hist = z[:, :context]
+        pred = self._last_output(hist if limit is None else hist[:, -limit:])  # y_c from z_{<c}
+        out = [pred]
+        for t in range(context + 1, traj.horizon + 1):
+            new = pred if u is None else torch.cat([pred, u[:, t - 1]], dim=-1)
+            hist = torch.cat([hist, new[:, None]], dim=1)
+            pred = self._last_output(hist if limit is None else hist[:, -limit:])
+            out.append(pred)
+        return torch.stack(out, dim=1).to(traj.y.dtype)
+
     def _last_output(self, z: Tensor) -> Tensor:
-        """The model's mean output (B, m) in data units, float64, at the last position of z (B, L, d_in)."""
-        if self.normalization is not None:
-            z = self.normalization.inputs(z)
-        p = next(self.model.parameters())
-        mu, _ = self._run(z.to(device=p.device, dtype=p.dtype), gaussian=False)
+        """The model's mean output (B, m) in data units, float64, at the last position of z (B, L, m + k)."""
+        mu, _ = self._run(self._model_inputs(z), gaussian=False)
         return mu[:, -1].double().cpu()
 
 

@@ -83,6 +83,59 @@ class CausalSelfAttention(nn.Module):
         y = F.scaled_dot_product_attention(q, k, v, dropout_p=drop, is_causal=True)  # (B, H, T, hd)
         return self._merge(y)
 
+    def prefill(self, x: Tensor, rope: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        """forward, also returning the keys (rotated) and values: x (B, T, d) -> y, k, v ((B, H, T, hd))."""
+        q, k, v = self._heads(x)  # (B, H, T, hd)
+        if rope is not None:
+            q, k = apply_rope(q, *rope), apply_rope(k, *rope)
+        y = F.scaled_dot_product_attention(q, k, v, is_causal=True)  # (B, H, T, hd)
+        return self._merge(y), k, v
+
+    def branch(
+        self,
+        x: Tensor,
+        rope: tuple[Tensor, Tensor] | None,
+        shared: tuple[Tensor, Tensor] | None,
+        mask: Tensor | None,
+        own: tuple[Tensor, Tensor] | None,
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """New positions x (*G, O, n, d) of O branches per group -> (y (*G, O, n, d), k, v (*G, O, H, n, hd)).
+
+        New query i of a branch attends to its group's shared keys and values (shared: k, v (*G, H, P, hd),
+        where mask (O, n, P) allows; all if mask is None), to the branch's own earlier keys (own: k, v
+        (*G, O, H, R, hd), or None) and to its new keys 0..i. Key blocks are never concatenated (only their
+        scores are), and the shared block is contracted batched (einsum), not copied per branch.
+        rope: cos, sin (O, n, hd/2) of every new position, or None.
+        """
+        *lead, n, d = x.shape
+        q, k, v = self.qkv(x).split(d, dim=-1)  # each (*G, O, n, d)
+        # (*G, O, n, d) -> (*G, O, n, H, hd) -> (*G, O, H, n, hd)
+        q, k, v = (z.view(*lead, n, self.num_heads, self.head_dim).transpose(-2, -3) for z in (q, k, v))
+        if rope is not None:
+            cos, sin = (a[:, None] for a in rope)  # (O, 1, n, hd/2): the same for every head
+            q, k = apply_rope(q, cos, sin), apply_rope(k, cos, sin)
+        q = q * (1.0 / math.sqrt(self.head_dim))
+        scores, values = [], []  # per key block: scores (*G, O, H, n, keys), weights -> (*G, O, H, n, hd)
+        if shared is not None:
+            past = torch.einsum("...ohnd,...hpd->...ohnp", q, shared[0])  # (*G, O, H, n, P)
+            if mask is not None:
+                past = past.masked_fill(~mask[:, None], float("-inf"))  # mask (O, 1, n, P)
+            scores.append(past)
+            values.append(lambda w: torch.einsum("...ohnp,...hpd->...ohnd", w, shared[1]))
+        if own is not None:
+            scores.append(_scores(q, own[0]))
+            values.append(lambda w: _weighted(w, own[1]))
+        new = _scores(q, k)  # (*G, O, H, n, n)
+        if n > 1:
+            new = new.masked_fill(~torch.ones(n, n, dtype=torch.bool, device=x.device).tril(), float("-inf"))
+        scores.append(new)
+        values.append(lambda w: _weighted(w, v))
+        w = torch.cat(scores, dim=-1).softmax(dim=-1)
+        parts = w.split([s.shape[-1] for s in scores], dim=-1)
+        y = sum(value(part) for value, part in zip(values, parts, strict=True))  # (*G, O, H, n, hd)
+        # (*G, O, H, n, hd) -> (*G, O, n, H * hd)
+        return self.proj(y.transpose(-2, -3).reshape(*lead, n, d)), k, v
+
     def step(
         self,
         x: Tensor,
@@ -101,6 +154,16 @@ class CausalSelfAttention(nn.Module):
         # every cached key is in the past, so no mask; softmax does not depend on the slot order
         y = F.scaled_dot_product_attention(q, cache_k[:, :, :filled], cache_v[:, :, :filled])  # (B, H, 1, hd)
         return self._merge(y)
+
+
+def _scores(q: Tensor, k: Tensor) -> Tensor:
+    """q (..., n, hd), k (..., R, hd) -> q k^T (..., n, R); one query: a product and a sum, not matmuls."""
+    return (q * k).sum(-1)[..., None, :] if q.shape[-2] == 1 else q @ k.mT
+
+
+def _weighted(w: Tensor, v: Tensor) -> Tensor:
+    """w (..., n, R), v (..., R, hd) -> w v (..., n, hd)."""
+    return (w.mT * v).sum(-2, keepdim=True) if w.shape[-2] == 1 else w @ v
 
 
 class MLP(nn.Module):
@@ -126,6 +189,25 @@ class Block(nn.Module):
     def forward(self, x: Tensor, rope: tuple[Tensor, Tensor] | None = None) -> Tensor:
         x = x + self.attn(self.ln_1(x), rope)
         return x + self.mlp(self.ln_2(x))
+
+    def prefill(self, x: Tensor, rope: tuple[Tensor, Tensor] | None) -> tuple[Tensor, Tensor, Tensor]:
+        """forward, also returning this layer's keys and values (B, H, T, hd)."""
+        a, k, v = self.attn.prefill(self.ln_1(x), rope)
+        x = x + a
+        return x + self.mlp(self.ln_2(x)), k, v
+
+    def branch(
+        self,
+        x: Tensor,
+        rope: tuple[Tensor, Tensor] | None,
+        shared: tuple[Tensor, Tensor] | None,
+        mask: Tensor | None,
+        own: tuple[Tensor, Tensor] | None,
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """CausalSelfAttention.branch inside the residual block: x (*G, O, n, d) -> (x, k, v)."""
+        a, k, v = self.attn.branch(self.ln_1(x), rope, shared, mask, own)
+        x = x + a
+        return x + self.mlp(self.ln_2(x)), k, v
 
     def step(
         self,
@@ -192,14 +274,18 @@ class Transformer(nn.Module):
                 "use LearnedPredictor(mode='window' or 'stream') for longer trajectories"
             )
         positions = torch.arange(T, device=inputs.device)
-        h = self.read_in(inputs)  # (B, T, d)
-        if self.wpe is not None:
-            h = h + self.wpe(positions)  # (T, d) broadcast over B
-        h = self.drop(h)
+        h = self._embed(inputs, positions)  # (B, T, d)
         rope = self._rope(positions)
         for block in self.blocks:
             h = block(h, rope)
         return self.ln_f(h)  # (B, T, d)
+
+    def _embed(self, inputs: Tensor, positions: Tensor) -> Tensor:
+        """Read-in plus learned position embeddings: inputs (..., T, d_in), positions (T,) or (O, n)."""
+        h = self.read_in(inputs)  # (..., T, d)
+        if self.wpe is not None:
+            h = h + self.wpe(positions)  # (T, d) broadcast over the leading dims
+        return self.drop(h)
 
     def _read_out(self, h: Tensor) -> tuple[Tensor, Tensor | None]:
         """Final hidden states (B, T, d) -> mean (B, T, m), var (B, T, m) or None."""
@@ -217,7 +303,45 @@ class Transformer(nn.Module):
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m)."""
         mu, var = self._read_out(self.hidden(inputs))
-        return prediction_loss(mu, var, targets)
+        return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
+
+    # ---- branching (k-step forecasts from many origins at once: mop.models.rollout) ----
+    def prefill(self, inputs: Tensor) -> tuple[Tensor, list[tuple[Tensor, Tensor]]]:
+        """inputs (B, T, d_in) -> (mean (B, T, m) as forward, every layer's keys, values (B, H, T, hd))."""
+        positions = torch.arange(inputs.shape[-2], device=inputs.device)
+        h, rope = self._embed(inputs, positions), self._rope(positions)
+        kv = []
+        for block in self.blocks:
+            h, k, v = block.prefill(h, rope)
+            kv.append((k, v))
+        return self._read_out(self.ln_f(h))[0], kv
+
+    def branch(
+        self,
+        inputs: Tensor,
+        positions: Tensor,
+        shared: list[tuple[Tensor, Tensor]] | None,
+        mask: Tensor | None = None,
+        own: list[tuple[Tensor, Tensor]] | None = None,
+    ) -> tuple[Tensor, list[tuple[Tensor, Tensor]]]:
+        """Continue O branches per group by n new inputs each (CausalSelfAttention.branch, per layer).
+
+        inputs (*G, O, n, d_in) at window positions (O, n) (each < context); shared: per layer the group's
+        keys, values (*G, H, P, hd) (from prefill) that `mask` (O, n, P) allows; own: per layer each branch's
+        earlier keys, values (*G, O, H, R, hd). Returns the mean (*G, O, n, m) and per layer the new keys,
+        values (*G, O, H, n, hd).
+        """
+        h = self._embed(inputs, positions)  # (*G, O, n, d)
+        rope = None
+        if self.wpe is None:
+            cos, sin = rope_angles(positions.flatten(), self.cfg.width // self.cfg.num_heads)  # (O n, hd/2)
+            rope = cos.view(*positions.shape, -1), sin.view(*positions.shape, -1)  # (O, n, hd/2)
+        new = []
+        for layer, block in enumerate(self.blocks):
+            layer_shared = None if shared is None else shared[layer]
+            h, k, v = block.branch(h, rope, layer_shared, mask, None if own is None else own[layer])
+            new.append((k, v))
+        return self._read_out(self.ln_f(h))[0], new
 
     # ---- streaming ----
     def init_cache(self, batch_size: int) -> KVCache:

@@ -1,0 +1,110 @@
+"""Shipped pretrained predictors: `pretrained:NAME` works wherever a run directory is accepted.
+
+Each shipped model is a run directory inside the package, installed by pip with it:
+
+    mop/pretrained/<name>/config.json        RunConfig (as `mop train` writes it)
+    mop/pretrained/<name>/model.safetensors  the weights
+    mop/pretrained/<name>/card.json          what the build measured, and the SHA-256 of the two files above
+    mop/pretrained/<name>/CARD.md            the card, rendered from card.json (mop.pretrained.card)
+
+Loading a shipped model checks both SHA-256 digests first, so tampered or truncated weights are refused
+with a one-line MopError. `mop pretrained build` (mop.pretrained.build) rebuilds them.
+This module imports nothing of mop above the errors, so the run loader (mop.runs) can use it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from mop.errors import MopError
+
+PREFIX = "pretrained:"
+ROOT = Path(__file__).resolve().parent
+HASHED_FILES = ("config.json", "model.safetensors")
+
+
+def is_pretrained(spec: str | os.PathLike) -> bool:
+    """True for a `pretrained:NAME` spec (a string; a Path is always a run directory)."""
+    return isinstance(spec, str) and spec.startswith(PREFIX)
+
+
+def shipped_names(root: Path | None = None) -> list[str]:
+    """The names of the shipped models (directories with a card.json), sorted."""
+    root = ROOT if root is None else root
+    return sorted(p.parent.name for p in root.glob("*/card.json"))
+
+
+def shipped_dir(name: str, root: Path | None = None) -> Path:
+    """The directory of shipped model `name`; MopError naming the shipped ones when there is none."""
+    root = ROOT if root is None else root
+    path = root / name
+    if not name or "/" in name or not (path / "card.json").is_file():
+        known = ", ".join(f"{PREFIX}{n}" for n in shipped_names(root)) or "none"
+        raise MopError(f"no pretrained model {name!r} is shipped; shipped: {known} (see: mop pretrained)")
+    return path
+
+
+def read_card(name: str, root: Path | None = None) -> dict[str, Any]:
+    """card.json of shipped model `name` (what its build measured)."""
+    root = ROOT if root is None else root
+    path = shipped_dir(name, root) / "card.json"
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError:
+        raise MopError(f"{path} is not valid JSON; the shipped model is damaged (reinstall mop)") from None
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def file_digests(run_dir: Path) -> dict[str, str]:
+    """{file name: SHA-256 hex} of the files of a run that define the predictor (config and weights)."""
+    return {name: sha256(run_dir / name) for name in HASHED_FILES}
+
+
+def verify(name: str, root: Path | None = None) -> Path:
+    """The directory of shipped model `name` after checking its files against the card's SHA-256 digests."""
+    root = ROOT if root is None else root
+    path = shipped_dir(name, root)
+    expected = read_card(name, root).get("sha256", {})
+    for file in HASHED_FILES:
+        if not (path / file).is_file():
+            raise MopError(
+                f"{PREFIX}{name}: {file} is missing; reinstall mop or rebuild: mop pretrained build {name}"
+            )
+        if sha256(path / file) != expected.get(file):
+            raise MopError(
+                f"{PREFIX}{name}: {file} does not match the SHA-256 in its card (tampered or truncated); "
+                f"reinstall mop or rebuild it: mop pretrained build {name}"
+            )
+    return path
+
+
+def resolve_run_dir(spec: str | os.PathLike) -> Path:
+    """A run directory for `spec`: `pretrained:NAME` -> the verified shipped directory, else Path(spec)."""
+    if is_pretrained(spec):
+        return verify(spec[len(PREFIX) :])
+    return Path(spec)
+
+
+def find_shipped(config: dict[str, Any], root: Path | None = None) -> str | None:
+    """`pretrained:NAME` of a shipped model trained on the data distribution of `config` (a RunConfig as a
+    dict: the same system config, model architecture and read-out, no recorded data), else None."""
+    root = ROOT if root is None else root
+    if config.get("data") is not None:
+        return None
+    for name in shipped_names(root):
+        try:
+            saved = json.loads((root / name / "config.json").read_text())
+        except (OSError, json.JSONDecodeError):
+            continue  # a damaged one is refused when loaded by name; it matches nothing here
+        model = saved.get("model", {})
+        same_model = all(model.get(k) == config["model"][k] for k in ("arch", "readout"))
+        if saved.get("system") == config["system"] and same_model and saved.get("data") is None:
+            return PREFIX + name
+    return None

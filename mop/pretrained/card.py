@@ -1,0 +1,129 @@
+"""CARD.md of a shipped model, rendered from its card.json alone (so the card's numbers are the build's).
+
+card.json (written by mop.pretrained.build):
+    name, summary, not_for, rebuild (the command)
+    family        the trained family's SystemConfig (the data distribution)
+    model         the ModelConfig; num_parameters; size_bytes of model.safetensors
+    recipe        {"preset", "experiment", "condition", "train": TrainConfig}; seed; steps
+    train_seconds, machine
+    evaluation    {"num_systems", "test_seed", "horizon", "reference", "best",
+                   "errors": {predictor: {window: mean ||e||}},
+                   "ratio_to_reference" / "ratio_to_best": {window: {"ratio", "low", "high"}}}
+    forecast      {"k", "start", "error": {predictor: [mean ||e|| per k]}}
+    noise_shift   {"trained": {"noise_var_w", "noise_var_v"}, "num_systems", "rows": [{"factor",
+                   "noise_var_w", "noise_var_v", "ratio", "low", "high"}]} or null
+    sha256        {file: digest}
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def _ci(r: dict[str, float]) -> str:
+    return f"{r['ratio']:.3f} [{r['low']:.3f}, {r['high']:.3f}]"
+
+
+def _settings(settings: dict[str, Any]) -> str:
+    return ", ".join(f"{k} = {v}" for k, v in settings.items())
+
+
+def _seconds(value: float | None) -> str:
+    return "unknown (trained elsewhere or resumed)" if value is None else f"{value:.0f} s"
+
+
+def _ratio_table(ev: dict[str, Any]) -> list[str]:
+    """Errors and MSE ratios per window; the best predictor's columns only when it is not the reference."""
+    ref, best, errs = ev["reference"], ev["best"], ev["errors"]
+    other = best != ref
+    head = f"| window | MOP error | {ref} error | MOP/{ref} MSE (95% CI) |"
+    head += f" {best} error | MOP/{best} MSE (95% CI) |" if other else ""
+    lines = [head, "|---" * (6 if other else 4) + "|"]
+    for window, r in ev["ratio_to_reference"].items():
+        row = f"| t in {window} | {errs['mop'][window]:.4f} | {errs[ref][window]:.4f} | {_ci(r)} |"
+        if other:
+            row += f" {errs[best][window]:.4f} | {_ci(ev['ratio_to_best'][window])} |"
+        lines.append(row)
+    return lines
+
+
+def _forecast_table(fc: dict[str, Any]) -> list[str]:
+    ks = fc["k"]
+    lines = [
+        f"k-step forecast error, mean ||y_(t+k-1) - forecast|| over origins t >= {fc['start']}:",
+        "",
+        "| predictor | " + " | ".join(f"k={k}" for k in ks) + " |",
+        "|---" * (len(ks) + 1) + "|",
+    ]
+    lines += [f"| {n} | " + " | ".join(f"{e:.4f}" for e in errs) + " |" for n, errs in fc["error"].items()]
+    return lines
+
+
+def _noise_table(shift: dict[str, Any] | None, reference: str) -> list[str]:
+    if not shift:
+        return ["The family has no noise-level knobs; no noise-shift numbers."]
+    trained = shift["trained"]
+    lines = [
+        f"Noise shift: MOP/{reference} MSE over t >= 20 on {shift['num_systems']} test systems at other "
+        f"noise variances (trained at w {trained['noise_var_w']:g}, v {trained['noise_var_v']:g}):",
+        "",
+        "| test variance / trained | noise_var_w | noise_var_v | MOP/ref MSE (95% CI) |",
+        "|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['factor']:g} | {r['noise_var_w']:g} | {r['noise_var_v']:g} | {_ci(r)} |" for r in shift["rows"]
+    ]
+    return lines
+
+
+def render_card(card: dict[str, Any]) -> str:
+    """The CARD.md text of `card` (card.json's content)."""
+    ev, recipe, machine = card["evaluation"], card["recipe"], card["machine"] or {}
+    model = card["model"]
+    lines = [
+        f"# pretrained:{card['name']}",
+        "",
+        card["summary"] + ".",
+        "",
+        "## Trained on",
+        "",
+        f"- family: {card['family']['family']} ({_settings(card['family'])})",
+        f"- model: {model['arch']} {model['num_layers']} layers x {model['width']} wide, "
+        f"{model['num_heads']} heads, context {model['context']}, read-out {model['readout']}, input "
+        f"{model['input_dim']} -> output {model['output_dim']}; {card['num_parameters']} parameters, "
+        f"{card['size_bytes']} bytes of weights",
+        f"- recipe: preset `{recipe['preset']}` of experiment `{recipe['experiment']}`"
+        + (f" (condition `{recipe['condition']}`)" if recipe["condition"] else "")
+        + f": {_settings(recipe['train'])}",
+        f"- seed {card['seed']}, {card['steps']} steps, training time {_seconds(card['train_seconds'])}",
+        f"- machine: {machine.get('cpu', 'unknown')}, {machine.get('cores', '?')} cores, torch "
+        f"{machine.get('torch', '?')} with {machine.get('torch_threads', '?')} threads, Python "
+        f"{machine.get('python', '?')}",
+        "",
+        "## Measured",
+        "",
+        f"{ev['num_systems']} fresh test systems (test seed {ev['test_seed']}, horizon {ev['horizon']}); "
+        f"reference `{ev['reference']}`, best other predictor over t >= 20 `{ev['best']}`; errors are "
+        "means of ||yhat_t - y_t||, ratios are MSE ratios with paired bootstrap 95% intervals over systems.",
+        "",
+        *_ratio_table(ev),
+        "",
+        *_forecast_table(card["forecast"]),
+        "",
+        "## Where not to use it",
+        "",
+        f"On {card['not_for']}. Loading refuses data of other output or input dimensions.",
+        "",
+        *_noise_table(card["noise_shift"], ev["reference"]),
+        "",
+        "## Rebuild",
+        "",
+        "```",
+        card["rebuild"],
+        "```",
+        "",
+        "SHA-256 (checked on every load): "
+        + ", ".join(f"{name} {digest[:16]}..." for name, digest in card["sha256"].items()),
+        "",
+    ]
+    return "\n".join(lines)

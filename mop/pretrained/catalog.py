@@ -1,0 +1,82 @@
+"""What is shipped: each pretrained model is the MOP of one experiment condition, trained with a preset's
+recipe (read from mop.experiments.presets when it is built, so a new recipe is one rebuild away).
+
+    ShippedModel("linear", experiment="linear")   # the run `mop reproduce linear --preset small` trains
+
+The card compares it with that condition's predictors, as `mop reproduce EXPERIMENT --pretrained` does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from mop.errors import MopError
+
+
+@dataclasses.dataclass(frozen=True)
+class ShippedModel:
+    """One shipped model: trained as `experiment`'s condition `condition` ("" the first) under `preset`.
+
+    summary: one line for `mop pretrained`; not_for: where the card says not to use it.
+    """
+
+    name: str
+    experiment: str
+    summary: str
+    not_for: str
+    condition: str = ""
+    preset: str = "small"
+    seed: int = 0
+
+
+SHIFT = (
+    "noise levels far from training: the card's noise-shift table gives the MOP/KF ratio at other test "
+    "noise variances (and `mop reproduce noise-shift` the full sweep for a model trained at 0.1)"
+)
+LINEAR_DIMS = "systems of another state or output dimension (trained on n = 10 states, m = 5 outputs)"
+
+CATALOG: tuple[ShippedModel, ...] = (
+    ShippedModel(
+        "linear",
+        "linear",
+        "dense linear Gaussian systems (the paper's Fig. 2a family); also the model of `switching`",
+        f"{LINEAR_DIMS}; {SHIFT}; systems with structure the family lacks (upper-triangular A: use "
+        "pretrained:upper-triangular, and even that is worse than RLS); trajectories longer than 50 steps "
+        "are handled by the sliding window (see `mop reproduce switching`)",
+    ),
+    ShippedModel(
+        "linear-gaussian",
+        "calibration",
+        "dense linear systems with a Gaussian read-out: predictive mean and variance",
+        f"{LINEAR_DIMS}; {SHIFT}: the variance is calibrated only near the training noise",
+        condition="linear",
+    ),
+    ShippedModel(
+        "colored-noise",
+        "colored-noise",
+        "linear systems with colored (moving-sum of 5 draws) process and observation noise (Fig. 2b)",
+        f"{LINEAR_DIMS}; white-noise systems (use pretrained:linear); {SHIFT}; another noise color window",
+    ),
+    ShippedModel(
+        "upper-triangular",
+        "upper-triangular",
+        "linear systems with upper-triangular A (Fig. 4): a hard family, MOP is worse than RLS here",
+        f"{LINEAR_DIMS}; anywhere accuracy matters: it is worse than RLS and far from the KF on this "
+        f"family (see its ratios); {SHIFT}",
+    ),
+    ShippedModel(
+        "quadrotor",
+        "quadrotor",
+        "planar quadrotors with random mass, arm and inertia, 2 inputs, 3 outputs (Fig. 3)",
+        "other vehicles, output maps or input ranges (trained on u ~ U[-0.5, 0.5], 3 outputs of a 6-state "
+        f"quadrotor with the authors' state clipping); {SHIFT}",
+    ),
+)
+
+
+def catalog_entry(name: str) -> ShippedModel:
+    for entry in CATALOG:
+        if entry.name == name:
+            return entry
+    known = ", ".join(e.name for e in CATALOG)
+    raise MopError(f"no pretrained model {name!r} in the catalog; choose from {known}")

@@ -1,0 +1,289 @@
+"""Shipped pretrained models (mop.pretrained): loaded by name everywhere a run directory is accepted, their
+cards are what the build measured, their weights are checked, and the build is one command."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import mop
+import mop.pretrained as pretrained
+from mop.cli import main
+from mop.errors import MopError
+from mop.metrics import errors
+from mop.predictors import make_predictor
+from mop.pretrained.card import render_card
+from mop.pretrained.catalog import CATALOG
+from mop.runs import load_config
+from mop.systems import generator, make_family
+from mop.systems.base import Trajectories
+from tests.reference import authors_linear_systems, filterpy_on, filterpy_predict, write_long_csv
+
+SHIPPED = pretrained.shipped_names()
+FRESH_SEED = 424242  # test systems apart from the training, validation and card streams
+LATE = (20, 51)  # t in [20, 50]
+
+
+@pytest.fixture(autouse=True)
+def _one_thread(one_thread):
+    yield
+
+
+def family_traj(name: str, num_systems: int, seed: int, horizon: int = 50) -> Trajectories:
+    system = load_config(f"pretrained:{name}").system
+    family = make_family(system, dtype=torch.float64)
+    return family.generate(num_systems, horizon, generator=generator(seed))
+
+
+def late_mse(e: np.ndarray) -> float:
+    return float((e[:, LATE[0] : LATE[1]] ** 2).mean())
+
+
+def test_every_catalog_model_is_shipped_within_10_mb():
+    assert SHIPPED == sorted(e.name for e in CATALOG)
+    total = sum((pretrained.ROOT / n / "model.safetensors").stat().st_size for n in SHIPPED)
+    assert total <= 10e6
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_model_loads_everywhere_and_predicts_the_right_shape(name):
+    traj = family_traj(name, 4, seed=1)
+    a = mop.load(f"pretrained:{name}").predict(traj)
+    b = make_predictor("mop", run_dir=f"pretrained:{name}").predict(traj)
+    assert a.shape == traj.y.shape
+    assert torch.isfinite(a).all()
+    torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_ratio_on_200_fresh_systems_is_within_tolerance_of_the_card(name):
+    """MOP/reference MSE over t in [20, 50] on 200 systems the card never saw. Tolerance: 3 times the card's
+    95% half-width (at N = 500) scaled to N = 200 by sqrt(500 / 200), plus 1% of the ratio."""
+    card = pretrained.read_card(name)
+    ev = card["evaluation"]
+    window = f"[20,{ev['horizon'] + 1})"
+    r = ev["ratio_to_reference"][window]
+    traj = family_traj(name, 200, FRESH_SEED, ev["horizon"])
+    e_mop = errors(mop.load(f"pretrained:{name}").predict(traj), traj.y)
+    e_ref = errors(make_predictor(ev["reference"], seed=0).predict(traj), traj.y)
+    ratio = late_mse(e_mop) / late_mse(e_ref)
+    half = max(r["high"] - r["ratio"], r["ratio"] - r["low"])
+    tolerance = 3 * half * np.sqrt(ev["num_systems"] / 200) + 0.01 * r["ratio"]
+    assert abs(ratio - r["ratio"]) <= tolerance, (ratio, r, tolerance)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_card_is_rendered_from_card_json_and_records_the_files(name):
+    path = pretrained.ROOT / name
+    card = json.loads((path / "card.json").read_text())
+    assert (path / "CARD.md").read_text() == render_card(card)
+    assert card["sha256"] == pretrained.file_digests(path)
+    assert card["size_bytes"] == (path / "model.safetensors").stat().st_size
+    assert card["evaluation"]["num_systems"] == 500
+    assert card["rebuild"].startswith(f"mop pretrained build {name} ")
+
+
+def test_linear_is_within_5_percent_of_the_kf_on_the_authors_generator():
+    """Trajectories of the authors' generator (numpy, tests/reference.py) and filterpy's KF: MOP/KF MSE over
+    t in [20, 50] <= 1.05 on 300 systems."""
+    A, C, y = authors_linear_systems(300, seed=7)
+    B, n, m = A.shape[0], A.shape[1], C.shape[1]
+    eye = lambda d: np.broadcast_to(np.eye(d) * 0.01, (B, d, d))  # noqa: E731
+    kf = filterpy_predict(A, C, eye(n), eye(m), y, np.zeros((B, n)), np.broadcast_to(np.eye(n), (B, n, n)))
+    yhat = mop.load("pretrained:linear").predict(Trajectories(y=torch.tensor(y))).numpy()
+    e_mop, e_kf = np.linalg.norm(yhat - y, axis=-1), np.linalg.norm(kf - y, axis=-1)
+    assert late_mse(e_mop) / late_mse(e_kf) <= 1.05
+
+
+# --- integrity -----------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def copied_root(tmp_path, monkeypatch):
+    """The shipped linear model copied to a private root that `pretrained:` resolves to."""
+    shutil.copytree(pretrained.ROOT / "linear", tmp_path / "linear")
+    monkeypatch.setattr(pretrained, "ROOT", tmp_path)
+    return tmp_path / "linear"
+
+
+def edit_config(path: Path) -> None:
+    config = json.loads(path.read_text())
+    config["train"]["seed"] += 1  # a valid config, another provenance
+    path.write_text(json.dumps(config))
+
+
+def flip_byte(path: Path, offset_from_end: int = 100) -> None:
+    data = bytearray(path.read_bytes())
+    data[-offset_from_end] ^= 0x01
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda d: flip_byte(d / "model.safetensors"),  # one weight changed, the file still parses
+        lambda d: (d / "model.safetensors").write_bytes((d / "model.safetensors").read_bytes()[:-1000]),
+        lambda d: edit_config(d / "config.json"),
+        lambda d: (d / "model.safetensors").unlink(),
+    ],
+    ids=["flipped-byte", "truncated", "config-edited", "missing"],
+)
+def test_tampered_or_truncated_weights_are_refused(copied_root, damage, tmp_path, capsys):
+    traj = family_traj("linear", 2, seed=0)
+    mop.load("pretrained:linear").predict(traj)  # the copy itself loads
+    damage(copied_root)
+    with pytest.raises(MopError, match="pretrained:linear"):
+        mop.load("pretrained:linear")
+    write_long_csv(tmp_path / "d.csv", [traj.y[0].numpy()])
+    capsys.readouterr()
+    assert main(["predict", "pretrained:linear", str(tmp_path / "d.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "reinstall mop" in err
+
+
+def test_a_flipped_weight_is_not_caught_without_the_checksum(copied_root):
+    """Why the card's SHA-256 is needed: safetensors itself reads a file with one flipped weight byte."""
+    from mop.checkpoint import load_tensors
+
+    flip_byte(copied_root / "model.safetensors")
+    load_tensors(copied_root / "model.safetensors")  # no error: only the digest refuses it
+
+
+def test_unknown_name_lists_the_shipped_ones(capsys, tmp_path):
+    with pytest.raises(MopError, match="pretrained:linear"):
+        mop.load("pretrained:nope")
+    (tmp_path / "d.csv").write_text("trajectory,t,y0\na,0,1\na,1,2\n")
+    assert main(["predict", "pretrained:nope", str(tmp_path / "d.csv")]) == 2
+    assert "no pretrained model 'nope'" in capsys.readouterr().err
+
+
+# --- mop predict ---------------------------------------------------------------------------------------
+
+
+def test_predict_by_name_window_stream_and_steps(tmp_path):
+    traj = family_traj("linear", 5, seed=3)
+    y = traj.y.float().numpy()
+    np.savez(tmp_path / "d.npz", y=y)
+    expected = mop.load("pretrained:linear").predict(Trajectories(y=torch.tensor(y))).numpy()
+    for flags in ([], ["--stream"]):
+        out = tmp_path / f"p{len(flags)}.npz"
+        assert main(["predict", "pretrained:linear", str(tmp_path / "d.npz"), "--out", str(out), *flags]) == 0
+        np.testing.assert_allclose(np.load(out)["yhat"], expected, rtol=1e-5, atol=1e-6)  # T = C: equal
+    out = tmp_path / "k.npz"
+    assert (
+        main(["predict", "pretrained:linear", str(tmp_path / "d.npz"), "--steps", "3", "--out", str(out)])
+        == 0
+    )
+    ahead = np.load(out)["yhat"]
+    assert ahead.shape == (5, 51, 3, 5)
+    np.testing.assert_allclose(ahead[:, :, 0], expected, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "name, outputs, inputs, word",
+    [("linear", 2, 0, "output_dim=2"), ("quadrotor", 3, 0, "0 inputs u"), ("linear", 5, 2, "2 inputs u")],
+)
+def test_predict_refuses_other_dimensions_in_one_line(name, outputs, inputs, word, tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    data = {"y": rng.normal(size=(2, 11, outputs))}
+    if inputs:
+        data["u"] = rng.normal(size=(2, 11, inputs))
+    np.savez(tmp_path / "d.npz", **data)
+    capsys.readouterr()
+    assert main(["predict", f"pretrained:{name}", str(tmp_path / "d.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and word in err and f"pretrained:{name}" in err
+    assert not (tmp_path / "d_pred.npz").exists()
+
+
+# --- listing, reproduce, experiment files --------------------------------------------------------------
+
+
+def test_mop_pretrained_lists_every_model_and_shows_its_card(capsys):
+    assert main(["pretrained"]) == 0
+    out = capsys.readouterr().out
+    for name in SHIPPED:
+        assert f"pretrained:{name}:" in out and str(pretrained.ROOT / name / "CARD.md") in out
+    assert f"{len(SHIPPED)} models" in out
+    assert main(["pretrained", "show", "quadrotor"]) == 0
+    assert capsys.readouterr().out == (pretrained.ROOT / "quadrotor" / "CARD.md").read_text()
+
+
+def test_reproduce_pretrained_trains_nothing(tmp_path, tiny_smoke):
+    out = tmp_path / "linear"
+    argv = ["reproduce", "linear", "--pretrained", "--preset", "smoke", "--out", str(out), "--quiet"]
+    assert main(argv) == 0
+    data = json.loads((out / "eval.json").read_text())
+    assert data["runs"] == {"mop [test]": "pretrained:linear"}
+    assert data["settings"]["pretrained"] is True
+    assert not (tmp_path / "runs").exists()
+
+
+def test_reproduce_pretrained_without_a_shipped_model_fails_before_work(tmp_path, capsys):
+    out = tmp_path / "ns"
+    assert main(["reproduce", "noise-shift", "--pretrained", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no pretrained model is shipped" in err
+    assert not out.exists()
+
+
+def test_experiment_file_runs_a_shipped_model(tmp_path, tiny_smoke):
+    (tmp_path / "exp.toml").write_text(
+        'name = "shipped"\ntitle = "t"\npredictors = ["mop", "kalman"]\n'
+        '[train]\n"system.family" = "linear"\n[runs]\nmop = "pretrained:linear"\n'
+    )
+    argv = [
+        "reproduce",
+        str(tmp_path / "exp.toml"),
+        "--preset",
+        "smoke",
+        "--out",
+        str(tmp_path / "o"),
+        "--quiet",
+    ]
+    assert main(argv) == 0
+    data = json.loads((tmp_path / "o" / "eval.json").read_text())
+    assert data["runs"] == {"mop [test]": "pretrained:linear"}
+    assert not (tmp_path / "runs").exists()
+
+
+# --- the build ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_build_writes_measured_numbers_and_is_deterministic(tmp_path, tiny_smoke, monkeypatch):
+    """A smoke build of `linear`: its card's MOP/KF ratio is recomputed independently (the shipped files,
+    filterpy's KF, a numpy MSE on the card's test systems); a second build from scratch gives the same
+    weights bit for bit."""
+    import mop.pretrained.build as build
+    from mop.experiments.runner import test_trajectories
+
+    monkeypatch.setattr(build, "NOISE_SHIFT_SYSTEMS", 4)
+    common = ["pretrained", "build", "linear", "--preset", "smoke", "--threads", "1", "--quiet"]
+    for i in (1, 2):
+        argv = [*common, "--work", str(tmp_path / f"w{i}"), "--out", str(tmp_path / f"o{i}")]
+        assert main(argv) == 0
+    shipped = tmp_path / "o1" / "linear"
+    card = json.loads((shipped / "card.json").read_text())
+    assert card["sha256"] == json.loads((tmp_path / "o2" / "linear" / "card.json").read_text())["sha256"]
+    assert (shipped / "CARD.md").read_text() == render_card(card)
+    assert card["rebuild"] == "mop pretrained build linear --threads 1 --preset smoke"
+    ev = card["evaluation"]
+    traj = test_trajectories(load_config(shipped).system, ev["num_systems"], ev["horizon"], seed=0)
+    e_mop = np.linalg.norm(mop.load(shipped).predict(traj).numpy() - traj.y.numpy(), axis=-1)
+    e_kf = np.linalg.norm(filterpy_on(traj) - traj.y.numpy(), axis=-1)
+    assert ev["ratio_to_reference"]["[20,51)"]["ratio"] == pytest.approx(
+        late_mse(e_mop) / late_mse(e_kf), rel=1e-6
+    )
+    assert card["forecast"]["error"]["mop"][0] == pytest.approx(e_mop[:, 20:].mean(), rel=1e-6)
+
+
+def test_build_reads_overrides_after_the_options():
+    from mop.cli import build_parser
+
+    argv = ["pretrained", "build", "quadrotor", "--threads", "1", "train.steps=1500", "--quiet"]
+    args = build_parser("pretrained").parse_args(argv)
+    assert (args.names, args.overrides, args.threads) == (["quadrotor"], ["train.steps=1500"], 1)

@@ -1,0 +1,110 @@
+"""Fast learned k-step forecasts (mop.models.rollout: prefill + branches, all origins at once) equal the
+definition, LearnedPredictor.reference_forecast (one forward per origin and step), on random models in
+float64, inside the context (T <= C), beyond it (T > C) and with more steps than the context."""
+
+import itertools
+
+import pytest
+import torch
+
+from mop.config import ModelConfig
+from mop.models import build_model
+from mop.models.predictor import LearnedPredictor, Normalization
+from mop.models.rollout import can_branch
+from mop.systems.base import Trajectories
+
+CONTEXT = 6
+# (T, K): inside (T < C, T = C), beyond (T > C), and K > C (windows of new inputs only)
+SHAPES = [(4, 3), (6, 4), (11, 5), (9, 8)]
+pytestmark = pytest.mark.usefixtures("one_thread")
+CASES = [
+    (arch, position, readout, inputs)
+    for arch, position, readout, inputs in itertools.product(
+        ("gpt", "gru"), ("learned", "rope"), ("mean", "gaussian"), (0, 2)
+    )
+    if not (arch == "gru" and position == "rope")
+]
+
+
+def random_model(arch: str, position: str, readout: str, inputs: int, seed: int = 0):
+    """A float64 model with N(0, 0.3^2) weights (large enough that every attention weight matters)."""
+    torch.manual_seed(seed)
+    cfg = ModelConfig(
+        arch=arch,
+        num_layers=2,
+        num_heads=2,
+        width=16,
+        context=CONTEXT,
+        position=position,
+        readout=readout,
+        input_dim=3 + inputs,
+        output_dim=3,
+    )
+    model = build_model(cfg).double()
+    with torch.no_grad():
+        for p in model.parameters():
+            p.normal_(0.0, 0.3)
+    return model
+
+
+def random_trajectories(num: int, horizon: int, inputs: int, seed: int = 1) -> Trajectories:
+    g = torch.Generator().manual_seed(seed)
+    y = torch.randn(num, horizon + 1, 3, generator=g, dtype=torch.float64)
+    u = torch.randn(num, horizon + 1, inputs, generator=g, dtype=torch.float64) if inputs else None
+    return Trajectories(y=y, u=u)
+
+
+def assert_equal_forecasts(fast: torch.Tensor, slow: torch.Tensor) -> None:
+    assert torch.equal(fast.isnan(), slow.isnan())
+    torch.testing.assert_close(fast, slow, rtol=0, atol=1e-10, equal_nan=True)
+
+
+@pytest.mark.parametrize(("arch", "position", "readout", "inputs"), CASES)
+@pytest.mark.parametrize(("horizon", "steps"), SHAPES)
+def test_fast_forecast_equals_one_forward_per_origin_and_step(
+    arch, position, readout, inputs, horizon, steps
+):
+    model = random_model(arch, position, readout, inputs)
+    assert can_branch(model)
+    traj = random_trajectories(3, horizon, inputs)
+    predictor = LearnedPredictor(model, chunk_size=2)  # two chunks of systems
+    assert_equal_forecasts(predictor.forecast(traj, steps), predictor.reference_forecast(traj, steps))
+
+
+@pytest.mark.parametrize("position", ["learned", "rope"])
+def test_stream_mode_rolls_out_from_the_stream_predictions(position):
+    """Beyond the context a streaming model's one-step predictions differ from the window's; the forecast
+    starts from them (j = 0 is predict) and rolls out with the window."""
+    model = random_model("gpt", position, "mean", 2)
+    traj = random_trajectories(2, 13, 2)
+    stream = LearnedPredictor(model, mode="stream")
+    fast = stream.forecast(traj, 5)
+    assert_equal_forecasts(fast, stream.reference_forecast(traj, 5))
+    window = LearnedPredictor(model).forecast(traj, 5)
+    assert (fast[:, CONTEXT + 2 :, 0] - window[:, CONTEXT + 2 :, 0]).abs().max() > 1e-3
+
+
+@pytest.mark.parametrize("arch", ["gpt", "gru"])
+def test_normalised_model_forecasts_in_data_units(arch):
+    model = random_model(arch, "learned", "mean", 2)
+    norm = Normalization.from_lists([1.0, -2.0, 0.5], [2.0, 0.5, 3.0], [0.3, -1.0], [1.5, 0.2])
+    traj = random_trajectories(2, 10, 2)
+    traj.y = traj.y * 2.0 + 1.0
+    predictor = LearnedPredictor(model, normalization=norm)
+    fast = predictor.forecast(traj, 4)
+    assert_equal_forecasts(fast, predictor.reference_forecast(traj, 4))
+    torch.testing.assert_close(fast[:, 0, 0], norm.y_mean.expand(2, 3))
+
+
+def test_float32_model_matches_to_float_rounding():
+    model = random_model("gpt", "learned", "mean", 0).float()
+    traj = random_trajectories(4, 12, 0)
+    traj.y = traj.y.float()
+    predictor = LearnedPredictor(model)
+    torch.testing.assert_close(
+        predictor.forecast(traj, 6),
+        predictor.reference_forecast(traj, 6),
+        rtol=1e-4,
+        atol=1e-5,
+        equal_nan=True,
+    )
