@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
@@ -23,6 +24,23 @@ from mop.models import build_model
 from mop.models.predictor import LearnedPredictor, Normalization
 
 
+def retrain_hint(run_dir: str | os.PathLike) -> str:
+    """What to do about a damaged run: the command that trains it again in place."""
+    return f"retrain it with `mop train {run_dir}/config.json --out {run_dir} --fresh`"
+
+
+def read_run_json(path: Path, what: str = "run file") -> Any:
+    """JSON of a run file; binary garbage or broken JSON is a one-line MopError naming the file."""
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        why = f"{err.msg} at line {err.lineno}" if isinstance(err, json.JSONDecodeError) else "not text"
+        raise MopError(
+            f"{path} is damaged (not valid JSON: {why}); delete the run directory {path.parent} and "
+            f"train it again"
+        ) from None
+
+
 def load_config(run_dir: str | os.PathLike) -> RunConfig:
     """The RunConfig saved in `run_dir`/config.json; MopError for a missing or damaged run directory."""
     run_dir = Path(run_dir)
@@ -31,10 +49,13 @@ def load_config(run_dir: str | os.PathLike) -> RunConfig:
     path = run_dir / "config.json"
     if not path.is_file():
         raise MopError(f"{run_dir} has no config.json; it is not a mop run directory")
+    data = read_run_json(path)
     try:
-        return from_dict(RunConfig, json.loads(path.read_text()))
-    except json.JSONDecodeError:
-        raise MopError(f"{path} is not valid JSON; the run directory is damaged") from None
+        return from_dict(RunConfig, data)
+    except MopError as err:
+        raise MopError(
+            f"{path} is damaged ({err}); delete the run directory {run_dir} and train it again"
+        ) from None
 
 
 def load_model(
@@ -43,7 +64,7 @@ def load_model(
     """The model of a run directory (config.json + model.safetensors), in eval mode on `device`."""
     config = load_config(run_dir)
     model = build_model(config.model)
-    load_model_weights(Path(run_dir) / "model.safetensors", model)
+    load_model_weights(Path(run_dir) / "model.safetensors", model, retrain=retrain_hint(run_dir))
     return model.to(device).eval(), config.model
 
 

@@ -17,6 +17,7 @@ import torch
 from mop.commands import OverridesAnywhere
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
+from mop.experiments.validate import validate_experiment
 
 EPILOG = """examples:
   mop reproduce linear                                   # GPU: paper preset, else small
@@ -53,6 +54,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     gru.add_argument("--no-gru", dest="gru", action="store_false", help="skip the GRU baseline")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="if another process is training a run this needs, stop with an error instead of waiting",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,6 +72,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         experiments = [get_experiment(args.experiment)]
     root = Path(args.out) if args.out else Path("runs/reproduce") / preset
+    overrides = list(args.overrides or [])
+    for exp in experiments:  # every mistake in any of them before the first training step
+        validate_experiment(exp, preset, seed=args.seed, overrides=overrides, with_gru=args.gru)
     for exp in experiments:
         out = root / exp.name if (args.experiment == "all" or not args.out) else root
         report = run_experiment(
@@ -74,9 +83,10 @@ def run(args: argparse.Namespace) -> int:
             out,
             seed=args.seed,
             runs_dir=Path(args.runs) if args.runs else None,
-            overrides=list(args.overrides or []),
+            overrides=overrides,
             progress=not args.quiet,
             with_gru=args.gru,
+            wait=not args.no_wait,
         )
         print(f"mop reproduce {exp.name} ({preset}): report at {report}")
     return 0

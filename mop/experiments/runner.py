@@ -29,7 +29,9 @@ from mop.experiments.analyses import ANALYSES
 from mop.experiments.figures import FIGURES
 from mop.experiments.measures import describe, measure_value, slope_fit
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
-from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
+from mop.experiments.validate import evaluated, validate_experiment
+from mop.outputs import staged_output
+from mop.predictors import PREDICTORS, is_learned, make_predictor
 from mop.report import build_report, claim_line, summary_section
 from mop.systems.base import Trajectories
 
@@ -57,6 +59,7 @@ class Session:
     overrides: list[str]
     progress: bool
     with_gru: bool | None
+    wait: bool = True
     loaded: dict[str, Any] = dataclasses.field(default_factory=dict)
     runs: dict[str, str] = dataclasses.field(default_factory=dict)
 
@@ -68,10 +71,7 @@ def config_hash(config: RunConfig) -> str:
 
 def wanted(session: Session, condition: Condition) -> list[str]:
     """The predictors evaluated under `condition` (the GRU only where the preset or --gru asks for it)."""
-    names = list(condition.predictors or session.exp.predictors)
-    train_gru = get_preset(session.preset).train_gru if session.with_gru is None else session.with_gru
-    names = [n for n in names if n != "gru" or train_gru]
-    return [n for n in names if not (condition.data and needs_system(n))]  # recordings carry no system
+    return evaluated(session.exp, session.preset, condition, session.with_gru)
 
 
 def learned_predictor(session: Session, name: str, condition: Condition):
@@ -82,7 +82,7 @@ def learned_predictor(session: Session, name: str, condition: Condition):
     run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
     key = str(run_dir)
     if key not in session.loaded:
-        train(config, run_dir, progress=session.progress)
+        train(config, run_dir, progress=session.progress, wait=session.wait)
         session.loaded[key] = make_predictor(name, run_dir=str(run_dir))
     session.runs[f"{name} [{condition.name}]"] = str(run_dir)
     return session.loaded[key]
@@ -198,17 +198,30 @@ def run_experiment(
     overrides: list[str] = (),
     progress: bool = True,
     with_gru: bool | None = None,
+    wait: bool = True,
 ) -> Path:
-    """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path."""
-    get_preset(preset)
+    """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path.
+
+    The experiment is validated first (mop.experiments.validate), so a mistake costs seconds, not a
+    training run. The files are written all or nothing (mop.outputs): a stopped run leaves the previous
+    output whole; `complete.json`, written last, lists them. wait: see mop.train.train.
+    """
+    validate_experiment(exp, preset, seed=seed, overrides=list(overrides), with_gru=with_gru)
     start = time.perf_counter()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     session = Session(
-        exp, preset, seed, Path(runs_dir or out.parent / "runs"), list(overrides), progress, with_gru
+        exp, preset, seed, Path(runs_dir or out.parent / "runs"), list(overrides), progress, with_gru, wait
     )
     results = {c.name: run_condition(session, c) for c in exp.conditions_for(preset)}
     claims = [check_claim(c, results, exp.reference, seed) for c in exp.claims]
+    with staged_output(out) as stage:
+        _write_outputs(session, results, claims, stage, start)
+    return out / "report.md"
+
+
+def _write_outputs(session: Session, results: dict, claims: list[dict], out: Path, start: float) -> None:
+    """Figures, eval.json and report.md of the finished experiment into `out` (the staging folder)."""
+    exp, preset, seed = session.exp, session.preset, session.seed
     figures = [p for name in exp.figures for p in FIGURES.get(name)(exp, results, out)]
     first = next(iter(results.values()))
     sweeps = _sweeps(results) if "excess_mse" in exp.analyses else {}
@@ -233,7 +246,6 @@ def run_experiment(
         title, sections, settings, [claim_text(c) for c in claims], time.perf_counter() - start
     )
     write_text(out / "report.md", text)
-    return out / "report.md"
 
 
 def _sweeps(results: dict) -> dict:
