@@ -76,7 +76,21 @@ def load_predictor(
     A run on recorded data predicts in the data's units (its normalisation, from config.json, is applied).
     """
     model, _ = load_model(run_dir, device)
-    return LearnedPredictor(model, name="mop", mode=mode, normalization=load_normalization(run_dir))
+    norm = load_normalization(run_dir)
+    return LearnedPredictor(
+        model, name="mop", mode=mode, normalization=norm, input_stats=load_input_stats(run_dir)
+    )
+
+
+def load_input_stats(run_dir: str | os.PathLike) -> tuple[list[float], list[float]] | None:
+    """(mean, std) per model-input channel from inputs.json (None for runs trained before it existed)."""
+    path = Path(run_dir) / "inputs.json"
+    if not path.is_file():
+        return None
+    stats = read_run_json(path)
+    if not (isinstance(stats, dict) and all(isinstance(stats.get(k), list) for k in ("mean", "std"))):
+        raise MopError(f"{path} is damaged (no mean and std lists); {retrain_hint(run_dir)}")
+    return stats["mean"], stats["std"]
 
 
 def load_normalization(run_dir: str | os.PathLike) -> Normalization | None:
