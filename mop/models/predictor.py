@@ -12,8 +12,10 @@ the GRU) runs the full recurrence in both modes (streaming it is exact).
 Inputs far outside what the model was trained on are flagged (once per predictor) with a MopWarning: the
 root-mean-square of each input channel, in standard deviations of the training inputs from their mean
 (`input_stats`, the run's inputs.json; after the normalisation of a recorded-data run, whose training inputs
-have mean 0 and std 1), above OOD_RMS = 4. Training data scores 1 by construction; the noise-shift
-experiment's largest test noise (5x the training variance) scores about 2.2.
+have mean 0 and std 1), above OOD_RMS = 5. Training data scores 1 by construction. Measured on the outputs
+of 1000 systems (T = 50) against a linear-family training set: the noise-shift experiment's largest test
+noise (5x the training variance) 2.1, colored noise 2.7, upper-triangular systems 4.0 (all below, no
+warning: shifts the experiments study on purpose); a 20000-step random walk is far above.
 
 A model trained on recorded data (`mop train --data`) reads normalised inputs: `normalization` maps
 z -> (z - z_mean) / z_std before the model (in float64) and the model's mean mu -> mu * y_std + y_mean
@@ -32,7 +34,7 @@ from torch import Tensor, nn
 from mop.errors import MopError, MopWarning
 from mop.systems.base import Trajectories
 
-OOD_RMS = 4.0  # warn when an input channel's RMS z-score against the training inputs exceeds this
+OOD_RMS = 5.0  # warn when an input channel's RMS z-score against the training inputs exceeds this
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,9 +117,9 @@ class LearnedPredictor:
         if float(rms[worst]) > OOD_RMS:
             self._warned = True
             warnings.warn(
-                f"{self.name}: the inputs lie far outside the training data (input channel {worst} has an "
-                f"RMS of {float(rms[worst]):.3g} training standard deviations from the training mean; "
-                f"training data: 1); its predictions may be poor",
+                f"the inputs lie far outside the training data of predictor {self.name!r} (input channel "
+                f"{worst} has an RMS of {float(rms[worst]):.3g} training standard deviations from the "
+                f"training mean; training data: 1); its predictions may be poor",
                 MopWarning,
                 stacklevel=3,
             )
