@@ -21,7 +21,8 @@ def test_a_stopped_command_leaves_the_previous_folder_whole(tmp_path):
     with pytest.raises(KeyboardInterrupt), staged_output(tmp_path) as stage:
         _write(stage, **{"fig_a.png": "a1"})  # a new figure is written, then the command is stopped
         raise KeyboardInterrupt
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["eval.json", "fig_a.png", "report.md", MARKER])
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == sorted(["eval.json", "fig_a.png", "report.md", MARKER])
     assert (tmp_path / "fig_a.png").read_text() == "a0" and read_results(tmp_path) == {"seed": 0}
 
 
