@@ -65,7 +65,12 @@ def test_compare_evals_refuses_an_incomplete_tree(tmp_path):
     assert "linear: incomplete in" in r.stdout, r.stdout + r.stderr
 
 
-def test_reproduce_refuses_a_damaged_shared_run_and_keeps_its_output(tmp_path, tiny_smoke, capsys):
+def test_reproduce_on_a_full_disk_then_with_a_damaged_shared_run(tmp_path, tiny_smoke, capsys, monkeypatch):
+    """Both end in one line and leave the previous output folder whole, with no temporary or staging left."""
+    import errno
+    import os
+
+    import mop.atomic
     from mop.cli import main
     from tests.test_checkpoint import _damage
 
@@ -76,6 +81,17 @@ def test_reproduce_refuses_a_damaged_shared_run_and_keeps_its_output(tmp_path, t
     assert main(argv) == 0
     capsys.readouterr()
     before = (out / "eval.json").read_bytes()
+    with monkeypatch.context() as patch:
+
+        def full(fd):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        patch.setattr(mop.atomic.os, "fsync", full)
+        assert main([*argv, "--seed", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no space left on the device writing" in err, err
+    assert (out / "eval.json").read_bytes() == before and is_complete(out)
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
     (run,) = json.loads(before)["runs"].values()
     _damage(tmp_path / "runs" / run.split("/")[-1] / "model.safetensors")
     assert main([*argv, "--seed", "0"]) == 2
