@@ -45,6 +45,17 @@ def tensors_digest(tensors: dict[str, Tensor]) -> str:
     return digest.hexdigest()
 
 
+def _looks_pickled(path: Path) -> bool:
+    """A pickle (protocol 2+ starts with 0x80) or a torch.save zip ("PK"), and not safetensors: that starts
+    with its header's length (8 bytes, little-endian, whose first byte may well be 0x80) and then "{"."""
+    with open(path, "rb") as handle:
+        head = handle.read(9)
+    size = path.stat().st_size
+    if len(head) == 9 and head[8:9] == b"{" and 8 + int.from_bytes(head[:8], "little") <= size:
+        return False
+    return head[:1] == b"\x80" or head[:2] == b"PK"
+
+
 def save_tensors(
     path: str | Path, tensors: dict[str, Tensor], metadata: dict[str, str] | None = None
 ) -> None:
@@ -70,9 +81,7 @@ def load_tensors(
     todo = retrain or "delete it and train again"
     if not path.is_file():
         raise MopError(f"{path} does not exist; train a model first (mop train) or check the run directory")
-    with open(path, "rb") as handle:
-        head = handle.read(2)
-    if head[:1] == b"\x80" or head == b"PK":  # pickle protocol 2+ or a torch.save zip archive
+    if _looks_pickled(path):
         raise MopError(
             f"{path} is a pickle/torch.save file, which mop refuses to load; only safetensors is accepted"
         )
