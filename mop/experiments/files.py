@@ -125,7 +125,7 @@ def _plugin_error(err: Exception, path: Path) -> str:
     line = ""
     tb = err.__traceback__
     while tb is not None:
-        if Path(tb.tb_frame.f_code.co_filename) == path:
+        if Path(tb.tb_frame.f_code.co_filename).resolve() == path.resolve():
             line = f" (line {tb.tb_lineno})"
         tb = tb.tb_next
     first = (str(err).splitlines() or [""])[0]
