@@ -14,7 +14,7 @@ import typing
 from typing import Any, TypeVar
 
 from mop.errors import MopError, check  # noqa: F401  (check: re-exported for config validation)
-from mop.systems.base import SystemConfig
+from mop.systems.base import SystemConfig, config_class
 
 T = TypeVar("T")
 
@@ -46,26 +46,53 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
         raise MopError(f"bad config{where and ' ' + where}: {err}") from None
 
 
-def to_dict(config: Any) -> dict[str, Any]:
-    """The config as nested dicts; a RunConfig without recorded data has no "data" key (as before)."""
+# Keys left out of a RunConfig's dict while they hold these defaults, so configs (and their hashes, which name
+# run directories) written before the keys existed are unchanged.
+OMITTED_AT_DEFAULT = {
+    "model": {"observation_mask": False},
+    "train": {"missing_rate": 0.0, "missing_burst_rate": 0.0, "missing_burst_length": 5},
+}
+
+
+def to_dict(config: Any, omit_defaults: bool = True) -> dict[str, Any]:
+    """The config as nested dicts; a RunConfig without recorded data has no "data" key (as before), and the
+    keys of OMITTED_AT_DEFAULT are left out while they hold their defaults (unless omit_defaults=False)."""
     data = dataclasses.asdict(config)
-    if isinstance(config, RunConfig) and config.data is None:
-        del data["data"]
+    if isinstance(config, RunConfig):
+        if config.data is None:
+            del data["data"]
+        for section, defaults in OMITTED_AT_DEFAULT.items() if omit_defaults else ():
+            for key, default in defaults.items():
+                if data[section][key] == default:
+                    del data[section][key]
     return data
 
 
-def apply_overrides(config: T, overrides: list[str]) -> T:
-    """Return a copy of `config` with dotted `key=value` overrides applied.
-
-    Values are parsed as JSON where possible, else kept as strings. A `family` override is applied first
-    and keeps only the knobs the new family's config also has (system.family=quadrotor drops spectral_radius).
-    """
-    data = to_dict(config)
-    items = sorted(overrides, key=lambda item: item.split("=", 1)[0].split(".")[-1] != "family")
-    for item in items:
+def parse_overrides(overrides: list[str]) -> dict[str, Any]:
+    """Dotted `key=value` strings (the command line's) -> {key: value}, values parsed as JSON where possible,
+    else kept as strings; a key given twice keeps its last value."""
+    settings = {}
+    for item in overrides:
         if "=" not in item:
             raise MopError(f"override {item!r} is not key=value (e.g. train.steps=200)")
         key, raw = item.split("=", 1)
+        settings[key] = _parse_value(raw)
+    return settings
+
+
+def apply_overrides(config: T, overrides: list[str]) -> T:
+    """Return a copy of `config` with dotted `key=value` overrides applied (apply_settings)."""
+    return apply_settings(config, parse_overrides(overrides))
+
+
+def apply_settings(config: T, settings: dict[str, Any]) -> T:
+    """Return a copy of `config` with {dotted key: value} applied, e.g. {"train.steps": 200}.
+
+    A `family` setting is applied first and keeps only the knobs the new family's config also has
+    (system.family=quadrotor drops spectral_radius).
+    """
+    data = to_dict(config, omit_defaults=False)
+    for key, value in sorted(settings.items(), key=lambda item: item[0].split(".")[-1] != "family"):
         node = data
         *path, leaf = key.split(".")
         if path[:1] == ["data"] and "data" not in data:
@@ -76,7 +103,6 @@ def apply_overrides(config: T, overrides: list[str]) -> T:
             node = node[part]
         if leaf not in node:
             raise MopError(f"unknown config key {key!r}; known keys here: {', '.join(node)}")
-        value = _parse_value(raw)
         if leaf == "family" and value != node["family"]:
             _change_family(node, value)
         node[leaf] = value
@@ -86,8 +112,6 @@ def apply_overrides(config: T, overrides: list[str]) -> T:
 
 def _change_family(node: dict[str, Any], family: Any) -> None:
     """Make `node` a config of `family`: keep the knobs both families have, add the new ones' defaults."""
-    from mop.systems.base import config_class
-
     defaults = dataclasses.asdict(config_class(str(family))())
     for key in [k for k in node if k not in defaults]:
         del node[key]
@@ -178,6 +202,9 @@ class ModelConfig:
     position: str = (
         "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact relative streaming)
     )
+    # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
+    # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
+    observation_mask: bool = False
 
     def __post_init__(self) -> None:
         check(
@@ -202,6 +229,10 @@ class ModelConfig:
             f"model.readout must be 'mean' or 'gaussian', got {self.readout!r}",
         )
         check(0 <= self.dropout < 1, f"model.dropout must be in [0, 1), got {self.dropout}")
+        check(
+            isinstance(self.observation_mask, bool),
+            f"model.observation_mask must be true or false, got {self.observation_mask!r}",
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -210,6 +241,10 @@ class TrainConfig:
 
     num_source_systems: M, systems with one trajectory each, drawn once; 0 = fresh systems every batch.
     horizon: T, training trajectories hold y_0..y_T; the model reads y_0..y_{T-1} and predicts y_1..y_T.
+    missing_rate: fraction of training outputs dropped at random, independently per channel and step
+        (mop.missing.drop_outputs); with missing_burst_rate (the chance per step that a burst of
+        missing_burst_length steps with every channel missing starts there) > 0 too, the model gets an
+        observation mask channel (model.observation_mask) and the loss counts only the measured targets.
     """
 
     steps: int = 10000
@@ -228,8 +263,26 @@ class TrainConfig:
     log_every: int = 50
     checkpoint_every: int = 1000
     deterministic: bool = False
+    missing_rate: float = 0.0
+    missing_burst_rate: float = 0.0
+    missing_burst_length: int = 5
+
+    @property
+    def drops_outputs(self) -> bool:
+        """True when training drops outputs (so the model needs the observation mask)."""
+        return self.missing_rate > 0 or self.missing_burst_rate > 0
 
     def __post_init__(self) -> None:
+        for name in ("missing_rate", "missing_burst_rate"):
+            value = getattr(self, name)
+            check(
+                isinstance(value, (int, float)) and 0 <= value < 1,
+                f"train.{name} must be in [0, 1), got {value!r}",
+            )
+        check(
+            isinstance(self.missing_burst_length, int) and self.missing_burst_length > 0,
+            f"train.missing_burst_length must be a positive integer, got {self.missing_burst_length!r}",
+        )
         for name in ("steps", "batch_size", "horizon", "log_every", "checkpoint_every"):
             value = getattr(self, name)
             check(

@@ -27,9 +27,17 @@ from pathlib import Path
 
 import torch
 
+from mop import train as mt
 from mop.config import RunConfig, SystemConfig, apply_overrides
 from mop.errors import MopError
+from mop.experiments import TEST_SEED_OFFSET, get_preset
+from mop.metrics import errors, mse_ratio_ci
 from mop.models import build_model
+from mop.models.predictor import LearnedPredictor
+from mop.plots import save
+from mop.predictors import make_predictor
+from mop.progress import progress as progress_bar
+from mop.systems import generator, make_family
 
 WINDOW = (20, 51)  # t in [20, 50]
 
@@ -46,8 +54,6 @@ class Recipe:
     threads: int = 0  # torch.set_num_threads; 0 keeps the default
 
     def config(self) -> RunConfig:
-        from mop.experiments import get_preset
-
         p = get_preset(self.base)
         model = dataclasses.replace(p.model, context=p.train.horizon)
         train = dataclasses.replace(p.train, compile="off", device="cpu")
@@ -94,9 +100,6 @@ def parse_recipe(words: list[str]) -> Recipe:
 
 def train_for(recipe: Recipe, seconds: float | None = None, steps: int | None = None, show: bool = False):
     """Train `recipe` until `seconds` of wall clock or `steps` steps; returns (model, info dict)."""
-    from mop import train as mt
-    from mop.progress import progress as progress_bar
-
     if recipe.threads:
         torch.set_num_threads(recipe.threads)
     start = time.perf_counter()
@@ -133,20 +136,12 @@ class TestSet:
     """N seeded linear test systems (float64) and the Kalman filter's errors on them, built once."""
 
     def __init__(self, num_systems: int, seed: int) -> None:
-        from mop.experiments import TEST_SEED_OFFSET
-        from mop.metrics import errors
-        from mop.predictors import make_predictor
-        from mop.systems import generator, make_family
-
         family = make_family(SystemConfig(), dtype=torch.float64)
         self.traj = family.generate(num_systems, 50, generator=generator(seed + TEST_SEED_OFFSET))
         self.e_kf = errors(make_predictor("kalman").predict(self.traj), self.traj.y)
         self.seed = seed
 
     def ratio(self, model) -> tuple[float, float, float]:
-        from mop.metrics import errors, mse_ratio_ci
-        from mop.models.predictor import LearnedPredictor
-
         e = errors(LearnedPredictor(model).predict(self.traj), self.traj.y)
         return mse_ratio_ci(e, self.e_kf, *WINDOW, seed=self.seed)
 
@@ -174,8 +169,6 @@ def _line(r: dict) -> str:
 
 def plot(rows: list[dict], out_dir: Path) -> list[Path]:
     import matplotlib.pyplot as plt
-
-    from mop.plots import save
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for name in dict.fromkeys(r["recipe"] for r in rows):

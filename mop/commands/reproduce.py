@@ -17,6 +17,7 @@ import torch
 from mop.commands import OverridesAnywhere
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
+from mop.experiments.runner import run_experiment
 from mop.experiments.validate import validate_experiment
 
 EPILOG = """examples:
@@ -62,8 +63,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mop.experiments.runner import run_experiment
-
     preset = args.preset or ("paper" if torch.cuda.is_available() else "small")
     if is_experiment_file(args.experiment):
         experiments = [load_experiment(args.experiment)]

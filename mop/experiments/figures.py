@@ -10,19 +10,23 @@ from __future__ import annotations
 from pathlib import Path
 
 from mop import plots
+from mop.experiments.measures import slope_fit
+from mop.experiments.results import Results
+from mop.experiments.spec import Experiment
+from mop.predictors import first_learned
 from mop.registry import Registry
 
 FIGURES: Registry = Registry("figure")
 
 
-def _stem(exp, results: dict, condition: str, suffix: str) -> str:
+def _stem(exp: Experiment, results: Results, condition: str, suffix: str) -> str:
     return (
         f"{exp.name}_{suffix}" if len(results) == 1 else f"{exp.name}_{condition}_{suffix}".replace(" ", "_")
     )
 
 
 @FIGURES.register("error")
-def error(exp, results: dict, out: Path) -> list[Path]:
+def error(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Per condition: the paper's panel (error with +-1 std bands) beside every predictor's MSE ratio."""
     paths = []
     for name, r in results.items():
@@ -35,11 +39,11 @@ def error(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("ratio_by_condition")
-def ratio_by_condition(exp, results: dict, out: Path) -> list[Path]:
+def ratio_by_condition(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Fig. 4a: MOP / reference MSE ratio against t, one line per condition."""
     curves = {
         name: (
-            r.summary["predictors"]["mop"]["squared_error"],
+            r.summary["predictors"][first_learned(r.summary["predictors"])]["squared_error"],
             r.summary["predictors"][exp.reference]["squared_error"],
         )
         for name, r in results.items()
@@ -47,8 +51,26 @@ def ratio_by_condition(exp, results: dict, out: Path) -> list[Path]:
     return plots.save(plots.ratio_figure(curves, f"{exp.title}: MOP / {exp.reference}"), out, "fig4a_ratio")
 
 
+@FIGURES.register("ratio_by_x")
+def ratio_by_x(exp, results: dict, out: Path) -> list[Path]:
+    """Each predictor's MSE ratio to the reference over t in [20, T] (95% bootstrap CI) against the
+    conditions' sweep value x (conditions without x are left out)."""
+    points = [r for r in results.values() if r.condition.x]
+    if not points:
+        return []
+    xs = [r.condition.x[1] for r in points]
+    curves: dict[str, list[tuple[float, float, float]]] = {}
+    for r in points:
+        horizon = r.summary["horizon"]
+        for name, wins in r.summary["ratios_to_reference"]["ratios"].items():
+            w = wins.get(f"[20,{horizon + 1})", wins["all"])
+            curves.setdefault(name, []).append((w["ratio"], w["low"], w["high"]))
+    fig = plots.ratio_by_x_figure(xs, curves, exp.reference, points[0].condition.x[0], exp.title)
+    return plots.save(fig, out, f"{exp.name}_ratio")
+
+
 @FIGURES.register("matrix_powers")
-def matrix_powers(exp, results: dict, out: Path) -> list[Path]:
+def matrix_powers(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Fig. 4b: mean ||A^k|| / rho(A)^k against k, one line per condition."""
     curves = {
         name: r.extras["matrix_power_ratio"]
@@ -59,7 +81,7 @@ def matrix_powers(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("noise_levels")
-def noise_levels(exp, results: dict, out: Path) -> list[Path]:
+def noise_levels(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Fig. 5: each predictor's mean error over all t against the conditions' sweep value."""
     points = [r for r in results.values() if r.condition.x]
     names = list(points[0].summary["predictors"])
@@ -71,7 +93,7 @@ def noise_levels(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("calibration")
-def calibration(exp, results: dict, out: Path) -> list[Path]:
+def calibration(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Reliability diagram per condition: empirical against nominal coverage of central intervals."""
     paths = []
     for name, r in results.items():
@@ -87,10 +109,8 @@ def calibration(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("loglog")
-def loglog(exp, results: dict, out: Path) -> list[Path]:
+def loglog(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Excess MSE against each sweep axis on log-log axes with the fitted slope."""
-    from mop.experiments.measures import slope_fit
-
     paths = []
     for axis in dict.fromkeys(r.condition.x[0] for r in results.values() if r.condition.x):
         fit = slope_fit(results, axis)
@@ -102,7 +122,7 @@ def loglog(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("forecast")
-def forecast(exp, results: dict, out: Path) -> list[Path]:
+def forecast(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Per condition: k-step forecast error against k, one line per predictor (the "forecast" analysis)."""
     import matplotlib.pyplot as plt
 

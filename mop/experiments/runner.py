@@ -21,31 +21,24 @@ import numpy as np
 import torch
 
 from mop.atomic import write_json, write_text
-from mop.config import RunConfig, SystemConfig, apply_overrides, to_dict
+from mop.config import RunConfig, SystemConfig, apply_settings, to_dict
 from mop.errors import MopError
 from mop.evaluate import evaluate, summarize
-from mop.experiments import TEST_SEED_OFFSET, get_preset, overrides_list, run_config
+from mop.experiments import TEST_SEED_OFFSET, get_preset, run_config
 from mop.experiments.analyses import ANALYSES
 from mop.experiments.figures import FIGURES
 from mop.experiments.measures import describe, measure_value, slope_fit
+from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.experiments.validate import evaluated, validate_experiment
+from mop.io import read_trajectories
+from mop.missing import drop_mask, drop_outputs
 from mop.outputs import staged_output
 from mop.predictors import PREDICTORS, is_learned, make_predictor
 from mop.report import build_report, claim_line, summary_section
+from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
-
-
-@dataclasses.dataclass
-class ConditionResult:
-    """One test condition's outcome: trajectories, per-system errors e (N, T+1) per predictor, the eval.json
-    summary and the analyses' extras."""
-
-    condition: Condition
-    traj: Trajectories
-    errors: dict[str, np.ndarray]
-    summary: dict[str, Any]
-    extras: dict[str, Any] = dataclasses.field(default_factory=dict)
+from mop.train import train
 
 
 @dataclasses.dataclass
@@ -70,15 +63,16 @@ def config_hash(config: RunConfig) -> str:
 
 
 def wanted(session: Session, condition: Condition) -> list[str]:
-    """The predictors evaluated under `condition` (the GRU only where the preset or --gru asks for it)."""
+    """The predictors evaluated under `condition`: those an entry's skip_presets leave out under this preset
+    (the GRU under small and smoke) only where --gru asks for them; --no-gru drops every such entry."""
     return evaluated(session.exp, session.preset, condition, session.with_gru)
 
 
-def learned_predictor(session: Session, name: str, condition: Condition):
-    """Train (or reuse) the run of learned predictor `name` for `condition`, and load it once."""
-    from mop.train import train
-
-    config = condition_config(session, condition, PREDICTORS.meta(name)["arch"])
+def learned_predictor(session: Session, name: str, condition: Condition, trained: RunConfig):
+    """Train (or reuse) the run of learned predictor `name` for `condition` (its RunConfig `trained`, with
+    the predictor's architecture), and load it once."""
+    arch = PREDICTORS.meta(name)["arch"]
+    config = dataclasses.replace(trained, model=dataclasses.replace(trained.model, arch=arch))
     run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
     key = str(run_dir)
     if key not in session.loaded:
@@ -95,21 +89,17 @@ def condition_config(session: Session, condition: Condition, arch: str = "gpt") 
 
 def test_system(trained: RunConfig, condition: Condition) -> SystemConfig:
     """The condition's test family: the trained family's config with the condition's overrides."""
-    return apply_overrides(trained.system, overrides_list(condition.system))
+    return apply_settings(trained.system, condition.system)
 
 
 def test_trajectories(system: SystemConfig, num_systems: int, horizon: int, seed: int) -> Trajectories:
     """Seeded test systems (float64), apart from the training (seed) and validation streams."""
-    from mop.systems import generator, make_family
-
     family = make_family(system, dtype=torch.float64)
     return family.generate(num_systems, horizon, generator=generator(seed + TEST_SEED_OFFSET))
 
 
 def recorded_trajectories(path: str, horizon: int) -> Trajectories:
     """The recordings of `path` with at least horizon + 1 outputs, cut to y_0..y_horizon (float64)."""
-    from mop.io import read_trajectories
-
     _, data = read_trajectories(path)
     long = [(y, u) for y, u in data if len(y) > horizon]
     if not long:
@@ -119,16 +109,33 @@ def recorded_trajectories(path: str, horizon: int) -> Trajectories:
     return Trajectories(y=y, u=None if u is None else torch.tensor(u, dtype=torch.float64))
 
 
+MISSING_SEED_OFFSET = 9_000_011  # the test drop-out masks: generator seed + this
+
+
+def with_missing(traj: Trajectories, missing: dict[str, float], seed: int) -> Trajectories:
+    """traj with outputs removed (NaN) as the condition's `missing` says; y_0 always kept; seeded."""
+    g = torch.Generator(device=traj.y.device).manual_seed(seed + MISSING_SEED_OFFSET)
+    drop = drop_mask(
+        tuple(traj.y.shape),
+        missing.get("rate", 0.0),
+        g,
+        missing.get("burst_rate", 0.0),
+        int(missing.get("burst_length", 5)),
+    )
+    return dataclasses.replace(traj, y=drop_outputs(traj.y, drop))
+
+
 def run_condition(session: Session, condition: Condition) -> ConditionResult:
     exp, preset = session.exp, get_preset(session.preset)
+    trained = condition_config(session, condition)  # built once: the runs, the test horizon and family
     predictors = []
     for name in wanted(session, condition):
         if is_learned(name):
-            predictors.append(learned_predictor(session, name, condition))
+            predictors.append(learned_predictor(session, name, condition, trained))
         else:
-            options = {"seed": session.seed, **preset.predictor_options.get(name, {})}
+            per_preset = PREDICTORS.meta(name).get("preset_options", {})  # the entry's own options
+            options = {"seed": session.seed, **per_preset.get(session.preset, {})}
             predictors.append(make_predictor(name, **options))
-    trained = condition_config(session, condition)
     horizon = condition.horizon or trained.train.horizon  # with the command line's overrides, like the run
     if condition.data:
         traj = recorded_trajectories(condition.data, horizon)
@@ -136,6 +143,8 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
         traj = test_trajectories(
             test_system(trained, condition), preset.num_test_systems, horizon, session.seed
         )
+    if condition.missing:
+        traj = with_missing(traj, condition.missing, session.seed)
     raw = evaluate(predictors, traj, session.progress)
     summary = summarize(raw, reference=exp.reference, seed=session.seed)
     result = ConditionResult(condition, traj, {k: v["e"] for k, v in raw.items()}, summary)
@@ -144,7 +153,7 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
     return result
 
 
-def check_claim(claim: Claim, results: dict, reference: str, seed: int) -> dict:
+def check_claim(claim: Claim, results: Results, reference: str, seed: int) -> dict:
     """{"claim", "measure", "value", "threshold", "holds"} for one claim (holds None for op "info")."""
     value = measure_value(claim.measure, results, reference, seed)
     threshold = claim.threshold
@@ -248,7 +257,7 @@ def _write_outputs(session: Session, results: dict, claims: list[dict], out: Pat
     write_text(out / "report.md", text)
 
 
-def _sweeps(results: dict) -> dict:
+def _sweeps(results: Results) -> dict:
     axes = dict.fromkeys(r.condition.x[0] for r in results.values() if r.condition.x)
     return {axis: slope_fit(results, axis) for axis in axes}
 
@@ -265,7 +274,7 @@ def _settings(session: Session) -> dict:
     }
 
 
-def _sections(exp: Experiment, results: dict, figures: list[Path]) -> list[str]:
+def _sections(exp: Experiment, results: Results, figures: list[Path]) -> list[str]:
     pngs = [f.name for f in figures if f.suffix == ".png"]
     sections = []
     if exp.description:

@@ -15,9 +15,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from mop.config import RunConfig, apply_overrides
+from mop.config import RunConfig, apply_settings
 from mop.errors import MopError
-from mop.experiments import get_preset, overrides_list, run_config
+from mop.experiments import get_preset, run_config
 from mop.experiments.analyses import ANALYSES
 from mop.experiments.figures import FIGURES
 from mop.experiments.measures import MEASURES
@@ -30,12 +30,18 @@ NEEDS_ANALYSIS = {"coverage": "calibration", "matrix_power_max": "matrix_powers"
 
 
 def evaluated(exp: Experiment, preset: str, condition: Condition, with_gru: bool | None) -> list[str]:
-    """The predictors evaluated under `condition` (the GRU only where the preset or --gru asks for it; no
-    predictor that needs the system on recorded data)."""
-    names = list(condition.predictors or exp.predictors)
-    train_gru = get_preset(preset).train_gru if with_gru is None else with_gru
-    names = [n for n in names if n != "gru" or train_gru]
-    return [n for n in names if not (condition.data and needs_system(n))]
+    """The predictors evaluated under `condition`: those an entry's skip_presets leave out under this preset
+    (the GRU under small and smoke) only where --gru asks for them; --no-gru drops every such entry; no
+    predictor that needs the system on recorded data."""
+    names = [n for n in condition.predictors or exp.predictors if _included(preset, with_gru, n)]
+    return [n for n in names if not (condition.data and needs_system(n))]  # recordings carry no system
+
+
+def _included(preset: str, with_gru: bool | None, name: str) -> bool:
+    skip = PREDICTORS.meta(name).get("skip_presets", ())
+    if with_gru is None:
+        return preset not in skip
+    return with_gru or not skip
 
 
 def validate_experiment(
@@ -95,7 +101,7 @@ def _condition(exp: Experiment, preset: str, seed: int, overrides: list[str], co
                 check_arch(PREDICTORS.meta(name)["arch"])
                 run_config(exp, preset, seed, PREDICTORS.meta(name)["arch"], condition, overrides)
         _training_source(config)
-        make_family(apply_overrides(config.system, overrides_list(condition.system)))
+        make_family(apply_settings(config.system, condition.system))
     except MopError as err:
         raise MopError(f"{where}{err}") from None
     if condition.data and not Path(condition.data).is_file():

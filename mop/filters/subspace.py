@@ -19,7 +19,7 @@ from torch import Tensor
 
 from mop.errors import MopError
 from mop.filters.rls import rls_forecast
-from mop.predictors import PREDICTORS
+from mop.predictors import PREDICTORS, nan_beyond_horizon
 from mop.systems.base import Trajectories
 
 
@@ -108,8 +108,6 @@ def n4sid_kalman_forecast(
     """k-step forecasts (B, T, K, m): where n4sid_kalman_predict uses the identified model at t, its state m_t
     is propagated with no measurement, yhat_{t+j} = C A^j m_t; where it uses RLS-AR(2), rls_forecast's
     iterated AR recursion. j = 0 is n4sid_kalman_predict; entries with t + j >= T are NaN."""
-    from mop.predictors import nan_beyond_horizon
-
     B, T, m = y.shape
     i = num_block_rows or max(2, math.ceil(order / m) + 1)
     min_columns = 2 * i * m if min_columns is None else min_columns
@@ -137,7 +135,18 @@ def n4sid_kalman_forecast(
     return nan_beyond_horizon(out)
 
 
-@PREDICTORS.register("n4sid-kf")
+def refuse_gaps(traj: Trajectories) -> Tensor:
+    """traj.y in float64; MopError for missing outputs: the block Hankel matrices of N4SID need every output,
+    and this implementation does not identify from data with gaps."""
+    if traj.observed is not None:
+        raise MopError(
+            f"n4sid-kf needs every output, and these trajectories have {traj.num_missing} missing (NaN / "
+            "empty cells); use rls, rls-best or last, or fill the gaps"
+        )
+    return traj.y.double()
+
+
+@PREDICTORS.register("n4sid-kf", preset_options={"small": {"every": 10}, "smoke": {"every": 10}})
 class N4SIDKalmanPredictor:
     """Subspace identification from the prefix + steady-state Kalman predictor ("n4sid-kf").
 
@@ -146,6 +155,8 @@ class N4SIDKalmanPredictor:
     re-identify every `every` steps (1: at each t, the most accurate; larger is faster); min_columns,
     select: see n4sid_kalman_predict.
     """
+
+    name = "n4sid-kf"
 
     def __init__(
         self,
@@ -171,7 +182,7 @@ class N4SIDKalmanPredictor:
         self.min_columns, self.select = min_columns, select
 
     def predict(self, traj: Trajectories) -> Tensor:
-        y = traj.y.double()
+        y = refuse_gaps(traj)
         out = n4sid_kalman_predict(
             y, self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select
         )
@@ -180,7 +191,7 @@ class N4SIDKalmanPredictor:
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): the identified model propagated with no measurement (n4sid_kalman_forecast)."""
         out = n4sid_kalman_forecast(
-            traj.y.double(),
+            refuse_gaps(traj),
             steps,
             self.order,
             self.num_block_rows,

@@ -24,7 +24,7 @@ class GRUCache:
         self.t = 0
 
 
-@register_model("gru")
+@register_model("gru", skip_presets=("small", "smoke"))
 class GRUModel(nn.Module):
     context_limited = False  # forward takes any T
 
@@ -60,7 +60,7 @@ class GRUModel(nn.Module):
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         mu, var, _ = self._run(inputs)
-        return prediction_loss(mu, var, targets)
+        return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
 
     def init_cache(self, batch_size: int) -> GRUCache:
         p = self.read_in.weight

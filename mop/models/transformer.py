@@ -151,7 +151,7 @@ class KVCache:
         self.t = 0  # inputs consumed
 
 
-@register_model("gpt")
+@register_model("gpt", predictor="mop")
 class Transformer(nn.Module):
     """GPT-2 body with a linear read-in (d_in -> d) and read-out (d -> m, or 2m for the Gaussian readout)."""
 
@@ -217,7 +217,7 @@ class Transformer(nn.Module):
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m)."""
         mu, var = self._read_out(self.hidden(inputs))
-        return prediction_loss(mu, var, targets)
+        return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
 
     # ---- streaming ----
     def init_cache(self, batch_size: int) -> KVCache:
