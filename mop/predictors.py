@@ -100,6 +100,25 @@ def forecast(predictor: Predictor, traj: Trajectories, steps: int) -> Tensor:
     return nan_beyond_horizon(method(traj, steps))
 
 
+def simulate(predictor: Predictor, traj: Trajectories, context: int) -> Tensor:
+    """Free-run simulation (B, T+1-c, m), c = context: out[:, j] predicts y_{c+j} from y_0..y_{c-1} and the
+    inputs u_0..u_{c+j-1} alone, with no output after the context (the system-identification metric).
+
+    It is the k-step forecast from origin c, forecast[:, c, j]; a predictor may answer it directly with a
+    `simulate(traj, context)` method (the filters and learned models do: one rollout instead of one from
+    every origin). MopError unless 1 <= c <= T and the predictor has a forecast or a simulate.
+    """
+    from mop.errors import MopError
+
+    T = traj.horizon
+    if not isinstance(context, int) or not 1 <= context <= T:
+        raise MopError(f"simulation context must be an integer in [1, T = {T}], got {context!r}")
+    method = getattr(predictor, "simulate", None)
+    if callable(method):
+        return method(traj, context)
+    return forecast(predictor, traj, T + 1 - context)[:, context]
+
+
 def nan_beyond_horizon(f: Tensor) -> Tensor:
     """f (B, T+1, K, m) with the entries whose target index t + j > T set to NaN (in place; returned)."""
     T1, K = f.shape[1], f.shape[2]

@@ -5,6 +5,7 @@ import csv
 import math
 
 import numpy as np
+import scipy.linalg
 import torch
 from filterpy.kalman import KalmanFilter
 
@@ -13,16 +14,46 @@ from mop.systems import generator, make_family
 from mop.systems.quadrotor import BOUNDS
 
 
-def filterpy_predict(A, C, Q, R, y, x0, P0):
-    """One filterpy KalmanFilter per system; predictions H x before each update. Arrays (B, ...)."""
+def filterpy_predict(A, C, Q, R, y, x0, P0, B=None, u=None):
+    """One filterpy KalmanFilter per system; predictions H x before each update, then predict(u=u_t) with the
+    input matrix B where given. Arrays (B, ...)."""
     out = np.zeros_like(y)
     for b in range(A.shape[0]):
-        kf = KalmanFilter(dim_x=A.shape[-1], dim_z=C.shape[1])
+        kf = KalmanFilter(dim_x=A.shape[-1], dim_z=C.shape[1], dim_u=0 if B is None else B.shape[-1])
         kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = A[b], C[b], Q[b], R[b], x0[b].copy(), P0[b].copy()
+        if B is not None:
+            kf.B = B[b]
         for t in range(y.shape[1]):
             out[b, t] = C[b] @ kf.x
             kf.update(y[b, t])
-            kf.predict()
+            kf.predict(u=None if u is None else u[b, t])
+    return out
+
+
+def gaussian_conditioning_predict(A, C, Q, R, y, x0, P0, B, u):
+    """E[y_t | y_<t] by conditioning the joint Gaussian of (y_0..y_{T-1}) directly (no recursion), one system:
+    y = M z + d with z = [x_0 - x0, w_0..w_{T-2}, v_0..v_{T-1}] ~ N(0, blockdiag(P0, Q.., R..)) and d the
+    mean driven by x0 and B u. A (n, n), C (m, n), B (n, k), y (T, m), u (T, k)."""
+    T, m, n = y.shape[0], C.shape[0], A.shape[0]
+    nz = n + (T - 1) * n + T * m
+    M, d = np.zeros((T * m, nz)), np.zeros(T * m)
+    Gx, mean = np.zeros((n, nz)), x0.copy()  # x_t = Gx z + mean
+    Gx[:, :n] = np.eye(n)
+    for t in range(T):
+        M[t * m : (t + 1) * m] = C @ Gx
+        M[t * m : (t + 1) * m, n + (T - 1) * n + t * m : n + (T - 1) * n + (t + 1) * m] = np.eye(m)
+        d[t * m : (t + 1) * m] = C @ mean
+        if t < T - 1:
+            Gx = A @ Gx
+            Gx[:, n + t * n : n + (t + 1) * n] += np.eye(n)
+            mean = A @ mean + B @ u[t]
+    cov_z = scipy.linalg.block_diag(P0, *([Q] * (T - 1)), *([R] * T))
+    S = M @ cov_z @ M.T
+    flat, out = y.reshape(-1), np.zeros_like(y)
+    for t in range(T):
+        k = t * m
+        gain = np.linalg.solve(S[:k, :k], S[:k, k : k + m]).T if k else np.zeros((m, 0))
+        out[t] = d[k : k + m] + gain @ (flat[:k] - d[:k])
     return out
 
 

@@ -10,6 +10,9 @@ With --steps K: k-step forecasts, forecast[t, j] predicting y_{t+j} from y_<t (j
 prediction; see mop.predictors.forecast): NPZ yhat (B, T+1, K, m) with NaN where t + j > T; CSV
 `trajectory,t,j,yhat0..` with one row per (t, j), t + j <= T. Prints per-trajectory RMSE and mean ||e|| over
 t >= 1 (one-step), or with --steps the mean ||y_{t+j} - forecast[t, j]|| per horizon k = j + 1 over t >= 1.
+With --simulate C: free-run simulation (mop.predictors.simulate), y_C..y_T predicted from y_0..y_{C-1} and the
+inputs alone: NPZ ysim (B, T+1-C, m), CSV `trajectory,t,ysim0..` for t >= C; prints the simulation RMSE beside
+the one-step RMSE over the same steps t >= C.
 """
 
 from __future__ import annotations
@@ -42,6 +45,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
     parser.add_argument("--stream", action="store_true", help="KV-cache streaming (constant cost per step)")
     parser.add_argument("--steps", type=int, help="k-step forecasts for k = 1..STEPS (see above)")
+    parser.add_argument(
+        "--simulate",
+        type=int,
+        metavar="C",
+        help="free-run simulation of y_C..y_T after a context of C outputs",
+    )
 
 
 def model_free() -> list[str]:
@@ -64,28 +73,57 @@ def resolve_predictor(spec: str, stream: bool = False):
     return make_predictor(spec), needs_system(spec)
 
 
-def system_of(name: str, data_path: Path, num: int) -> tuple[str, dict[str, torch.Tensor]]:
-    """The family and params a system-aware predictor needs from DATA, or a one-line MopError."""
+def system_of(
+    name: str, data_path: Path, num: int, has_inputs: bool = False
+) -> tuple[str, dict[str, torch.Tensor]]:
+    """The family and params a system-aware predictor needs from DATA, or a one-line MopError.
+
+    A predictor registered with linear_model=True (kalman) also takes any linear-Gaussian model: where DATA
+    has no family, or lacks that family's generator arrays, it needs param_A, param_C, param_Q, param_R
+    (optional param_B, param_P0, param_x0_mean) and runs with family "" (linear_model_from_params)."""
+    from mop.predictors import PREDICTORS
+    from mop.systems.base import LINEAR_MODEL_ARRAYS, linear_model_from_params
+
     if data_path.suffix == ".csv":
         raise MopError(
             f"{name} needs the system's parameters, and a CSV has no system parameters; "
             f"give an .npz written by mop simulate, or use {', '.join(model_free())}"
         )
     family, params = read_system(data_path, num)
-    if not family:
-        raise MopError(f"{name} needs the array family in {data_path}; write the file with mop simulate")
-    if family not in FAMILIES.names():
-        raise MopError(f"{data_path}: family {family!r} is not one of {', '.join(FAMILIES.names())}")
-    sample = FAMILIES.get(family)(SystemConfig(family=family)).sample(1, generator=torch.Generator())
-    missing = [f"param_{k}" for k in sample if k not in params]
-    if missing:
+    linear_ok = bool(PREDICTORS.meta(name).get("linear_model"))
+    missing = ["family"]
+    if family:
+        if family not in FAMILIES.names():
+            raise MopError(f"{data_path}: family {family!r} is not one of {', '.join(FAMILIES.names())}")
+        sample = FAMILIES.get(family)(SystemConfig(family=family)).sample(1, generator=torch.Generator())
+        missing = [f"param_{k}" for k in sample if k not in params]
+        if not missing:
+            return family, {k: torch.from_numpy(v) for k, v in params.items()}
+    if not linear_ok:
         raise MopError(f"{name} needs {', '.join(missing)} in {data_path}; write the file with mop simulate")
-    return family, {k: torch.from_numpy(v) for k, v in params.items()}
+    lacking = [f"param_{k}" for k in LINEAR_MODEL_ARRAYS if k not in params]
+    if lacking:
+        raise MopError(
+            f"{name} needs {', '.join(lacking)} in {data_path} (a linear model: param_A, param_C, param_Q, "
+            "param_R; optional param_B, param_P0, param_x0_mean), or write the file with mop simulate"
+        )
+    if has_inputs != ("B" in params):
+        raise MopError(
+            f"{data_path}: "
+            + (
+                "the inputs u need param_B (B, n, k), the input matrix of the linear model"
+                if has_inputs
+                else "param_B is given but there are no inputs u; add u (B, T+1, k) or drop param_B"
+            )
+        )
+    tensors = {k: torch.from_numpy(v).double() for k, v in params.items()}
+    linear_model_from_params(tensors)  # shapes checked before any work
+    return "", tensors
 
 
 def batches(data, family: str, params: dict) -> list[Trajectories]:
-    """One Trajectories of all trajectories when they share a length (and the system's parameters), else one
-    per trajectory."""
+    """One Trajectories of all trajectories when they share a length, else one per trajectory (each with
+    its own rows of the system's parameters)."""
     if len({len(y) for y, _ in data}) == 1:
         y = torch.tensor(np.stack([y for y, _ in data]), dtype=torch.float32)
         u = None if data[0][1] is None else torch.tensor(np.stack([u for _, u in data]), dtype=torch.float32)
@@ -94,8 +132,10 @@ def batches(data, family: str, params: dict) -> list[Trajectories]:
         Trajectories(
             y=torch.tensor(y[None], dtype=torch.float32),
             u=None if u is None else torch.tensor(u[None], dtype=torch.float32),
+            params={k: v[i : i + 1] for k, v in params.items()},
+            family=family,
         )
-        for y, u in data
+        for i, (y, u) in enumerate(data)
     ]
 
 
@@ -106,6 +146,44 @@ def predict_all(predictor, data, steps: int | None = None, family: str = "", par
         pred = predictor.predict(traj) if steps is None else forecast(predictor, traj, steps)
         out += list(pred.double().cpu().numpy())
     return out
+
+
+def simulate_all(predictor, data, context: int, family: str = "", params=None) -> list[np.ndarray]:
+    """[(T_i+1-C, m)] free-run simulations after C outputs, batched where lengths agree."""
+    from mop.predictors import simulate
+
+    out = []
+    for traj in batches(data, family, params or {}):
+        out += list(simulate(predictor, traj, context).double().cpu().numpy())
+    return out
+
+
+def write_simulation(path: Path, names: list[str], sims: list[np.ndarray], context: int) -> None:
+    if path.suffix == ".npz":
+        if len({len(p) for p in sims}) != 1:
+            raise MopError(f"{path}: trajectories differ in length; write a .csv instead")
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, ysim=np.stack(sims), context=np.array(context))
+        return
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["trajectory", "t", *[f"ysim{i}" for i in range(sims[0].shape[-1])]])
+        for name, p in zip(names, sims, strict=True):
+            for j, row in enumerate(p):
+                w.writerow([name, context + j, *[f"{v:.7g}" for v in row]])
+
+
+def print_simulation_errors(names, data, yhat, sims, context: int) -> None:
+    """Per trajectory and overall RMSE over t >= C: one-step (yhat) beside free-run simulation."""
+    print(f"{'trajectory':>12} {'steps':>6} {'one-step rmse':>14} {'simulation rmse':>16}")
+    one, sim = [], []
+    for name, (y, _), p, s in zip(names, data, yhat, sims, strict=True):
+        one.append(y[context:] - p[context:])
+        sim.append(y[context:] - s)
+        rm = lambda e: np.sqrt((e**2).mean())  # noqa: E731
+        print(f"{name:>12} {len(s):>6} {rm(one[-1]):>14.4g} {rm(sim[-1]):>16.4g}")
+    e1, es = np.concatenate(one), np.concatenate(sim)
+    print(f"{'overall':>12} {len(es):>6} {np.sqrt((e1**2).mean()):>14.4g} {np.sqrt((es**2).mean()):>16.4g}")
 
 
 def write_output(path: Path, names: list[str], yhat: list[np.ndarray]) -> None:
@@ -186,11 +264,26 @@ def run(args: argparse.Namespace) -> int:
         raise MopError(f"--out {out}: use a .csv or .npz file name")
     if args.steps is not None and args.steps < 1:
         raise MopError(f"--steps must be >= 1, got {args.steps}")
+    if args.simulate is not None and args.steps is not None:
+        raise MopError("give --steps or --simulate, not both")
     predictor, knows_system = resolve_predictor(args.predictor, args.stream)
     names, data = read_trajectories(data_path)
     check_predict_size(data, args.steps)
-    family, params = system_of(args.predictor, data_path, len(data)) if knows_system else ("", {})
+    if args.simulate is not None:
+        shortest = min(len(y) for y, _ in data) - 1
+        if not 1 <= args.simulate <= shortest:
+            raise MopError(
+                f"--simulate must be in [1, {shortest}] (the shortest trajectory's T), got {args.simulate}"
+            )
+    has_inputs = data[0][1] is not None
+    family, params = system_of(args.predictor, data_path, len(data), has_inputs) if knows_system else ("", {})
     yhat = predict_all(predictor, data, args.steps, family, params)
+    if args.simulate is not None:
+        sims = simulate_all(predictor, data, args.simulate, family, params)
+        print_simulation_errors(names, data, yhat, sims, args.simulate)
+        write_simulation(out, names, sims, args.simulate)
+        print(f"wrote {out}")
+        return 0
     if args.steps is None:
         print_errors(names, data, yhat)
     else:

@@ -104,3 +104,34 @@ def forecast_analysis(result: ConditionResult, predictors: list[Predictor], refe
             continue
         table[p.name] = horizon_errors(result.traj.y, forecast(p, result.traj, steps), start)
     return {"forecast": {"k": list(range(1, steps + 1)), "start": start, "error": table}}
+
+
+def simulation_context(result) -> int:
+    """The condition's context c, default 4/5 of the horizon (at least 1)."""
+    T = result.traj.horizon
+    c = result.condition.context
+    return min(max(1, (4 * T) // 5 if c is None else c), T)
+
+
+@ANALYSES.register("simulation")
+def simulation_analysis(result, predictors: list, reference: str) -> dict:
+    """Free-run simulation after the condition's context c (simulation_context), for every predictor with a
+    forecast or a simulate: each system's RMSE over y_c..y_T and the outputs, averaged over systems
+    (Forgione et al.'s convention), and beside it the one-step RMSE over the same steps.
+    Predictors that can do neither are left out."""
+    from mop.predictors import simulate
+
+    c = simulation_context(result)
+    y = result.traj.y[:, c:].double()
+    m = y.shape[-1]
+    table = {}
+    for p in predictors:
+        if not (callable(getattr(p, "simulate", None)) or callable(getattr(p, "forecast", None))):
+            continue
+        sim = simulate(p, result.traj, c).double()
+        one = result.errors[p.name][:, c:]  # (N, T+1-c) ||e_t||
+        table[p.name] = {
+            "simulation_rmse": float(((sim - y) ** 2).mean((1, 2)).sqrt().mean()),
+            "one_step_rmse": float(np.sqrt((one**2).mean(1) / m).mean()),
+        }
+    return {"simulation": {"context": c, "rmse": table}}

@@ -48,6 +48,16 @@ def mean_error(measure: Measure, result: ConditionResult, reference: str, seed: 
     return float(np.nanmean(part) if np.isnan(part).any() else part.mean())  # NaN: nothing measured
 
 
+@MEASURES.register("rmse")
+def rmse(measure: Measure, result, reference: str, seed: int) -> float:
+    """Mean over systems of each system's RMSE over t in `window` and the outputs (Forgione et al.'s
+    metrics.rmse over time, then the mean over sequences)."""
+    e = _errors(result, measure.predictor)  # (N, T+1) ||e_t||
+    start, stop = _span(measure, e.shape[1] - 1)
+    m = result.traj.output_dim
+    return float(np.sqrt((e[:, start:stop] ** 2).mean(1) / m).mean())
+
+
 @MEASURES.register("coverage")
 def coverage(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     table = result.extras.get("calibration", {}).get(measure.predictor)
@@ -63,6 +73,23 @@ def matrix_power_max(measure: Measure, result: ConditionResult, reference: str, 
     if "matrix_power_ratio" not in result.extras:
         raise MopError("matrix_power_max needs the 'matrix_powers' analysis")
     return float(max(result.extras["matrix_power_ratio"]))
+
+
+def _simulation(result, name: str) -> dict:
+    table = result.extras.get("simulation", {}).get("rmse", {})
+    if name not in table:
+        raise MopError(f"simulation RMSE of {name!r} needs the 'simulation' analysis and a forecast")
+    return table[name]
+
+
+@MEASURES.register("simulation_rmse")
+def simulation_rmse(measure: Measure, result, reference: str, seed: int) -> float:
+    return _simulation(result, measure.predictor)["simulation_rmse"]
+
+
+@MEASURES.register("one_step_rmse")
+def one_step_rmse(measure: Measure, result, reference: str, seed: int) -> float:
+    return _simulation(result, measure.predictor)["one_step_rmse"]
 
 
 def sweep(results: Results, axis: str) -> list:
@@ -123,4 +150,9 @@ def describe(measure: Measure, reference: str) -> str:
         return f"{int(measure.level * 100)}% coverage of {measure.predictor}{where}"
     if measure.metric == "slope":
         return f"log-log slope against {measure.axis} (95% CI)"
+    if measure.metric == "rmse":
+        return f"one-step RMSE of {measure.predictor} over {window}{where}"
+    if measure.metric in ("simulation_rmse", "one_step_rmse"):
+        kind = "simulation" if measure.metric == "simulation_rmse" else "one-step"
+        return f"{kind} RMSE of {measure.predictor} after the context{where}"
     return f"{measure.metric}{where}"

@@ -289,6 +289,8 @@ def _sections(exp: Experiment, results: Results, figures: list[Path]) -> list[st
             sections.append(_floor_table(r.extras["floor"]))
         if "forecast" in r.extras:
             sections.append(_forecast_table(r.extras["forecast"]))
+        if "simulation" in r.extras:
+            sections.append(_simulation_table(r.extras["simulation"]))
     shared = [f for f in pngs if not any(f in s for s in sections)]
     if shared:
         sections.append("\n".join(f"![{f}]({f})" for f in shared))
@@ -327,6 +329,22 @@ def _forecast_table(forecast: dict) -> str:
     ]
     lines += [
         f"| {n} | " + " | ".join(f"{e:.4f}" for e in errs) + " |" for n, errs in forecast["error"].items()
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _simulation_table(simulation: dict) -> str:
+    c = simulation["context"]
+    lines = [
+        f"Free-run simulation after a context of {c} outputs (y_{c}..y_T from the inputs alone), RMSE over "
+        "those steps beside the one-step RMSE over the same steps:",
+        "",
+        "| predictor | one-step RMSE | simulation RMSE |",
+        "|---|---|---|",
+    ]
+    lines += [
+        f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} |"
+        for n, r in simulation["rmse"].items()
     ]
     return "\n".join(lines) + "\n"
 

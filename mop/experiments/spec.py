@@ -35,6 +35,8 @@ class Measure:
         "coverage"   fraction of outputs inside the central `level` interval (predictors with a distribution)
         "matrix_power_max"  max over k of the mean ||A^k|| / rho(A)^k of the test systems
         "slope"      log-log slope of the excess MSE over the conditions of sweep axis `axis` (its 95% CI)
+        "simulation_rmse" / "one_step_rmse"  RMSE of `predictor` in free-run simulation after the condition's
+                     context / one-step over the same steps (needs the "simulation" analysis)
     window: [start, stop) in time steps; stop None means T + 1.
     condition: the test condition's name; "" the first one; "*" every condition, combined by `reduce`.
     """
@@ -142,6 +144,8 @@ class Condition:
     missing: outputs of the test trajectories removed before any predictor sees them (mop.missing.drop_mask,
         seeded apart from the systems): {"rate": p} per channel and step, {"burst_rate": q,
         "burst_length": L} whole-step bursts; errors are then measured on the measured outputs only.
+    context: the context length c of the "simulation" analysis (free-run simulation of y_c..y_T from the
+        inputs alone); None: 4/5 of the horizon (the authors of sysid-transformers: 400 of 500).
     """
 
     name: str = "test"
@@ -152,6 +156,7 @@ class Condition:
     predictors: tuple[str, ...] = ()  # () = every predictor of the experiment
     data: str = ""
     missing: dict[str, float] = dataclasses.field(default_factory=dict)
+    context: int | None = None
 
     def __post_init__(self) -> None:
         check(isinstance(self.name, str) and bool(self.name), "a condition needs a name (a string)")
@@ -176,6 +181,10 @@ class Condition:
         )
         check(isinstance(self.data, str), f"condition {self.name}: data must be a file name")
         check(isinstance(self.missing, dict), f"condition {self.name}: missing must be a table")
+        check(
+            self.context is None or (_is_int(self.context) and self.context >= 1),
+            f"condition {self.name}: context must be an integer >= 1, got {self.context!r}",
+        )
         unknown = set(self.missing) - set(MISSING_KEYS)
         check(
             not unknown,

@@ -4,6 +4,7 @@ colored-noise filter; the switching baseline kalman-system1 (system1.py); RLS; s
 simple baselines."""
 
 from mop.filters import (  # noqa: F401 (each module registers its predictors)
+    arx,
     colored,
     ekf,
     gaussian,
@@ -25,7 +26,7 @@ from mop.filters.kalman import (
 )
 from mop.filters.rls import AdaptiveOrderRLSPredictor, RLSPredictor, adaptive_order_rls_predict, rls_predict
 from mop.filters.simple import LastValuePredictor, ZeroPredictor
-from mop.filters.subspace import N4SIDKalmanPredictor, identify, n4sid_kalman_predict
+from mop.filters.subspace import N4SIDKalmanPredictor, identify, identify_with_inputs, n4sid_kalman_predict
 
 __all__ = [
     "KalmanPredictor",
@@ -42,5 +43,6 @@ __all__ = [
     "LastValuePredictor",
     "N4SIDKalmanPredictor",
     "identify",
+    "identify_with_inputs",
     "n4sid_kalman_predict",
 ]

@@ -14,8 +14,9 @@ a mask M = diag(observed_t) per system, this is condition_on with
     C~ = M C,  R~ = M R M + (I - M),  y~ = M y      (S~ = blockdiag(S_oo, I), so K~ = [K_o, 0] exactly).
 The predictive covariance S_t returned is still that of all of y_t.
 
-Steps: kalman_step (linear f: m <- A_t m, P <- A_t P A_t^T + Q), ekf_step (linearise f at the posterior
-mean; `project` clips means as the simulator clips states), ukf_step (unscented transform).
+Steps: kalman_step (linear f(x, u) = A_t x + B u: m <- A_t m + B u_t, P <- A_t P A_t^T + Q), ekf_step
+(linearise f at the posterior mean; `project` clips means as the simulator clips states), ukf_step
+(unscented transform).
 """
 
 from __future__ import annotations
@@ -100,10 +101,14 @@ def gaussian_filter(
 def kalman_step(
     model: StateSpace, m: Tensor, P: Tensor, u: Tensor | None, t: int, proj: Projection | None = None
 ) -> tuple[Tensor, Tensor]:
-    """Linear time update: m <- A_t m, P <- A_t P A_t^T + Q (symmetrized), A_t = df/dx."""
+    """Linear time update: m <- f(m, u_t) = A_t m + B u_t, P <- A_t P A_t^T + Q (symmetrized), A_t = df/dx.
+
+    The mean goes through the model's f, which for the linear models this filter is for is exactly
+    A_t m + B u_t (a family with inputs puts B u in f; with no inputs f(m) = A_t m). No projection."""
     A = model.transition_jacobian(m, u, t)  # (B, n, n)
     P = A @ P @ A.mT + model.Q
-    return (A @ m[..., None])[..., 0], 0.5 * (P + P.mT)
+    m_next = model.f(m[:, None], None if u is None else u[:, None], t)[:, 0]  # (B, n)
+    return m_next, 0.5 * (P + P.mT)
 
 
 def ekf_step(
@@ -186,6 +191,32 @@ def gaussian_forecast(
     return mean, cov
 
 
+def gaussian_simulate(
+    model: StateSpace, step: Step, y: Tensor, u: Tensor | None, context: int, project: bool = True
+) -> tuple[Tensor, Tensor]:
+    """Free-run simulation after `context` = c outputs: mean (B, T+1-c, m) and covariance (B, T+1-c, m, m)
+    of y_{c+j} given y_{<c} and u_{<c+j}: the filter over y_0..y_{c-1}, then its time update alone
+    (gaussian_forecast's rollout from the one origin c)."""
+    prior: dict[str, object] = {}
+
+    def keep(t: int, m: Tensor, P: Tensor, proj: Projection | None) -> None:
+        if t == context:
+            prior.update(m=m, P=P, proj=proj)
+
+    gaussian_filter(
+        model, step, y[:, : context + 1], None if u is None else u[:, : context + 1], project, keep
+    )
+    m, P, proj = prior["m"], prior["P"], prior["proj"]
+    means, covs = [], []
+    for t in range(context, y.shape[1]):
+        C = model.output_matrix(t)
+        means.append((C @ m[..., None])[..., 0])
+        covs.append(C @ P @ C.mT + model.R)
+        if t + 1 < y.shape[1]:
+            m, P = step(model, m, P, None if u is None else u[:, t], t, proj)
+    return torch.stack(means, dim=1), torch.stack(covs, dim=1)
+
+
 def filter_forecast(
     model: StateSpace, step: Step, traj: Trajectories, steps: int, project: bool = True
 ) -> tuple[Tensor, Tensor]:
@@ -224,3 +255,10 @@ class GaussianFilterPredictor:
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): forecast[:, t, j] predicts y_{t+j} from y_{<t} (NaN where t + j > T)."""
         return self.forecast_distribution(traj, steps)[0]
+
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m): y_{c+j} from y_{<c} and the inputs (gaussian_simulate's mean)."""
+        u = None if traj.u is None else traj.u.double()
+        model = state_space_of(traj)
+        mean, _ = gaussian_simulate(model, self.step, traj.y.double(), u, context, self.project)
+        return mean.to(traj.y.dtype)

@@ -1,11 +1,12 @@
 """Kalman filter one-step predictions for linear Gaussian systems, batched over systems (loop over time only).
 
-    x_{t+1} = A x_t + w_t,  w_t ~ N(0, Q)        y_t = C x_t + v_t,  v_t ~ N(0, R)        x_0 ~ N(x0, P0)
+    x_{t+1} = A x_t + B u_t + w_t,  w_t ~ N(0, Q)      y_t = C x_t + v_t,  v_t ~ N(0, R)      x_0 ~ N(x0, P0)
 
-The filter is mop.filters.gaussian's core with the linear time update (kalman_step):
+(B u_t absent for systems without inputs). The filter is mop.filters.gaussian's core with the linear time
+update (kalman_step):
 
     yhat_t = C m_t,   S_t = C P_t C^T + R                  (predictive mean and covariance of y_t)
-    condition on y_t (Joseph form), then  m <- A m,  P <- A P A^T + Q
+    condition on y_t (Joseph form), then  m <- A m + B u_t,  P <- A P A^T + Q
 
 The steady-state predictor uses the fixed point P of the filter Riccati equation (DARE)
     P = A P A^T - A P C^T (C P C^T + R)^{-1} C P A^T + Q,
@@ -23,7 +24,7 @@ from torch import Tensor
 from mop.errors import MopError
 from mop.filters.gaussian import GaussianFilterPredictor, condition_on, gaussian_filter, kalman_step
 from mop.predictors import PREDICTORS
-from mop.systems.base import StateSpace
+from mop.systems.base import linear_state_space
 
 Array = Tensor | np.ndarray
 
@@ -57,31 +58,51 @@ def _check_shapes(A: Tensor, C: Tensor, Q: Tensor, R: Tensor, y: Tensor) -> None
 
 
 def kalman_filter(
-    A: Array, C: Array, Q: Array, R: Array, y: Array, x0: Array | None = None, P0: Array | None = None
+    A: Array,
+    C: Array,
+    Q: Array,
+    R: Array,
+    y: Array,
+    x0: Array | None = None,
+    P0: Array | None = None,
+    B: Array | None = None,
+    u: Array | None = None,
 ) -> KalmanResult:
     """Kalman one-step predictions and their covariances.
 
     A (B, n, n), C (B, m, n), Q (B, n, n), R (B, m, m) symmetric positive definite, y (B, T, m),
-    x0 (B, n) prior mean of x_0 (default 0), P0 (B, n, n) prior covariance (default I).
+    x0 (B, n) prior mean of x_0 (default 0), P0 (B, n, n) prior covariance (default I),
+    B (B, n, k) input matrix and u (B, T, k) inputs (u_t acts between y_t and y_{t+1}), both or neither.
     Returns KalmanResult(yhat (B, T, m), S (B, T, m, m)); numpy in -> numpy out.
     """
-    (A, C, Q, R, y, x0, P0), is_numpy = _to_torch(A, C, Q, R, y, x0, P0)
+    (A, C, Q, R, y, x0, P0, B_in, u), is_numpy = _to_torch(A, C, Q, R, y, x0, P0, B, u)
     _check_shapes(A, C, Q, R, y)
-    B, n = A.shape[0], A.shape[-1]
-    x0 = torch.zeros(B, n, dtype=A.dtype) if x0 is None else x0
-    P0 = torch.eye(n, dtype=A.dtype).expand(B, n, n) if P0 is None else P0
-    model = StateSpace(f=lambda x, u, t: x @ A.mT, C=C, Q=Q, R=R, m0=x0, P0=P0, jacobian=lambda x, u, t: A)
-    yhat, S = gaussian_filter(model, kalman_step, y)
+    if (B_in is None) != (u is None):
+        raise MopError("kalman: give both the input matrix B and the inputs u, or neither")
+    batch, n = A.shape[0], A.shape[-1]
+    x0 = torch.zeros(batch, n, dtype=A.dtype) if x0 is None else x0
+    P0 = torch.eye(n, dtype=A.dtype).expand(batch, n, n) if P0 is None else P0
+    model = linear_state_space(A, C, Q, R, P0, B_in, x0)
+    yhat, S = gaussian_filter(model, kalman_step, y.double(), None if u is None else u.double())
+    yhat, S = yhat.to(A.dtype), S.to(A.dtype)
     if is_numpy:
         return KalmanResult(yhat.numpy(), S.numpy())
     return KalmanResult(yhat, S)
 
 
 def kalman_predict(
-    A: Array, C: Array, Q: Array, R: Array, y: Array, x0: Array | None = None, P0: Array | None = None
+    A: Array,
+    C: Array,
+    Q: Array,
+    R: Array,
+    y: Array,
+    x0: Array | None = None,
+    P0: Array | None = None,
+    B: Array | None = None,
+    u: Array | None = None,
 ) -> Array:
-    """yhat (B, T, m) with yhat[:, t] = C x_{t|t-1} = E[y_t | y_{<t}]; see kalman_filter for the shapes."""
-    return kalman_filter(A, C, Q, R, y, x0, P0).yhat
+    """yhat (B, T, m) with yhat[:, t] = C x_{t|t-1} = E[y_t | y_{<t}, u_{<t}]; shapes as kalman_filter."""
+    return kalman_filter(A, C, Q, R, y, x0, P0, B, u).yhat
 
 
 def solve_filter_dare(
@@ -126,9 +147,10 @@ def steady_state_predict(A: Tensor, C: Tensor, K: Tensor, y: Tensor, x0: Tensor 
     return torch.stack(preds, dim=1)
 
 
-@PREDICTORS.register("kalman", needs_system=True, gaussian=True)
+@PREDICTORS.register("kalman", needs_system=True, gaussian=True, linear_model=True)
 class KalmanPredictor(GaussianFilterPredictor):
-    """The Kalman filter that knows each system: its family's (linear) StateSpace, x_0 ~ N(0, P0).
+    """The Kalman filter that knows each system: its family's (linear) StateSpace, x_0 ~ N(0, P0), or for
+    data without a family a known linear model (mop.systems.base.linear_model_from_params).
     On switching systems the family's model switches too (the authors' KF that keeps system 1 is the
     predictor "kalman-system1" of mop.filters.system1)."""
 

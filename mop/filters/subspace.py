@@ -1,5 +1,5 @@
-"""Output-only subspace identification (N4SID-style, stochastic) and the Kalman predictor of the
-identified model, batched over systems with torch.
+"""Subspace identification (N4SID-style: stochastic from outputs alone, combined deterministic-stochastic
+where there are inputs) and the Kalman predictor of the identified model, batched over systems with torch.
 
 From outputs y_0..y_{N-1} (B, N, m) and i block rows:
     H = block Hankel of y with 2i block rows and j = N - 2i + 1 columns,  Y_p = H[:im], Y_f = H[im:]
@@ -8,6 +8,12 @@ From outputs y_0..y_{N-1} (B, N, m) and i block rows:
     [X_{+}; Y] = [A; C] X_{-}  (least squares), residuals W, E  ->  K = W E^T (E E^T)^{-1}
 giving the innovation model x_{t+1} = A x_t + K e_t, y_t = C x_t + e_t, whose steady-state predictor is
     yhat_t = C m_t,  m_{t+1} = A m_t + K (y_t - C m_t),  m_0 = 0.
+
+With inputs u (B, N, k) (identify_with_inputs; u_t acts between y_t and y_{t+1}, so no direct term D):
+    W_p = [U_p; Y_p],  Y_f = L_w W_p + L_u U_f (least squares),  O = L_w W_p      (oblique projection)
+    O = U S V^T,  X = S_n^{1/2} V_n^T;   [X_+] = [A B] [X_-; U],  Y = C X_-;  K from the residuals as above,
+and the predictor m_{t+1} = A m_t + B u_t + K (y_t - C m_t). Tested against nfoursid (PO-MOESP) by the
+Markov parameters C A^j B it identifies.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
+from mop.filters.arx import arx_forecast
 from mop.filters.rls import rls_forecast
 from mop.predictors import PREDICTORS, nan_beyond_horizon
 from mop.systems.base import Trajectories
@@ -62,12 +69,46 @@ def identify(
     return A, C, K
 
 
-def _run_predictor(A: Tensor, C: Tensor, K: Tensor, y: Tensor) -> Tensor:
-    """State m_N (B, n) of the innovation predictor after reading y (B, N, m), from m_0 = 0."""
+def identify_with_inputs(
+    y: Tensor, u: Tensor, order: int, num_block_rows: int, ridge: float = 1e-8
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """(A (B, n, n), B (B, n, k), C (B, m, n), K (B, n, m)) of an order-n innovation model with inputs,
+    x_{t+1} = A x_t + B u_t + K e_t, y_t = C x_t + e_t, fitted to y (B, N, m), u (B, N, k)."""
+    batch, N, m = y.shape
+    k, i = u.shape[-1], num_block_rows
+    if i * m < order or N - 2 * i + 1 < order + k + 2:
+        raise MopError(
+            f"subspace: {N} outputs with {i} block rows cannot identify order {order}; use more data"
+        )
+    Hy, Hu = block_hankel(y, 2 * i), block_hankel(u, 2 * i)  # (B, 2im, j), (B, 2ik, j)
+    Wp = torch.cat([Hu[:, : i * k], Hy[:, : i * m]], dim=1)  # (B, i(k+m), j)
+    Uf, Yf = Hu[:, i * k :], Hy[:, i * m :]
+    scale = Wp.shape[-1]
+    L = _lstsq_right(Yf, torch.cat([Wp, Uf], dim=1), ridge * scale)  # (B, im, i(k+m) + ik)
+    O = L[..., : Wp.shape[1]] @ Wp  # (B, im, j): Y_f projected obliquely onto W_p along U_f
+    _, S, Vh = torch.linalg.svd(O, full_matrices=False)
+    X = S[:, :order, None].sqrt() * Vh[:, :order]  # (B, n, j): states at times i..i+j-1
+    Y = y[:, i : i + X.shape[-1] - 1].mT  # (B, m, j-1)
+    U = u[:, i : i + X.shape[-1] - 1].mT  # (B, k, j-1)
+    AB = _lstsq_right(X[..., 1:], torch.cat([X[..., :-1], U], dim=1), ridge * scale)  # (B, n, n+k)
+    A, Bm = AB[..., :order], AB[..., order:]
+    C = _lstsq_right(Y, X[..., :-1], ridge * scale)  # (B, m, n)
+    W = X[..., 1:] - AB @ torch.cat([X[..., :-1], U], dim=1)  # (B, n, j-1)
+    E = Y - C @ X[..., :-1]  # (B, m, j-1)
+    K = _lstsq_right(W, E, ridge * scale)  # (B, n, m)
+    return A, Bm, C, K
+
+
+def _run_predictor(
+    A: Tensor, C: Tensor, K: Tensor, y: Tensor, Bm: Tensor | None = None, u: Tensor | None = None
+) -> Tensor:
+    """State m_N (B, n) of the innovation predictor after reading y (B, N, m) (and u), from m_0 = 0."""
     m = y.new_zeros(A.shape[0], A.shape[-1])
     F = A - K @ C  # (B, n, n)
     for t in range(y.shape[1]):
         m = (F @ m[..., None] + K @ y[:, t, :, None])[..., 0]
+        if Bm is not None:
+            m = m + (Bm @ u[:, t, :, None])[..., 0]
     return m
 
 
@@ -79,10 +120,12 @@ def n4sid_kalman_predict(
     every: int = 1,
     min_columns: int | None = None,
     select: bool = True,
+    u: Tensor | None = None,
 ) -> Tensor:
     """yhat (B, T, m): for t >= t_0, re-identify (A, C, K) from y_0..y_{t-1} every `every` steps and predict
     y_t with its steady-state predictor (state recomputed over the prefix after each re-identification,
-    carried forward between them); before t_0 the RLS-AR(2) prediction.
+    carried forward between them); before t_0 the RLS-AR(2) prediction. With inputs u (B, T, k): the model
+    with inputs (identify_with_inputs), ARX(2, 2) in place of RLS-AR(2), and min_columns 2 i (m + k).
 
     t_0 = max(min_prefix, 2 i - 1 + min_columns): the prefix must give the Hankel matrix (2 i m rows) at least
     min_columns columns (default 2 i m): with fewer, the projection Y_f / Y_p (i m regressors) fits the noise
@@ -91,7 +134,7 @@ def n4sid_kalman_predict(
     select: per system, use the identified predictor at t only if its out-of-sample one-step squared errors
     over t_0..t-1 sum below RLS's over the same steps (causal; ties -> RLS), as rls-best chooses its order.
     """
-    args = (order, num_block_rows, min_prefix, every, min_columns, select)
+    args = (order, num_block_rows, min_prefix, every, min_columns, select, u)
     return n4sid_kalman_forecast(y, 1, *args)[:, :, 0]
 
 
@@ -104,34 +147,49 @@ def n4sid_kalman_forecast(
     every: int = 1,
     min_columns: int | None = None,
     select: bool = True,
+    u: Tensor | None = None,
+    origin: int | None = None,
 ) -> Tensor:
     """k-step forecasts (B, T, K, m): where n4sid_kalman_predict uses the identified model at t, its state m_t
-    is propagated with no measurement, yhat_{t+j} = C A^j m_t; where it uses RLS-AR(2), rls_forecast's
-    iterated AR recursion. j = 0 is n4sid_kalman_predict; entries with t + j >= T are NaN."""
+    is propagated with no measurement, yhat_{t+j} = C A^j m_t (with inputs: m <- A m + B u, the known
+    future inputs); where it uses RLS-AR(2) (ARX(2, 2)), that model's iterated recursion. j = 0 is
+    n4sid_kalman_predict; entries with t + j >= T are NaN. origin: roll out only from that t (one-step
+    predictions elsewhere; what free-run simulation needs), and stop there."""
     B, T, m = y.shape
+    k = 0 if u is None else u.shape[-1]
     i = num_block_rows or max(2, math.ceil(order / m) + 1)
-    min_columns = 2 * i * m if min_columns is None else min_columns
-    start = max(min_prefix, 2 * i - 1 + min_columns, 2 * i - 1 + order + 2)
-    fallback_k = rls_forecast(y, 2, steps)  # (B, T, K, m)
-    fallback = fallback_k[:, :, 0]  # (B, T, m) = rls_predict(y, 2)
+    min_columns = 2 * i * (m + k) if min_columns is None else min_columns
+    start = max(min_prefix, 2 * i - 1 + min_columns, 2 * i - 1 + order + k + 2)
+    if u is None:
+        fallback_k = rls_forecast(y, 2, steps)  # (B, T, K, m)
+    else:
+        fallback_k = arx_forecast(y, u, 2, 2, steps, origin)
+    fallback = fallback_k[:, :, 0]  # (B, T, m) = rls_predict(y, 2) (arx_predict(y, u, 2, 2))
     out = fallback_k.clone()
-    A = C = K = state = stable = None
+    A = Bm = C = K = state = stable = None
     score = y.new_zeros(B)  # sum over past steps of (model error^2 - RLS error^2)
-    for t in range(start, T):
+    for t in range(start, T if origin is None else min(origin + 1, T)):
         if (t - start) % every == 0:
-            A, C, K = identify(y[:, :t], order, i)
+            if u is None:
+                A, C, K = identify(y[:, :t], order, i)
+            else:
+                A, Bm, C, K = identify_with_inputs(y[:, :t], u[:, :t], order, i)
             stable = torch.linalg.eigvals(A - K @ C).abs().amax(-1) < 1  # (B,) usable predictor
-            state = _run_predictor(A, C, K, y[:, :t])
+            state = _run_predictor(A, C, K, y[:, :t], Bm, None if u is None else u[:, :t])
         kf = (C @ state[..., None])[..., 0]  # (B, m)
         model = torch.where(stable[:, None], kf, fallback[:, t])
         use = score < 0 if select else torch.ones_like(stable)
         out[:, t, 0] = torch.where(use[:, None], model, fallback[:, t])
         ahead, use_kf = state, (use & stable)[:, None]
-        for j in range(1, min(steps, T - t)):
+        for j in range(1, min(steps, T - t) if origin in (None, t) else 1):
             ahead = (A @ ahead[..., None])[..., 0]
+            if Bm is not None:
+                ahead = ahead + (Bm @ u[:, t + j - 1, :, None])[..., 0]
             out[:, t, j] = torch.where(use_kf, (C @ ahead[..., None])[..., 0], fallback_k[:, t, j])
         score = score + ((model - y[:, t]) ** 2).sum(-1) - ((fallback[:, t] - y[:, t]) ** 2).sum(-1)
         state = (A @ state[..., None] + K @ (y[:, t] - kf)[..., None])[..., 0]
+        if Bm is not None:
+            state = state + (Bm @ u[:, t, :, None])[..., 0]
     return nan_beyond_horizon(out)
 
 
@@ -182,11 +240,18 @@ class N4SIDKalmanPredictor:
         self.min_columns, self.select = min_columns, select
 
     def predict(self, traj: Trajectories) -> Tensor:
-        y = refuse_gaps(traj)
-        out = n4sid_kalman_predict(
-            y, self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select
-        )
-        return out.to(traj.y.dtype)
+        """(B, T+1, m); uses the inputs where traj has them (the model with inputs)."""
+        y, u = refuse_gaps(traj), None if traj.u is None else traj.u.double()
+        args = (self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select)
+        return n4sid_kalman_predict(y, *args, u=u).to(traj.y.dtype)
+
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m): forecast[:, c] alone (n4sid_kalman_forecast with origin c)."""
+        u = None if traj.u is None else traj.u.double()
+        args = (self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select)
+        steps = traj.horizon + 1 - context
+        out = n4sid_kalman_forecast(refuse_gaps(traj), steps, *args, u=u, origin=context)
+        return out[:, context].to(traj.y.dtype)
 
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): the identified model propagated with no measurement (n4sid_kalman_forecast)."""
@@ -199,5 +264,6 @@ class N4SIDKalmanPredictor:
             self.every,
             self.min_columns,
             self.select,
+            None if traj.u is None else traj.u.double(),
         )
         return out.to(traj.y.dtype)

@@ -220,6 +220,22 @@ class LearnedPredictor:
                 out[:, t, j] = pred.to(out.dtype)
         return out
 
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m) free-run simulation: forecast[:, c] alone (the model reads z_0..z_{c-1}, then its own
+        predicted outputs with the given inputs), one forward per simulated step."""
+        z = traj.model_inputs().double()  # (B, T+1, d_in)
+        u = None if traj.u is None else traj.u.double()
+        limit = self.cfg.context if self.model.context_limited else None
+        hist = z[:, :context]
+        pred = self._last_output(hist if limit is None else hist[:, -limit:])  # y_c from z_{<c}
+        out = [pred]
+        for t in range(context + 1, traj.horizon + 1):
+            new = pred if u is None else torch.cat([pred, u[:, t - 1]], dim=-1)
+            hist = torch.cat([hist, new[:, None]], dim=1)
+            pred = self._last_output(hist if limit is None else hist[:, -limit:])
+            out.append(pred)
+        return torch.stack(out, dim=1).to(traj.y.dtype)
+
     def _last_output(self, z: Tensor) -> Tensor:
         """The model's mean output (B, m) in data units, float64, at the last position of z (B, L, m + k)."""
         mu, _ = self._run(self._model_inputs(z), gaussian=False)

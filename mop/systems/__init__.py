@@ -12,7 +12,16 @@ from __future__ import annotations
 
 import torch
 
-from mop.systems import colored_noise, linear, quadrotor, switching, upper_triangular  # noqa: F401 (built-ins)
+from mop.systems import (  # noqa: F401 (built-ins)
+    colored_noise,
+    linear,
+    linear_inputs,
+    lti_siso,
+    quadrotor,
+    switching,
+    upper_triangular,
+    wiener_hammerstein,
+)
 from mop.systems.base import (
     FAMILIES,
     StateSpace,

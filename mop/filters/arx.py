@@ -1,0 +1,159 @@
+"""ARX by recursive least squares ("arx", "arx-best"): the output-only RLS baseline (mop.filters.rls) with
+past inputs among the regressors, batched over systems, exact (a loop over time only).
+
+Orders p (outputs) and q (inputs), outputs y_t in R^m, inputs u_t in R^k (u_t acts between y_t and y_{t+1}):
+
+    yhat_{t+1} = theta^T phi_t,   phi_t = [y_t; ...; y_{t-p+1}; u_t; ...; u_{t-q+1}]  (p m + q k),
+    theta (p m + q k, m), one P per system, zero before y_0 / u_0.
+
+theta_0 = 0, P_0 = I, forgetting 1: after the pairs (phi_{s-1}, y_s), s = r..t-1 (r = max(p, q)), theta is the
+ridge solution (I + sum phi phi^T)^{-1} sum phi y^T, updated one pair at a time by mop.filters.rls.rls_update.
+Start-up as rls with r in place of p: yhat_0 = 0, yhat_t = y_{t-1} for 1 <= t <= r, then regression.
+Without inputs (u None) ARX of order p is rls of order p. Forecasts iterate the fitted model on its own
+output predictions with the known future inputs u_t, u_{t+1}, ...
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from mop.errors import MopError
+from mop.filters.rls import _best_order, regressors, rls_update
+from mop.predictors import PREDICTORS, nan_beyond_horizon
+from mop.systems.base import Trajectories
+
+
+def arx_regressors(y: Tensor, u: Tensor | None, p: int, q: int) -> Tensor:
+    """phi (B, T, p m + q k): phi[:, t] = [y_t..y_{t-p+1}, u_t..u_{t-q+1}] (zero before index 0)."""
+    phi = regressors(y, p)
+    return phi if u is None else torch.cat([phi, regressors(u, q)], dim=-1)
+
+
+def _arx_run(y: Tensor, u: Tensor | None, p: int, q: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
+    """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1})."""
+    B, T, m = y.shape
+    r = p if u is None else max(p, q)
+    phi = arx_regressors(y, u, p, q)  # (B, T, d)
+    d = phi.shape[-1]
+    theta = y.new_zeros(B, d, m)
+    P = torch.eye(d, dtype=y.dtype, device=y.device).repeat(B, 1, 1)  # (B, d, d)
+    preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(r + 1, T))]
+    thetas = {}
+    for t in range(r + 1, T):
+        theta, P = rls_update(theta, P, phi[:, t - 2], y[:, t - 1])  # the newest pair (phi_{t-2}, y_{t-1})
+        thetas[t] = theta
+        preds.append((theta.mT @ phi[:, t - 1, :, None])[..., 0])
+    return torch.stack(preds, dim=1), phi, thetas
+
+
+def arx_predict(y: Tensor, u: Tensor | None, p: int = 2, q: int = 2) -> Tensor:
+    """One-step ARX(p, q) predictions yhat (B, T, m) for y (B, T, m), u (B, T, k) or None."""
+    return _arx_run(y, u, p, q)[0]
+
+
+def arx_forecast(
+    y: Tensor, u: Tensor | None, p: int = 2, q: int = 2, steps: int = 1, origin: int | None = None
+) -> Tensor:
+    """k-step forecasts (B, T, K, m): from t >= r + 1 the model fitted to y_{<t} iterated on its own
+    predictions, yhat_{t+j} = theta_t^T [yhat_{t+j-1}; ...; u_{t+j-1}; ...] (observed y where the regressor
+    reaches back before t, the known inputs u_{t+j-1}..). During the start-up the one-step prediction is
+    repeated. j = 0 is arx_predict; entries with t + j >= T are NaN. origin: roll out from that t only (the
+    other origins keep the one-step prediction repeated): what free-run simulation needs."""
+    if origin is None:
+        preds, phi, thetas = _arx_run(y, u, p, q)
+    else:  # fit on y_0..y_origin only; the regressors' input lags come from the full u
+        cut = slice(0, origin + 1)
+        preds, _, thetas = _arx_run(y[:, cut], None if u is None else u[:, cut], p, q)
+        thetas = {t: th for t, th in thetas.items() if t == origin}
+        preds = torch.cat([preds, y.new_zeros(y.shape[0], y.shape[1] - preds.shape[1], y.shape[2])], dim=1)
+        phi = arx_regressors(y, u, p, q)
+    B, T, m = y.shape
+    out = preds[:, :, None].repeat(1, 1, steps, 1)  # (B, T, K, m)
+    if not thetas:
+        return nan_beyond_horizon(out)
+    ts = sorted(thetas)
+    Th = torch.stack([thetas[t] for t in ts], dim=1)  # (B, n_t, d, m)
+    ph = phi[:, [t - 1 for t in ts]]  # (B, n_t, d)
+    pred = preds[:, ts]  # (B, n_t, m)
+    py = p * m
+    for j in range(1, steps):
+        ph_y = torch.cat([pred, ph[..., : py - m]], dim=-1)  # output lags shifted by one
+        if u is None:
+            ph = ph_y
+        else:
+            idx = torch.tensor([min(t - 1 + j, T - 1) for t in ts], device=y.device)  # regressor time
+            ph = torch.cat([ph_y, phi[:, idx, py:]], dim=-1)  # input lags are known
+        pred = (Th.mT @ ph[..., None])[..., 0]
+        out[:, ts, j] = pred
+    return nan_beyond_horizon(out)
+
+
+def _orders(max_order: int) -> range:
+    if max_order < 1:
+        raise MopError(f"arx-best: max_order must be >= 1, got {max_order}")
+    return range(1, max_order + 1)
+
+
+def adaptive_order_arx_predict(y: Tensor, u: Tensor | None, max_order: int = 5) -> tuple[Tensor, Tensor]:
+    """ARX(p, p) for p = 1..max_order; at each t the order with the lowest summed squared one-step error over
+    y_{P+1}..y_{t-1} (P = max_order), per system, ties -> lowest (as rls-best).
+    Returns (yhat (B, T, m), order (B, T))."""
+    preds = torch.stack([arx_predict(y, u, p, p) for p in _orders(max_order)], dim=1)  # (B, P, T, m)
+    return _best_order(y, preds, max_order)
+
+
+def adaptive_order_arx_forecast(y: Tensor, u: Tensor | None, max_order: int = 5, steps: int = 1) -> Tensor:
+    """k-step forecasts (B, T, K, m) of arx-best: at each t, the arx_forecast of the order chosen at t."""
+    fc = torch.stack([arx_forecast(y, u, p, p, steps) for p in _orders(max_order)], dim=1)  # (B, P, T, K, m)
+    _, order = _best_order(y, fc[:, :, :, 0], max_order)  # (B, T)
+    idx = (order - 1)[:, None, :, None, None].expand(-1, 1, -1, *fc.shape[3:])
+    return torch.gather(fc, 1, idx)[:, 0]
+
+
+def _u(traj: Trajectories) -> Tensor | None:
+    return None if traj.u is None else traj.u.double()
+
+
+@PREDICTORS.register("arx")
+class ARXPredictor:
+    """ARX(p, q) by RLS on [y_t..y_{t-p+1}, u_t..u_{t-q+1}] (rls of order p where there are no inputs)."""
+
+    def __init__(self, order: int = 2, input_order: int | None = None, name: str = "arx") -> None:
+        self.order, self.input_order, self.name = order, order if input_order is None else input_order, name
+        if self.order < 1 or self.input_order < 1:
+            raise MopError(f"arx: orders must be >= 1, got p={self.order}, q={self.input_order}")
+
+    def predict(self, traj: Trajectories) -> Tensor:
+        return arx_predict(traj.y.double(), _u(traj), self.order, self.input_order).to(traj.y.dtype)
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): the fitted ARX iterated on its predictions with the known inputs."""
+        out = arx_forecast(traj.y.double(), _u(traj), self.order, self.input_order, steps)
+        return out.to(traj.y.dtype)
+
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m): forecast[:, c] alone (the model fitted to y_<c, rolled out with the inputs)."""
+        steps = traj.horizon + 1 - context
+        out = arx_forecast(traj.y.double(), _u(traj), self.order, self.input_order, steps, origin=context)
+        return out[:, context].to(traj.y.dtype)
+
+
+@PREDICTORS.register("arx-best")
+class AdaptiveOrderARXPredictor:
+    """ARX(p, p) with p = 1..max_order chosen online by the lowest past one-step error ("arx-best")."""
+
+    def __init__(self, max_order: int = 5, name: str = "arx-best") -> None:
+        _orders(max_order)
+        self.max_order, self.name = max_order, name
+
+    def predict(self, traj: Trajectories) -> Tensor:
+        return adaptive_order_arx_predict(traj.y.double(), _u(traj), self.max_order)[0].to(traj.y.dtype)
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): arx_forecast of the order chosen at each t."""
+        out = adaptive_order_arx_forecast(traj.y.double(), _u(traj), self.max_order, steps)
+        return out.to(traj.y.dtype)
+
+
+PREDICTORS.add("arx-10", lambda: ARXPredictor(10, name="arx-10"))  # orders of the lti-siso class: 1..10

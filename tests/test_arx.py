@@ -1,0 +1,102 @@
+"""ARX by RLS against a per-system numpy loop of the ridge closed form, equal to rls without inputs, its
+forecasts against a plain numpy rollout, and its order selection against a direct argmin."""
+
+import numpy as np
+import pytest
+import torch
+
+from mop.config import SystemConfig
+from mop.filters.arx import (
+    adaptive_order_arx_predict,
+    arx_forecast,
+    arx_predict,
+)
+from mop.filters.rls import rls_forecast, rls_predict
+from mop.predictors import forecast, make_predictor
+from mop.systems import generator, make_family
+
+
+def numpy_phi(y, u, p, q, s):
+    """[y_s..y_{s-p+1}, u_s..u_{s-q+1}] for one system, zero before index 0."""
+    lag = lambda a, j: a[s - j] if s - j >= 0 else np.zeros(a.shape[1])  # noqa: E731
+    return np.concatenate([lag(y, j) for j in range(p)] + [lag(u, j) for j in range(q)])
+
+
+def numpy_arx(y, u, p, q):
+    """Per-system loop: yhat_t = theta_t^T phi_{t-1}, theta_t the ridge solution (lambda = 1) on the pairs
+    (phi_{s-1}, y_s), s = r..t-1; start-up yhat_0 = 0, yhat_t = y_{t-1} (t <= r). Returns the thetas too."""
+    T, m = y.shape
+    r = max(p, q)
+    out, thetas = np.zeros_like(y), {}
+    for t in range(1, T):
+        if t <= r:
+            out[t] = y[t - 1]
+            continue
+        Phi = np.stack([numpy_phi(y, u, p, q, s - 1) for s in range(r, t)])  # (N, d)
+        theta = np.linalg.solve(np.eye(Phi.shape[1]) + Phi.T @ Phi, Phi.T @ y[r:t])  # (d, m)
+        thetas[t] = theta
+        out[t] = theta.T @ numpy_phi(y, u, p, q, t - 1)
+    return out, thetas
+
+
+@pytest.fixture(scope="module")
+def traj():
+    cfg = SystemConfig(family="linear-inputs", state_dim=3, output_dim=2, input_dim=3)
+    return make_family(cfg, torch.float64).generate(3, 25, generator=generator(0))
+
+
+@pytest.mark.parametrize("p,q", [(1, 1), (2, 2), (3, 1), (1, 3)])
+def test_arx_matches_the_ridge_closed_form(traj, p, q):
+    yhat = arx_predict(traj.y, traj.u, p, q).numpy()
+    for b in range(traj.num_systems):
+        ref, _ = numpy_arx(traj.y[b].numpy(), traj.u[b].numpy(), p, q)
+        np.testing.assert_allclose(yhat[b], ref, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("p,q", [(2, 2), (1, 3)])
+def test_arx_forecast_iterates_the_fitted_model_with_known_inputs(traj, p, q):
+    fc = arx_forecast(traj.y, traj.u, p, q, steps=4).numpy()
+    y, u = traj.y[0].numpy(), traj.u[0].numpy()
+    _, thetas = numpy_arx(y, u, p, q)
+    for t in (max(p, q) + 1, 12, 21):
+        hist = y.copy()
+        hist[t:] = np.nan  # the outputs from t on are unknown: replaced by predictions as they come
+        for j in range(4):
+            if t + j >= len(y):
+                assert np.isnan(fc[0, t, j]).all()
+                continue
+            hist[t + j] = thetas[t].T @ numpy_phi(hist, u, p, q, t + j - 1)
+            np.testing.assert_allclose(fc[0, t, j], hist[t + j], rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("p", [1, 2, 3])
+def test_arx_without_inputs_is_rls(traj, p):
+    np.testing.assert_array_equal(arx_predict(traj.y, None, p), rls_predict(traj.y, p))
+    np.testing.assert_array_equal(arx_forecast(traj.y, None, p, steps=3), rls_forecast(traj.y, p, 3))
+
+
+def test_arx_best_picks_the_order_with_the_lowest_past_error(traj):
+    P = 3
+    yhat, order = adaptive_order_arx_predict(traj.y, traj.u, P)
+    preds = [arx_predict(traj.y, traj.u, p, p).numpy() for p in range(1, P + 1)]
+    y = traj.y.numpy()
+    for b in range(traj.num_systems):
+        for t in range(traj.horizon + 1):
+            past = [((pr[b, P + 1 : t] - y[b, P + 1 : t]) ** 2).sum() for pr in preds]
+            best = int(np.argmin(past))  # first minimum: the lowest order on ties
+            assert order[b, t] == best + 1
+            np.testing.assert_allclose(yhat[b, t], preds[best][b, t], rtol=0, atol=0)
+
+
+def test_arx_beats_output_only_rls_and_last_on_linear_inputs():
+    traj = make_family(SystemConfig(family="linear-inputs"), torch.float64).generate(
+        200, 50, generator=generator(5)
+    )
+    mse = {}
+    for name in ("kalman", "arx", "arx-best", "rls", "last"):
+        yhat = make_predictor(name).predict(traj)
+        mse[name] = float(((yhat - traj.y) ** 2).sum(-1)[:, 20:].mean())
+    assert mse["kalman"] < mse["arx"] < 0.5 * mse["last"]
+    assert mse["arx"] < 0.5 * mse["rls"] and mse["arx-best"] < 0.5 * mse["rls"]
+    fc = forecast(make_predictor("arx"), traj, 3)
+    assert torch.isfinite(fc[:, 20:40]).all()

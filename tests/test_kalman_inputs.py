@@ -1,0 +1,114 @@
+"""The Kalman filter with inputs (x_{t+1} = A x_t + B u_t + w_t): against filterpy's KalmanFilter with B and
+u, against brute-force Gaussian conditioning on a short trajectory's joint covariance, and equal to the EKF
+on every linear family with inputs."""
+
+import numpy as np
+import pytest
+import torch
+
+from mop.config import SystemConfig
+from mop.errors import MopError
+from mop.filters.gaussian import gaussian_filter, kalman_step
+from mop.filters.kalman import kalman_filter, kalman_predict
+from mop.predictors import forecast, make_predictor
+from mop.systems import FAMILIES, generator, make_family, state_space_of
+from tests.reference import filterpy_predict, gaussian_conditioning_predict
+from tests.test_kalman import random_spd, random_system
+
+
+def input_system(rng, B, n, m, k, T):
+    A, C, Q, R = random_system(rng, B, n, m)
+    Bm, u = rng.normal(size=(B, n, k)), rng.normal(size=(B, T, k))
+    x0, P0 = rng.normal(size=(B, n)), random_spd(rng, B, n, scale=1.0)
+    x = x0 + np.einsum("bij,bj->bi", np.linalg.cholesky(P0), rng.normal(size=(B, n)))
+    Lq, Lr, ys = np.linalg.cholesky(Q), np.linalg.cholesky(R), []
+    for t in range(T):
+        ys.append(np.einsum("bij,bj->bi", C, x) + np.einsum("bij,bj->bi", Lr, rng.normal(size=(B, m))))
+        x = np.einsum("bij,bj->bi", A, x) + np.einsum("bij,bj->bi", Bm, u[:, t])
+        x = x + np.einsum("bij,bj->bi", Lq, rng.normal(size=(B, n)))
+    return A, C, Q, R, np.stack(ys, axis=1), x0, P0, Bm, u
+
+
+@pytest.mark.parametrize("n,m,k", [(1, 1, 1), (3, 2, 1), (5, 3, 3), (7, 1, 2)])
+def test_kalman_with_inputs_matches_filterpy(n, m, k):
+    """Odd dimensions, full (non-diagonal) Q and R, random x0 and P0: relative 1e-10."""
+    rng = np.random.default_rng(100 * n + 10 * m + k)
+    A, C, Q, R, y, x0, P0, B, u = input_system(rng, 3, n, m, k, 25)
+    ref = filterpy_predict(A, C, Q, R, y, x0, P0, B, u)
+    yhat = kalman_predict(A, C, Q, R, y, x0, P0, B, u)
+    np.testing.assert_allclose(yhat, ref, rtol=1e-10, atol=1e-10 * np.abs(ref).max())
+    without = filterpy_predict(A, C, Q, R, y, x0, P0)  # the inputs matter: dropping B u is far off
+    assert np.abs(without - ref).max() > 1e-2
+
+
+def test_kalman_with_inputs_is_the_gaussian_conditional_mean():
+    rng = np.random.default_rng(7)
+    A, C, Q, R, y, x0, P0, B, u = input_system(rng, 2, 3, 2, 2, 8)
+    yhat = kalman_predict(A, C, Q, R, y, x0, P0, B, u)
+    for b in range(2):
+        ref = gaussian_conditioning_predict(A[b], C[b], Q[b], R[b], y[b], x0[b], P0[b], B[b], u[b])
+        np.testing.assert_allclose(yhat[b], ref, rtol=1e-9, atol=1e-9)
+
+
+def test_kalman_filter_needs_both_b_and_u():
+    rng = np.random.default_rng(0)
+    A, C, Q, R, y, x0, P0, B, u = input_system(rng, 1, 2, 1, 1, 5)
+    with pytest.raises(MopError, match="both the input matrix B and the inputs u"):
+        kalman_filter(A, C, Q, R, y, x0, P0, B=B)
+
+
+def linear_input_families() -> list[str]:
+    """Registered families with inputs whose systems have a linear (A, B, C) description."""
+    out = []
+    for name in FAMILIES.names():
+        family = make_family(SystemConfig(family=name))
+        if family.input_dim > 0 and {"A", "B", "C"} <= set(family.sample(1, generator=generator(0))):
+            out.append(name)
+    return out
+
+
+def test_there_is_a_linear_family_with_inputs():
+    assert "linear-inputs" in linear_input_families()
+
+
+@pytest.mark.parametrize("family", linear_input_families())
+def test_kalman_equals_ekf_on_linear_families_with_inputs(family):
+    traj = make_family(SystemConfig(family=family), torch.float64).generate(6, 30, generator=generator(3))
+    assert traj.u is not None
+    kf, ekf = make_predictor("kalman"), make_predictor("ekf")
+    np.testing.assert_allclose(kf.predict(traj), ekf.predict(traj), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(forecast(kf, traj, 4), forecast(ekf, traj, 4), rtol=1e-10, atol=1e-12)
+
+
+def test_kalman_predictor_on_linear_inputs_matches_filterpy():
+    traj = make_family(SystemConfig(family="linear-inputs"), torch.float64).generate(
+        5, 30, generator=generator(1)
+    )
+    p = {k: v.numpy() for k, v in traj.params.items()}
+    y, u = traj.y.numpy(), traj.u.numpy()
+    x0 = np.zeros((5, p["A"].shape[-1]))
+    ref = filterpy_predict(p["A"], p["C"], p["Q"], p["R"], y, x0, p["P0"], p["B"], u)
+    np.testing.assert_allclose(make_predictor("kalman").predict(traj).numpy(), ref, rtol=1e-10, atol=1e-12)
+
+
+def test_kalman_forecast_with_inputs_is_the_noise_free_rollout():
+    """forecast[:, t, j] = C (A^j m_t + sum_i A^{j-1-i} B u_{t+i}): the mean rolled out with known inputs."""
+    traj = make_family(SystemConfig(family="linear-inputs"), torch.float64).generate(
+        3, 20, generator=generator(2)
+    )
+    kf = make_predictor("kalman")
+    fc = forecast(kf, traj, 5)
+    A, B, C = (traj.params[k] for k in "ABC")
+    t = 6
+    priors = {}
+    gaussian_filter(
+        state_space_of(traj),
+        kalman_step,
+        traj.y,
+        traj.u,
+        at_prior=lambda s, m, P, proj: priors.__setitem__(s, m.clone()),
+    )
+    m = priors[t]
+    for j in range(5):
+        np.testing.assert_allclose(fc[:, t, j], (C @ m[..., None])[..., 0], rtol=1e-10, atol=1e-12)
+        m = (A @ m[..., None])[..., 0] + (B @ traj.u[:, t + j, :, None])[..., 0]

@@ -1,0 +1,48 @@
+"""The system-identification experiment files and the simulation analysis / RMSE measures they use."""
+
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from mop.config import SystemConfig
+from mop.experiments.analyses import ANALYSES
+from mop.experiments.files import load_experiment
+from mop.experiments.measures import measure_value
+from mop.experiments.spec import Condition, Measure
+from mop.predictors import make_predictor, simulate
+from mop.systems import generator, make_family
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.mark.parametrize("name", ["lti_siso.toml", "wiener_hammerstein.toml"])
+def test_experiment_files_list_the_identifiers_that_use_inputs(name):
+    exp = load_experiment(EXAMPLES / name)
+    assert {"mop", "arx", "n4sid-kf", "last"} <= set(exp.predictors)
+    assert "simulation" in exp.analyses and exp.conditions[0].context == 400
+
+
+def test_simulation_analysis_and_rmse_measures_against_numpy():
+    traj = make_family(SystemConfig(family="lti-siso", max_order=3), torch.float64).generate(
+        5, 40, generator=generator(0)
+    )
+    preds = [make_predictor("arx"), make_predictor("last")]
+    errors = {p.name: (p.predict(traj) - traj.y).norm(dim=-1).numpy() for p in preds}
+    result = types.SimpleNamespace(
+        traj=traj, errors=errors, condition=Condition("test", context=30), extras={}
+    )
+    result.extras.update(ANALYSES.get("simulation")(result, preds, "last"))
+    for p in preds:
+        sim = simulate(p, traj, 30).numpy()
+        ref = np.sqrt(((sim - traj.y[:, 30:].numpy()) ** 2).mean(axis=(1, 2))).mean()
+        got = measure_value(Measure("simulation_rmse", predictor=p.name), {"test": result}, "last", 0)
+        np.testing.assert_allclose(got, ref, rtol=1e-12)
+        yhat = p.predict(traj).numpy()
+        one = np.sqrt(((yhat - traj.y.numpy())[:, 30:] ** 2).mean(axis=(1, 2))).mean()
+        got = measure_value(Measure("one_step_rmse", predictor=p.name), {"test": result}, "last", 0)
+        np.testing.assert_allclose(got, one, rtol=1e-10)
+        got = measure_value(Measure("rmse", predictor=p.name, window=(30, None)), {"test": result}, "last", 0)
+        np.testing.assert_allclose(got, one, rtol=1e-10)
