@@ -108,8 +108,6 @@ def simulate(predictor: Predictor, traj: Trajectories, context: int) -> Tensor:
     `simulate(traj, context)` method (the filters and learned models do: one rollout instead of one from
     every origin). MopError unless 1 <= c <= T and the predictor has a forecast or a simulate.
     """
-    from mop.errors import MopError
-
     T = traj.horizon
     if not isinstance(context, int) or not 1 <= context <= T:
         raise MopError(f"simulation context must be an integer in [1, T = {T}], got {context!r}")
