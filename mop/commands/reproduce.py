@@ -19,6 +19,7 @@ from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.runner import run_experiment
+from mop.experiments.validate import validate_experiment
 
 EPILOG = """examples:
   mop reproduce linear                                   # GPU: paper preset, else small
@@ -61,6 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="evaluate the shipped models (mop pretrained) instead of training (default preset: small)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="if another process is training a run this needs, stop with an error instead of waiting",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
     if args.pretrained:
         root = Path(args.out) if args.out else Path("runs/reproduce") / f"{preset}-pretrained"
     with_gru = False if args.pretrained and args.gru is None else args.gru  # no GRU is shipped
+    overrides = list(args.overrides or [])
+    for exp in experiments:  # every mistake in any of them before the first training step
+        validate_experiment(exp, preset, seed=args.seed, overrides=overrides, with_gru=with_gru)
     for exp in experiments:
         out = root / exp.name if (args.experiment == "all" or not args.out) else root
         try:
@@ -85,10 +94,11 @@ def run(args: argparse.Namespace) -> int:
                 out,
                 seed=args.seed,
                 runs_dir=Path(args.runs) if args.runs else None,
-                overrides=list(args.overrides or []),
+                overrides=overrides,
                 progress=not args.quiet,
                 with_gru=with_gru,
                 pretrained=args.pretrained,
+                wait=not args.no_wait,
             )
         except MopError as err:
             if not (args.pretrained and args.experiment == "all" and "no pretrained model" in str(err)):

@@ -35,9 +35,11 @@ from mop.experiments.figures import FIGURES
 from mop.experiments.measures import describe, measure_value, slope_fit
 from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
+from mop.experiments.validate import evaluated, validate_experiment
 from mop.io import read_trajectories
 from mop.missing import drop_mask, drop_outputs
-from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
+from mop.outputs import staged_output
+from mop.predictors import PREDICTORS, is_learned, make_predictor
 from mop.pretrained import find_shipped, shipped_names
 from mop.report import build_report, claim_line, summary_section
 from mop.systems import generator, make_family
@@ -57,6 +59,7 @@ class Session:
     progress: bool
     with_gru: bool | None
     pretrained: bool = False
+    wait: bool = True
     loaded: dict[str, Any] = dataclasses.field(default_factory=dict)
     runs: dict[str, str] = dataclasses.field(default_factory=dict)
 
@@ -69,15 +72,7 @@ def config_hash(config: RunConfig) -> str:
 def wanted(session: Session, condition: Condition) -> list[str]:
     """The predictors evaluated under `condition`: those an entry's skip_presets leave out under this preset
     (the GRU under small and smoke) only where --gru asks for them; --no-gru drops every such entry."""
-    names = [n for n in condition.predictors or session.exp.predictors if _included(session, n)]
-    return [n for n in names if not (condition.data and needs_system(n))]  # recordings carry no system
-
-
-def _included(session: Session, name: str) -> bool:
-    skip = PREDICTORS.meta(name).get("skip_presets", ())
-    if session.with_gru is None:
-        return session.preset not in skip
-    return session.with_gru or not skip
+    return evaluated(session.exp, session.preset, condition, session.with_gru)
 
 
 def _with_arch(trained: RunConfig, name: str) -> RunConfig:
@@ -110,7 +105,7 @@ def learned_predictor(session: Session, name: str, condition: Condition, trained
     if not run:
         config = _with_arch(trained, name)
         run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
-        train(config, run_dir, progress=session.progress)
+        train(config, run_dir, progress=session.progress, wait=session.wait)
         run = str(run_dir)
     if run not in session.loaded:
         session.loaded[run] = make_predictor(name, run_dir=run)
@@ -244,24 +239,37 @@ def run_experiment(
     progress: bool = True,
     with_gru: bool | None = None,
     pretrained: bool = False,
+    wait: bool = True,
 ) -> Path:
     """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path.
 
+    The experiment is validated first (mop.experiments.validate), so a mistake costs seconds, not a
+    training run. The files are written all or nothing (mop.outputs): a stopped run leaves the previous
+    output whole; `complete.json`, written last, lists them. wait: see mop.train.train.
     pretrained: evaluate the shipped models instead of training (MopError first when one is missing).
     """
-    get_preset(preset)
+    validate_experiment(exp, preset, seed=seed, overrides=list(overrides), with_gru=with_gru)
     start = time.perf_counter()
     out = Path(out)
     runs_dir = Path(runs_dir or out.parent / "runs")
-    session = Session(exp, preset, seed, runs_dir, list(overrides), progress, with_gru, pretrained)
+    session = Session(
+        exp, preset, seed, runs_dir, list(overrides), progress, with_gru, pretrained=pretrained, wait=wait
+    )
     for condition in exp.conditions_for(preset):  # resolve given / shipped runs before any work
         trained = condition_config(session, condition)
         for name in wanted(session, condition):
             if is_learned(name):
                 given_run(session, name, condition, trained)
-    out.mkdir(parents=True, exist_ok=True)
     results = {c.name: run_condition(session, c) for c in exp.conditions_for(preset)}
     claims = [check_claim(c, results, exp.reference, seed) for c in exp.claims]
+    with staged_output(out) as stage:
+        _write_outputs(session, results, claims, stage, start)
+    return out / "report.md"
+
+
+def _write_outputs(session: Session, results: dict, claims: list[dict], out: Path, start: float) -> None:
+    """Figures, eval.json and report.md of the finished experiment into `out` (the staging folder)."""
+    exp, preset, seed = session.exp, session.preset, session.seed
     figures = [p for name in exp.figures for p in FIGURES.get(name)(exp, results, out)]
     first = next(iter(results.values()))
     sweeps = _sweeps(results) if "excess_mse" in exp.analyses else {}
@@ -282,12 +290,11 @@ def run_experiment(
     sections += [_sweep_section(axis, fit) for axis, fit in sweeps.items()]
     settings = {"seed": seed, "test seed": seed + TEST_SEED_OFFSET, **data["settings"]}
     title = f"mop reproduce {exp.name} ({exp.title}), preset {preset}"
-    title += ", shipped pretrained weights" if pretrained else ""
+    title += ", shipped pretrained weights" if session.pretrained else ""
     text = build_report(
         title, sections, settings, [claim_text(c) for c in claims], time.perf_counter() - start
     )
     write_text(out / "report.md", text)
-    return out / "report.md"
 
 
 def _sweeps(results: Results) -> dict:
