@@ -5,11 +5,20 @@ A checkpoint is one file, written atomically (mop.atomic), so a crash mid-write 
               "optim.<index>.<key>"        AdamW state (step, exp_avg, exp_avg_sq) per parameter
               "rng.<name>"                 torch.Generator / global RNG states (uint8)
     metadata  "mop": JSON {"step", "param_groups", "extra"}
+              "sha256": hex digest over every tensor (name, dtype, shape, bytes; sorted by name)
+
+Every file written here carries the sha256 of its tensors in its metadata; loading recomputes it and
+checks that every floating tensor is finite, so bytes overwritten inside a file of the right size (a bad
+disk, a partial copy) are refused in one line instead of predicting NaN. Files without a digest (written
+before it existed) are still checked for NaN/Inf.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -26,24 +35,53 @@ def _contiguous(tensors: dict[str, Tensor]) -> dict[str, Tensor]:
     return {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
 
 
+def tensors_digest(tensors: dict[str, Tensor]) -> str:
+    """sha256 hex digest over the tensors sorted by name: each name, dtype, shape and raw bytes."""
+    digest = hashlib.sha256()
+    for name in sorted(tensors):
+        t = tensors[name].detach().contiguous().cpu()
+        digest.update(f"{name}|{t.dtype}|{tuple(t.shape)}|".encode())
+        digest.update(t.reshape(-1).view(torch.uint8).numpy())  # the buffer itself, no copy
+    return digest.hexdigest()
+
+
+def _looks_pickled(path: Path) -> bool:
+    """A pickle (protocol 2+ starts with 0x80) or a torch.save zip ("PK"), and not safetensors: that starts
+    with its header's length (8 bytes, little-endian, whose first byte may well be 0x80) and then "{"."""
+    with open(path, "rb") as handle:
+        head = handle.read(9)
+    size = path.stat().st_size
+    if len(head) == 9 and head[8:9] == b"{" and 8 + int.from_bytes(head[:8], "little") <= size:
+        return False
+    return head[:1] == b"\x80" or head[:2] == b"PK"
+
+
 def save_tensors(
     path: str | Path, tensors: dict[str, Tensor], metadata: dict[str, str] | None = None
 ) -> None:
-    """Atomically write `tensors` to a safetensors file."""
+    """Atomically write `tensors` to a safetensors file, with their sha256 in the metadata."""
+    tensors = _contiguous(tensors)
+    metadata = {**(metadata or {}), "sha256": tensors_digest(tensors)}
     with atomic_path(path) as tmp:
-        save_file(_contiguous(tensors), str(tmp), metadata=metadata)
+        try:
+            save_file(tensors, str(tmp), metadata=metadata)
+        except SafetensorError as err:  # an I/O error inside the Rust writer: as the OSError it is
+            code = re.search(r"code: (\d+)", str(err))
+            if code is None:
+                raise
+            raise OSError(int(code.group(1)), os.strerror(int(code.group(1))), str(path)) from None
 
 
 def load_tensors(
-    path: str | Path, device: str | torch.device = "cpu"
+    path: str | Path, device: str | torch.device = "cpu", retrain: str = ""
 ) -> tuple[dict[str, Tensor], dict[str, str]]:
-    """Read a safetensors file; a missing, truncated, corrupted or pickled file raises MopError."""
+    """Read a safetensors file; a missing, truncated, corrupted (checksum, NaN/Inf) or pickled file raises
+    MopError. retrain: what to do about a damaged file (e.g. the command that retrains the run)."""
     path = Path(path)
+    todo = retrain or "delete it and train again"
     if not path.is_file():
         raise MopError(f"{path} does not exist; train a model first (mop train) or check the run directory")
-    with open(path, "rb") as handle:
-        head = handle.read(2)
-    if head[:1] == b"\x80" or head == b"PK":  # pickle protocol 2+ or a torch.save zip archive
+    if _looks_pickled(path):
         raise MopError(
             f"{path} is a pickle/torch.save file, which mop refuses to load; only safetensors is accepted"
         )
@@ -52,21 +90,26 @@ def load_tensors(
 
         with safe_open(str(path), framework="pt") as handle:
             metadata = handle.metadata() or {}
-        tensors = load_file(str(path), device=str(device))
+        tensors = load_file(str(path), device="cpu")
     except (SafetensorError, OSError, ValueError, RuntimeError) as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise MopError(
-            f"{path} is not a valid safetensors file ({first}); it may be truncated or corrupted"
+            f"{path} is not a valid safetensors file ({first}); it is truncated or corrupted: {todo}"
         ) from None
-    return tensors, metadata
+    if "sha256" in metadata and tensors_digest(tensors) != metadata["sha256"]:
+        raise MopError(f"{path} is damaged (its sha256 differs from the one written with it): {todo}")
+    bad = [k for k, v in tensors.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if bad:
+        raise MopError(f"{path} holds NaN/Inf in {len(bad)} tensors (first {bad[0]!r}): {todo}")
+    return {k: v.to(device) for k, v in tensors.items()}, metadata
 
 
 def save_model(path: str | Path, model: nn.Module) -> None:
     save_tensors(path, model.state_dict(), {"format": "pt"})
 
 
-def load_model_weights(path: str | Path, model: nn.Module) -> None:
-    tensors, _ = load_tensors(path)
+def load_model_weights(path: str | Path, model: nn.Module, retrain: str = "") -> None:
+    tensors, _ = load_tensors(path, retrain=retrain)
     _load_state(model, tensors, path)
 
 
@@ -104,10 +147,10 @@ def save_checkpoint(
 
 
 def load_checkpoint(
-    path: str | Path, model: nn.Module, optimizer: torch.optim.Optimizer
+    path: str | Path, model: nn.Module, optimizer: torch.optim.Optimizer, retrain: str = ""
 ) -> tuple[int, dict[str, Tensor], dict[str, Any]]:
     """Restore model and optimizer from `path`; returns (step, rng states, extra)."""
-    tensors, metadata = load_tensors(path)
+    tensors, metadata = load_tensors(path, retrain=retrain)
     if "mop" not in metadata:
         raise MopError(f"{path} is not a mop checkpoint (no metadata); delete it to start over")
     meta = json.loads(metadata["mop"])

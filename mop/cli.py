@@ -7,8 +7,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
-from mop.errors import MopError
+from mop.errors import MopError, MopWarning, is_out_of_memory, memory_error_message, os_error_message
 
 # name -> (module, one-line help)
 COMMANDS = {
@@ -36,22 +37,49 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """mop's own warnings on one line (`mop: warning: ...`); other libraries' as Python prints them."""
+    if issubclass(category, MopWarning):
+        print(f"mop: warning: {message}", file=sys.stderr)
+    else:
+        _default_show(message, category, filename, lineno, file, line)
+
+
+_default_show = warnings.showwarning
+
+
+def _fail(message: str) -> int:
+    print(f"mop: error: {message}", file=sys.stderr)
+    return 2
+
+
 def _command(argv: list[str]) -> str | None:
     """The subcommand named by argv: its first word that is not an option."""
     return next((word for word in argv if not word.startswith("-")), None)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command. Every problem the user can act on ends here in one line and exit status 2:
+    MopError, OSError (a full disk, no permission, a read-only file system; atomic writes leave the
+    previous files whole and remove their temporaries) and running out of memory."""
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(_command(argv)).parse_args(argv)
+    warnings.showwarning = _show_warning
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except MopError as err:
-        print(f"mop: error: {err}", file=sys.stderr)
-        return 2
+        return _fail(str(err))
+    except OSError as err:
+        return _fail(os_error_message(err))
+    except (MemoryError, RuntimeError) as err:
+        if not is_out_of_memory(err):
+            raise
+        return _fail(memory_error_message(err))
     except KeyboardInterrupt:
         print("mop: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = _default_show
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import types
 import typing
 from typing import Any, TypeVar
 
@@ -34,7 +35,11 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
     kwargs = {}
     for name, value in data.items():
         sub = _dataclass_type(hints[name])
-        kwargs[name] = from_dict(sub, value, f"{where}{name}.") if sub and isinstance(value, dict) else value
+        if sub and isinstance(value, dict):
+            value = from_dict(sub, value, f"{where}{name}.")
+        elif not type_matches(value, hints[name]):
+            raise MopError(f"{where}{name} must be {type_words(hints[name])}, got {value!r}")
+        kwargs[name] = value
     try:
         return cls(**kwargs)
     except TypeError as err:
@@ -118,6 +123,60 @@ def _parse_value(raw: str) -> Any:
         return json.loads(raw)
     except json.JSONDecodeError:
         return {"none": None, "null": None, "true": True, "false": False}.get(raw.lower(), raw)
+
+
+def type_matches(value: Any, hint: Any) -> bool:
+    """Whether `value` (as JSON, TOML or a key=value override gives it) fits the type hint `hint`.
+
+    int accepts no bool or float; float accepts int; a list or tuple fits list[...] and tuple[...] hints
+    (files give lists), element by element.
+    """
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is Any or isinstance(hint, TypeVar):
+        return True
+    if origin in (typing.Union, types.UnionType):
+        return any(type_matches(value, a) for a in args)
+    if hint is type(None) or hint is None:
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    if origin in (list, tuple) or hint in (list, tuple):
+        if not isinstance(value, (list, tuple)):
+            return False
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            return len(value) == len(args) and all(map(type_matches, value, args))
+        return not args or all(type_matches(v, args[0]) for v in value)
+    if origin is dict or hint is dict:
+        return isinstance(value, dict)
+    if dataclasses.is_dataclass(hint):
+        return isinstance(value, hint)
+    return True
+
+
+def type_words(hint: Any) -> str:
+    """A type hint in words for error messages: 'a number', 'a list of numbers', 'a pair', ..."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        words = [type_words(a) for a in args if a is not type(None)]
+        return " or ".join(words) + (" (or none)" if type(None) in args else "")
+    simple = {bool: "true or false", int: "an integer", float: "a number", str: "a string", dict: "a table"}
+    if hint in simple:
+        return simple[hint]
+    if origin is dict:
+        return "a table"
+    if origin in (list, tuple):
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            return f"a list of {len(args)} values ({', '.join(type_words(a) for a in args)})"
+        return "a list" + (f" of {type_words(args[0])} values" if args else "")
+    if dataclasses.is_dataclass(hint):
+        return f"a table of {hint.__name__} fields"
+    return getattr(hint, "__name__", str(hint))
 
 
 def _dataclass_type(hint: Any) -> type | None:

@@ -4,9 +4,54 @@ Raise :class:`MopError` with a one-line message that names the problem and says 
 The CLI prints it as ``mop: error: <message>`` and exits with status 2, without a traceback.
 """
 
+import errno
+import os
+
 
 class MopError(Exception):
     """A problem the user can fix (bad input, bad config, missing file)."""
+
+
+class MopWarning(UserWarning):
+    """Something the user should know that does not stop the work (the CLI prints it on one line)."""
+
+
+def os_error_message(err: OSError) -> str:
+    """One line for an OSError from reading or writing files: the path, the cause and what to do."""
+    path = err.filename if err.filename is not None else "a file"
+    code = err.errno
+    if code == errno.ENOSPC:
+        return f"no space left on the device writing {path}; free some space or write elsewhere (--out)"
+    if code == getattr(errno, "EDQUOT", -1):
+        return f"disk quota exceeded writing {path}; free some space or write elsewhere (--out)"
+    if code in (errno.EACCES, errno.EPERM):
+        return f"permission denied: {path}; fix its permissions or use a directory you can write (--out)"
+    if code == errno.EROFS:
+        return f"{path} is on a read-only file system; write elsewhere (--out)"
+    if code == errno.ENOENT:
+        return f"{path} does not exist"
+    reason = err.strerror or (os.strerror(code) if code else type(err).__name__)
+    return f"{reason}: {path}"
+
+
+def memory_error_message(err: BaseException) -> str:
+    """One line for an allocation that failed (MemoryError, torch's out-of-memory RuntimeError)."""
+    first = (str(err).splitlines() or [""])[0][:160]
+    detail = f" ({first})" if first else ""
+    return (
+        f"out of memory{detail}; make the job smaller (fewer systems, a shorter horizon or fewer --steps) "
+        f"or run it where more memory is free"
+    )
+
+
+def is_out_of_memory(err: BaseException) -> bool:
+    """MemoryError, or a RuntimeError from torch's allocators that says it ran out of memory."""
+    if isinstance(err, MemoryError):
+        return True
+    text = str(err)
+    return isinstance(err, RuntimeError) and (
+        "out of memory" in text or "can't allocate memory" in text or "DefaultCPUAllocator" in text
+    )
 
 
 def require(module: str, purpose: str, extra: str = "bench") -> None:

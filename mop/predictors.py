@@ -26,6 +26,7 @@ from typing import Any, Protocol, runtime_checkable
 from torch import Tensor
 
 from mop.errors import MopError
+from mop.memory import check_allocation
 from mop.registry import Registry
 from mop.systems.base import Trajectories
 
@@ -91,6 +92,12 @@ def forecast(predictor: Predictor, traj: Trajectories, steps: int) -> Tensor:
             f"predictor {getattr(predictor, 'name', type(predictor).__name__)!r} has no k-step forecast; "
             "use --steps 1 (one-step predict) or another predictor"
         )
+    B, T1, m = traj.y.shape
+    check_allocation(  # the output and one working copy of it
+        2 * B * T1 * steps * m * traj.y.element_size(),
+        f"a {steps}-step forecast of {B} trajectories x {T1} steps",
+        "forecast fewer steps or fewer trajectories at a time",
+    )
     return nan_beyond_horizon(method(traj, steps))
 
 

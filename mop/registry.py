@@ -56,7 +56,16 @@ class Registry(Generic[T]):
                 from importlib.metadata import entry_points
 
                 for entry in entry_points(group=self.group):
-                    entry.load()  # importing the module registers its entries
+                    try:
+                        entry.load()  # importing the module registers its entries
+                    except MopError:
+                        raise
+                    except Exception as err:  # a broken plug-in package: one line, naming it
+                        first = (str(err).splitlines() or [""])[0]
+                        raise MopError(
+                            f"plug-in {entry.value!r} (entry point {self.group}: {entry.name}) failed to "
+                            f"import: {type(err).__name__}: {first}; fix or uninstall that package"
+                        ) from None
 
     def get(self, name: str) -> T:
         self._load()

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
@@ -26,6 +28,23 @@ from mop.predictors import PREDICTORS, Predictor
 from mop.pretrained import resolve_run_dir
 
 
+def retrain_hint(run_dir: str | os.PathLike) -> str:
+    """What to do about a damaged run: the command that trains it again in place."""
+    return f"retrain it with `mop train {run_dir}/config.json --out {run_dir} --fresh`"
+
+
+def read_run_json(path: Path, what: str = "run file") -> Any:
+    """JSON of a run file; binary garbage or broken JSON is a one-line MopError naming the file."""
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        why = f"{err.msg} at line {err.lineno}" if isinstance(err, json.JSONDecodeError) else "not text"
+        raise MopError(
+            f"{path} is damaged (not valid JSON: {why}); delete the run directory {path.parent} and "
+            f"train it again"
+        ) from None
+
+
 def load_config(run_dir: str | os.PathLike) -> RunConfig:
     """The RunConfig saved in `run_dir`/config.json; MopError for a missing or damaged run directory."""
     run_dir = resolve_run_dir(run_dir)
@@ -34,10 +53,13 @@ def load_config(run_dir: str | os.PathLike) -> RunConfig:
     path = run_dir / "config.json"
     if not path.is_file():
         raise MopError(f"{run_dir} has no config.json; it is not a mop run directory")
+    data = read_run_json(path)
     try:
-        return from_dict(RunConfig, json.loads(path.read_text()))
-    except json.JSONDecodeError:
-        raise MopError(f"{path} is not valid JSON; the run directory is damaged") from None
+        return from_dict(RunConfig, data)
+    except MopError as err:
+        raise MopError(
+            f"{path} is damaged ({err}); delete the run directory {run_dir} and train it again"
+        ) from None
 
 
 def load_model(
@@ -47,7 +69,7 @@ def load_model(
     run_dir = resolve_run_dir(run_dir)
     config = load_config(run_dir)
     model = build_model(config.model)
-    load_model_weights(run_dir / "model.safetensors", model)
+    load_model_weights(Path(run_dir) / "model.safetensors", model, retrain=retrain_hint(run_dir))
     return model.to(device).eval(), config.model
 
 
@@ -63,8 +85,19 @@ def load_predictor(
     run_dir = resolve_run_dir(run_dir)
     model, config = load_model(run_dir, device)
     name = predictor_names().get(config.arch, config.arch)  # the predictor its architecture registered
-    normalization = load_normalization(run_dir)
-    return LearnedPredictor(model, name=name, mode=mode, normalization=normalization, source=source)
+    norm, stats = load_normalization(run_dir), load_input_stats(run_dir)
+    return LearnedPredictor(model, name=name, mode=mode, normalization=norm, input_stats=stats, source=source)
+
+
+def load_input_stats(run_dir: str | os.PathLike) -> tuple[list[float], list[float]] | None:
+    """(mean, std) per model-input channel from inputs.json (None for runs trained before it existed)."""
+    path = Path(run_dir) / "inputs.json"
+    if not path.is_file():
+        return None
+    stats = read_run_json(path)
+    if not (isinstance(stats, dict) and all(isinstance(stats.get(k), list) for k in ("mean", "std"))):
+        raise MopError(f"{path} is damaged (no mean and std lists); {retrain_hint(run_dir)}")
+    return stats["mean"], stats["std"]
 
 
 def load_normalization(run_dir: str | os.PathLike) -> Normalization | None:

@@ -10,6 +10,8 @@ import json
 import sys
 from pathlib import Path
 
+MARKER = "complete.json"  # mop.outputs.MARKER: written last by a finished `mop reproduce`
+
 
 def conditions(data: dict) -> dict[str, dict]:
     """condition name -> {predictor: curves}; older eval.json files nest sweeps under "levels"."""
@@ -25,6 +27,10 @@ def main(before: Path, after: Path) -> None:
         other = after / path.parent.name / "eval.json"
         if not other.exists():
             print(f"{path.parent.name}: missing in {after}")
+            continue
+        incomplete = [p.parent for p in (path, other) if not (p.parent / MARKER).exists()]
+        if incomplete:  # a stopped `mop reproduce`: its files may mix two runs
+            print(f"{path.parent.name}: incomplete in {incomplete[0].parent} (no {MARKER}); rerun it")
             continue
         old, new = conditions(json.loads(path.read_text())), conditions(json.loads(other.read_text()))
         for cond, preds in old.items():

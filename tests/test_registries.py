@@ -88,3 +88,19 @@ def test_system_aware_predictors_refuse_data_without_a_family():
 
     with pytest.raises(MopError, match="carry no system family"):
         make_predictor("kalman").predict(Trajectories(y=torch.zeros(2, 5, 3)))
+
+
+def test_a_broken_plugin_package_is_one_line(monkeypatch):
+    """An installed package whose entry point fails to import is named in one MopError, not a traceback."""
+    import importlib.metadata
+
+    class Broken:
+        name, value, group = "pendulum", "broken_pkg.pendulum", "mop.families"
+
+        def load(self):
+            raise ModuleNotFoundError("No module named 'broken_pkg'")
+
+    monkeypatch.setattr(importlib.metadata, "entry_points", lambda group: [Broken()])
+    registry = Registry("system family", group="mop.families")
+    with pytest.raises(MopError, match="plug-in 'broken_pkg.pendulum' .*ModuleNotFoundError"):
+        registry.get("pendulum")

@@ -29,6 +29,7 @@ from mop.atomic import atomic_path
 from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.io import read_system, read_trajectories
+from mop.memory import check_allocation
 from mop.predictors import (
     PREDICTORS,
     forecast,
@@ -258,9 +259,29 @@ def print_horizon_errors(data, forecasts, steps: int) -> None:
     """Mean ||y_{t+j} - forecast[t, j]|| over trajectories and t >= 1 with t + j <= T, per k = j + 1."""
     print(f"{'k':>4} {'count':>8} {'mean|e|':>10}")
     for j in range(steps):
-        err = [y[1 + j :] - f[1 : len(y) - j, j] for (y, _), f in zip(data, forecasts, strict=True)]
-        e = np.concatenate([observed_norms(d) for d in err])
+        pairs = [(y, f) for (y, _), f in zip(data, forecasts, strict=True) if len(y) - 1 > j]
+        err = [y[1 + j :] - f[1 : len(y) - j, j] for y, f in pairs]  # t = 1..T-j
+        e = np.concatenate([observed_norms(d) for d in err]) if err else np.zeros(0)
         print(f"{j + 1:>4} {len(e):>8} {e.mean() if len(e) else float('nan'):>10.4g}")
+
+
+BYTES_PER_VALUE = 20  # the float32 tensor, its float64 copy and the float64 numpy array of each prediction
+
+
+def check_predict_size(data, steps: int | None) -> None:
+    """Refuse --steps beyond every trajectory's horizon, and an output that would not fit in memory."""
+    longest = max(len(y) for y, _ in data) - 1  # T of the longest trajectory
+    if steps is not None and steps > longest + 1:
+        raise MopError(
+            f"--steps {steps}: the longest trajectory has T = {longest} steps, so no forecast beyond "
+            f"k = {longest + 1} has a target; use --steps <= {longest + 1}"
+        )
+    values = sum(len(y) for y, _ in data) * (steps or 1) * data[0][0].shape[-1]
+    check_allocation(
+        BYTES_PER_VALUE * values,
+        f"predictions of {len(data)} trajectories" + (f" x {steps} steps" if steps else ""),
+        "use fewer --steps or fewer trajectories per file",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -274,6 +295,7 @@ def run(args: argparse.Namespace) -> int:
         raise MopError("give --steps or --simulate, not both")
     predictor, knows_system = resolve_predictor(args.predictor, args.stream)
     names, data = read_trajectories(data_path)
+    check_predict_size(data, args.steps)
     if args.simulate is not None:
         shortest = min(len(y) for y, _ in data) - 1
         if not 1 <= args.simulate <= shortest:

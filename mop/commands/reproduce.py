@@ -19,6 +19,7 @@ from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.runner import run_experiment
+from mop.experiments.validate import validate_experiment
 from mop.predictors import PREDICTORS
 
 EPILOG = """examples:
@@ -76,6 +77,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="evaluate the shipped models (mop pretrained) instead of training (default preset: small)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="if another process is training a run this needs, stop with an error instead of waiting",
+    )
 
 
 def optional_predictors() -> list[str]:
@@ -106,6 +112,9 @@ def run(args: argparse.Namespace) -> int:
         root = Path(args.out) if args.out else Path("runs/reproduce") / f"{preset}-pretrained"
     if args.pretrained:  # the optional baselines are not shipped: off unless asked for
         chosen = {**dict.fromkeys(optional_predictors(), False), **chosen}
+    overrides = list(args.overrides or [])
+    for exp in experiments:  # every mistake in any of them before the first training step
+        validate_experiment(exp, preset, seed=args.seed, overrides=overrides, choices=chosen)
     for exp in experiments:
         out = root / exp.name if (args.experiment == "all" or not args.out) else root
         try:
@@ -115,10 +124,11 @@ def run(args: argparse.Namespace) -> int:
                 out,
                 seed=args.seed,
                 runs_dir=Path(args.runs) if args.runs else None,
-                overrides=list(args.overrides or []),
+                overrides=overrides,
                 progress=not args.quiet,
                 choices=chosen,
                 pretrained=args.pretrained,
+                wait=not args.no_wait,
             )
         except MopError as err:
             if not (args.pretrained and args.experiment == "all" and "no pretrained model" in str(err)):

@@ -46,6 +46,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "a seeded data.validation_fraction (0.1) is held out, channels normalised on the training split",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--fresh",
+        action="store_true",
+        help="start over: remove the run's weights, checkpoint and metrics first (a damaged run)",
+    )
+    parser.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="if another process is training this --out, stop with an error instead of waiting for it",
+    )
 
 
 def base_config(source: str | None, preset: str | None) -> RunConfig:
@@ -62,6 +72,8 @@ def base_config(source: str | None, preset: str | None) -> RunConfig:
             data = json.loads(path.read_text())
         except json.JSONDecodeError as err:
             raise MopError(f"{path} is not valid JSON ({err.msg} at line {err.lineno})") from None
+        except UnicodeDecodeError:
+            raise MopError(f"{path} is not valid JSON (not text)") from None
         return from_dict(RunConfig, data)
     return _experiment_config(source, preset)
 
@@ -90,6 +102,6 @@ def run(args: argparse.Namespace) -> int:
         unfitted = dict.fromkeys(("y_mean", "y_std", "u_mean", "u_std"))
         config = dataclasses.replace(config, data=dataclasses.replace(config.data, **unfitted))
         print(recorded_data(config.data).summary(config.train.horizon))
-    out = train(config, args.out, progress=not args.no_progress)
+    out = train(config, args.out, progress=not args.no_progress, wait=not args.no_wait, fresh=args.fresh)
     print(f"run directory: {out}  (load with: mop.load({str(out)!r}))")
     return 0

@@ -70,7 +70,7 @@ def _coverage_text(measure: Measure, reference: str) -> str:
     return f"{int(measure.level * 100)}% coverage of {measure.predictor}{where(measure)}"
 
 
-@MEASURES.register("coverage", describe=_coverage_text)
+@MEASURES.register("coverage", describe=_coverage_text, needs="calibration")
 def coverage_measure(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     """Empirical coverage of the central `level` interval of `predictor` (interpolated between levels)."""
     table = calibration_table(result).get(measure.predictor)
@@ -92,7 +92,7 @@ def power_ratio(result: ConditionResult) -> list[float] | None:
     return result.extras.get("matrix_power_ratio")
 
 
-@MEASURES.register("matrix_power_max")
+@MEASURES.register("matrix_power_max", needs="matrix_powers")
 def matrix_power_max(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     """max over k of the mean ||A^k|| / rho(A)^k of the condition's test systems."""
     ratio = power_ratio(result)
@@ -167,7 +167,7 @@ def _slope_text(measure: Measure, reference: str) -> str:
     return f"log-log slope against {measure.axis} (95% CI)"
 
 
-@MEASURES.register("slope", over_conditions=True, describe=_slope_text)
+@MEASURES.register("slope", over_conditions=True, interval=True, describe=_slope_text, needs="excess_mse")
 def slope(measure: Measure, results: Results, reference: str, seed: int) -> tuple[float, float]:
     """95% interval of the log-log slope of the excess MSE over the conditions of sweep axis `axis`
     (NaN for fewer than 3 points)."""
@@ -340,13 +340,13 @@ def _simulation_text(measure: Measure, reference: str) -> str:
     return f"{kind} RMSE of {measure.predictor} after the context{where(measure)}"
 
 
-@MEASURES.register("simulation_rmse", describe=_simulation_text)
+@MEASURES.register("simulation_rmse", describe=_simulation_text, needs="simulation")
 def simulation_rmse(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     """The simulation analysis's free-run RMSE of `predictor` after the context."""
     return _simulation(result, measure.predictor)["simulation_rmse"]
 
 
-@MEASURES.register("one_step_rmse", describe=_simulation_text)
+@MEASURES.register("one_step_rmse", describe=_simulation_text, needs="simulation")
 def one_step_rmse(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     """The simulation analysis's one-step RMSE of `predictor` over the same steps."""
     return _simulation(result, measure.predictor)["one_step_rmse"]

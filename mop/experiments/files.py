@@ -46,7 +46,9 @@ def load_experiment(path: str | Path) -> Experiment:
     if not path.is_file():
         raise MopError(f"experiment file {path} does not exist")
     data = _read(path)
-    for plugin in data.pop("plugins", []):
+    if not isinstance(data, dict):
+        raise MopError(f"{path}: an experiment file is a table of fields, got {type(data).__name__}")
+    for plugin in _names(data.pop("plugins", []), f"{path}: plugins"):
         import_plugin(path.parent / plugin)
     _resolve_paths(data, path.parent)
     return experiment_from_dict(data, str(path))
@@ -81,8 +83,30 @@ def _read(path: Path) -> dict[str, Any]:
         ) from None
 
 
+def _names(value: Any, where: str) -> list[str]:
+    """A list of names; one name given as a string is a list of one (`predictors = "mop"`)."""
+    if isinstance(value, str):
+        return [value]
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        raise MopError(f"{where} must be a list of names, got {value!r}")
+    return list(value)
+
+
+def _tables(value: Any, where: str) -> list[dict]:
+    if isinstance(value, dict):
+        value = [value]
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, dict) for v in value):
+        example = f"[[{where.split()[-1]}]]"
+        raise MopError(f"{where} must be a list of tables ({example} in TOML), got {value!r}")
+    return list(value)
+
+
 def import_plugin(path: Path) -> None:
-    """Import a Python file by path (its registrations run); importing the same file twice is a no-op."""
+    """Import a Python file by path (its registrations run); importing the same file twice is a no-op.
+
+    Any error the file raises while importing (a SyntaxError, a missing module, its own exception) is a
+    one-line MopError naming the file, the line and the error.
+    """
     if not path.is_file():
         raise MopError(f"plugin {path} does not exist; plugins are paths relative to the experiment file")
     name = f"mop_plugin_{path.stem}_{abs(hash(str(path.resolve())))}"
@@ -91,14 +115,35 @@ def import_plugin(path: Path) -> None:
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
-    spec.loader.exec_module(module)
+    try:
+        spec.loader.exec_module(module)
+    except MopError as err:
+        del sys.modules[name]
+        raise MopError(f"plugin {path}: {err}") from None
+    except Exception as err:  # the plugin's own code: report it in one line, whatever it raised
+        del sys.modules[name]
+        raise MopError(f"plugin {path} failed to import: {_plugin_error(err, path)}") from None
+
+
+def _plugin_error(err: Exception, path: Path) -> str:
+    """`SyntaxError at line 3: invalid syntax`, `ModuleNotFoundError: No module named 'x' (line 1)`."""
+    if isinstance(err, SyntaxError):
+        return f"SyntaxError at line {err.lineno}: {err.msg}"
+    line = ""
+    tb = err.__traceback__
+    while tb is not None:
+        if Path(tb.tb_frame.f_code.co_filename).resolve() == path.resolve():
+            line = f" (line {tb.tb_lineno})"
+        tb = tb.tb_next
+    first = (str(err).splitlines() or [""])[0]
+    return f"{type(err).__name__}: {first}{line}"
 
 
 def _measure(data: Any, where: str) -> Measure:
     if not isinstance(data, dict):
         raise MopError(f'{where}: a measure is a table like {{ metric = "mse_ratio" }}, got {data!r}')
     data = dict(data)
-    if "window" in data:
+    if isinstance(data.get("window"), list):
         data["window"] = tuple(data["window"])
     return from_dict(Measure, data, f"{where}.")
 
@@ -116,9 +161,10 @@ def _claim(data: dict, where: str) -> Claim:
 
 def _condition(data: dict, where: str) -> Condition:
     data = dict(data)
-    for key in ("x", "predictors"):
-        if key in data:
-            data[key] = tuple(data[key])
+    if "predictors" in data:
+        data["predictors"] = tuple(_names(data["predictors"], f"{where}.predictors"))
+    if isinstance(data.get("x"), list):
+        data["x"] = tuple(data["x"])
     return from_dict(Condition, data, f"{where}.")
 
 
@@ -126,13 +172,15 @@ def experiment_from_dict(data: dict[str, Any], where: str = "experiment") -> Exp
     data = dict(data)
     for key in ("predictors", "analyses", "figures", "panel"):
         if key in data:
-            data[key] = tuple(data[key])
+            data[key] = tuple(_names(data[key], f"{where}: {key}"))
     if "conditions" in data:
         data["conditions"] = tuple(
-            _condition(c, f"{where}: conditions[{i}]") for i, c in enumerate(data["conditions"])
+            _condition(c, f"{where}: conditions[{i}]")
+            for i, c in enumerate(_tables(data["conditions"], f"{where}: conditions"))
         )
     if "claims" in data:
-        data["claims"] = tuple(_claim(c, f"{where}: claims[{i}]") for i, c in enumerate(data["claims"]))
+        claims = _tables(data["claims"], f"{where}: claims")
+        data["claims"] = tuple(_claim(c, f"{where}: claims[{i}]") for i, c in enumerate(claims))
     for key in ("name", "title", "train", "predictors"):
         if key not in data:
             raise MopError(f"{where}: missing required field {key!r}")

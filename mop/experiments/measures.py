@@ -6,6 +6,9 @@
 for interval measures (the slope's 95% CI), a (low, high) pair. Its registry metadata describes it:
     describe(measure, reference) -> str   its name in report.md (default: the metric and the condition)
     over_conditions=True                  it reads every condition's results, fn(measure, results, ...)
+    interval=True                         it returns a (low, high) pair (op "contains")
+    needs="ANALYSIS"                      it reads that analysis's extras (checked before training)
+    reads_reference=True                  it reads the reference's errors too
 This module holds the measures of the predictors' errors; those that read an analysis's extras
 (coverage, matrix_power_max, slope) are registered beside their analysis in mop.experiments.analyses.
 """
@@ -59,7 +62,7 @@ def _mean_error_text(measure: Measure, reference: str) -> str:
     return f"mean error of {measure.predictor} over {window_text(measure)}{where(measure)}"
 
 
-@MEASURES.register("mse_ratio", describe=_mse_ratio_text)
+@MEASURES.register("mse_ratio", describe=_mse_ratio_text, reads_reference=True)
 def mse_ratio(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     e_num, e_den = _errors(result, measure.predictor), _errors(result, measure.reference or reference)
     ratio, low, high = mse_ratio_ci(e_num, e_den, *_span(measure, e_num.shape[1] - 1), seed=seed)

@@ -40,9 +40,11 @@ from mop.experiments.figures import FIGURES
 from mop.experiments.measures import describe, measure_value
 from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
+from mop.experiments.validate import evaluated, validate_experiment
 from mop.io import read_trajectories
 from mop.missing import drop_mask, drop_outputs
-from mop.predictors import PREDICTORS, first_learned, is_learned, make_predictor, needs_system
+from mop.outputs import staged_output
+from mop.predictors import PREDICTORS, first_learned, is_learned, make_predictor
 from mop.pretrained import find_shipped, shipped_names
 from mop.report import build_report, claim_line, summary_section
 from mop.systems import generator, make_family
@@ -62,6 +64,7 @@ class Session:
     progress: bool
     choices: dict[str, bool]  # predictor -> forced in (True) or out (False), over its skip_presets
     pretrained: bool = False
+    wait: bool = True
     loaded: dict[str, Any] = dataclasses.field(default_factory=dict)
     runs: dict[str, str] = dataclasses.field(default_factory=dict)
 
@@ -74,14 +77,7 @@ def config_hash(config: RunConfig) -> str:
 def wanted(session: Session, condition: Condition) -> list[str]:
     """The predictors evaluated under `condition`: those an entry's skip_presets leave out under this preset
     only where `choices` (--with NAME) asks for them; `choices` False (--without NAME) drops one anywhere."""
-    names = [n for n in condition.predictors or session.exp.predictors if _included(session, n)]
-    return [n for n in names if not (condition.data and needs_system(n))]  # recordings carry no system
-
-
-def _included(session: Session, name: str) -> bool:
-    if name in session.choices:
-        return session.choices[name]
-    return session.preset not in PREDICTORS.meta(name).get("skip_presets", ())
+    return evaluated(session.exp, session.preset, condition, session.choices)
 
 
 def _with_arch(trained: RunConfig, name: str) -> RunConfig:
@@ -119,7 +115,7 @@ def learned_predictor(session: Session, name: str, condition: Condition, trained
         config = _with_arch(trained, name)
         run = str(session.runs_dir / f"{name}-{config_hash(config)}")
         if run not in session.loaded:
-            model = train_model(config, run, progress=session.progress)
+            model = train_model(config, run, progress=session.progress, wait=session.wait)
             session.loaded[run] = make_predictor(name, run_dir=run, model=model)
     session.runs[f"{name} [{condition.name}]"] = run
     return session.loaded[run]
@@ -265,28 +261,39 @@ def run_experiment(
     progress: bool = True,
     choices: dict[str, bool] | None = None,
     pretrained: bool = False,
+    wait: bool = True,
 ) -> Path:
     """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path.
 
     choices: predictor -> True to evaluate it where its skip_presets would leave it out (--with NAME),
     False to leave it out (--without NAME).
+    The experiment is validated first (mop.experiments.validate), so a mistake costs seconds, not a
+    training run. The files are written all or nothing (mop.outputs): a stopped run leaves the previous
+    output whole; `complete.json`, written last, lists them. wait: see mop.train.train.
     pretrained: evaluate the shipped models instead of training (MopError first when one is missing).
     """
-    get_preset(preset)
-    for name in choices or {}:
-        PREDICTORS.get(name)  # an unknown name stops here, before any training
+    validate_experiment(exp, preset, seed=seed, overrides=list(overrides), choices=choices)
     start = time.perf_counter()
     out = Path(out)
     runs_dir = Path(runs_dir or out.parent / "runs")
-    session = Session(exp, preset, seed, runs_dir, list(overrides), progress, dict(choices or {}), pretrained)
+    session = Session(
+        exp, preset, seed, runs_dir, list(overrides), progress, dict(choices or {}), pretrained, wait
+    )
     for condition in exp.conditions_for(preset):  # resolve given / shipped runs before any work
         trained = condition_config(session, condition)
         for name in wanted(session, condition):
             if is_learned(name):
                 given_run(session, name, condition, trained)
-    out.mkdir(parents=True, exist_ok=True)
     results = {c.name: run_condition(session, c) for c in exp.conditions_for(preset)}
     claims = [check_claim(c, results, exp.reference, seed) for c in exp.claims]
+    with staged_output(out) as stage:
+        _write_outputs(session, results, claims, stage, start)
+    return out / "report.md"
+
+
+def _write_outputs(session: Session, results: dict, claims: list[dict], out: Path, start: float) -> None:
+    """Figures, eval.json and report.md of the finished experiment into `out` (the staging folder)."""
+    exp, preset, seed = session.exp, session.preset, session.seed
     figures = [p for name in exp.figures for p in FIGURES.get(name)(exp, results, out)]
     first = next(iter(results.values()))
     entries = experiment_entries(exp.analyses, results)  # e.g. the sweeps' fits
@@ -307,12 +314,11 @@ def run_experiment(
     sections += experiment_sections(exp.analyses, entries)
     settings = {"seed": seed, "test seed": seed + TEST_SEED_OFFSET, **data["settings"]}
     title = f"mop reproduce {exp.name} ({exp.title}), preset {preset}"
-    title += ", shipped pretrained weights" if pretrained else ""
+    title += ", shipped pretrained weights" if session.pretrained else ""
     text = build_report(
         title, sections, settings, [claim_text(c) for c in claims], time.perf_counter() - start
     )
     write_text(out / "report.md", text)
-    return out / "report.md"
 
 
 def _settings(session: Session) -> dict:

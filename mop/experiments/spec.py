@@ -52,16 +52,40 @@ class Measure:
     axis: str = ""
 
     def __post_init__(self) -> None:
+        for name in ("metric", "predictor", "reference", "condition", "axis"):
+            value = getattr(self, name)
+            check(isinstance(value, str), f"measure {name} must be a name (a string), got {value!r}")
         check(
             self.bound in ("ratio", "low", "high"),
             f"measure bound must be ratio|low|high, got {self.bound!r}",
         )
         check(self.reduce in ("max", "min"), f"measure reduce must be max|min, got {self.reduce!r}")
-        start, stop = self.window
+        window = self.window
+        check(
+            isinstance(window, (tuple, list))
+            and len(window) == 2
+            and _is_int(window[0])
+            and (window[1] is None or _is_int(window[1])),
+            f"measure window must be [start, stop) with integer steps (stop may be left out as none), "
+            f"got {list(window) if isinstance(window, (tuple, list)) else window!r}",
+        )
+        start, stop = window
         check(
             start >= 0 and (stop is None or stop > start),
-            f"measure window must be [start, stop), got {self.window}",
+            f"measure window must be [start, stop) with 0 <= start < stop, got {list(self.window)}",
         )
+        check(
+            _is_number(self.level) and 0 < self.level < 1,
+            f"measure level must be a number in (0, 1), got {self.level!r}",
+        )
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,6 +111,25 @@ class Claim:
             self.op == "info" or self.threshold is not None,
             f"claim {self.text!r}: op {self.op!r} needs a threshold",
         )
+        check(isinstance(self.measure, Measure), f"claim {self.text!r}: measure must be a Measure table")
+        t = self.threshold
+        if self.op == "between":
+            check(
+                isinstance(t, (tuple, list)) and len(t) == 2 and all(map(_is_number, t)) and t[0] <= t[1],
+                f"claim {self.text!r}: op 'between' needs threshold [low, high] (numbers, low <= high), "
+                f"got {t!r}",
+            )
+        elif self.op in ("<", "<=", ">", ">="):
+            check(
+                _is_number(t) or isinstance(t, Measure),
+                f"claim {self.text!r}: op {self.op!r} needs a number or a measure as threshold, got {t!r}",
+            )
+        elif self.op == "contains":
+            check(
+                _is_number(t),
+                f"claim {self.text!r}: op 'contains' needs a number as threshold (the measure is an "
+                f"interval), got {t!r}",
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,8 +160,32 @@ class Condition:
     runs: dict[str, str] = dataclasses.field(default_factory=dict)  # as Experiment.runs, for this condition
 
     def __post_init__(self) -> None:
-        check(bool(self.name), "a condition needs a name")
-        check(self.context is None or self.context >= 1, f"condition {self.name}: context must be >= 1")
+        check(isinstance(self.name, str) and bool(self.name), "a condition needs a name (a string)")
+        check(
+            self.horizon is None or (_is_int(self.horizon) and self.horizon >= 1),
+            f"condition {self.name}: horizon must be an integer >= 1, got {self.horizon!r}",
+        )
+        for name in ("system", "train"):
+            check(
+                isinstance(getattr(self, name), dict),
+                f"condition {self.name}: {name} must be a table of key = value overrides, "
+                f"got {getattr(self, name)!r}",
+            )
+        check(
+            self.x is None
+            or (isinstance(self.x, (tuple, list)) and len(self.x) == 2 and _is_number(self.x[1])),
+            f"condition {self.name}: x must be [axis name, number], got {self.x!r}",
+        )
+        check(
+            all(isinstance(p, str) for p in self.predictors),
+            f"condition {self.name}: predictors must be a list of names, got {self.predictors!r}",
+        )
+        check(isinstance(self.data, str), f"condition {self.name}: data must be a file name")
+        check(isinstance(self.missing, dict), f"condition {self.name}: missing must be a table")
+        check(
+            self.context is None or (_is_int(self.context) and self.context >= 1),
+            f"condition {self.name}: context must be an integer >= 1, got {self.context!r}",
+        )
         unknown = set(self.missing) - set(MISSING_KEYS)
         check(
             not unknown,
@@ -132,7 +199,6 @@ class Condition:
             isinstance(length, int) and length >= 1,
             f"condition {self.name}: missing.burst_length must be an integer >= 1, got {length!r}",
         )
-        check(self.horizon is None or self.horizon >= 1, f"condition {self.name}: horizon must be >= 1")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,6 +237,21 @@ class Experiment:
         return self.preset_conditions.get(preset, self.conditions)
 
     def __post_init__(self) -> None:
+        check(isinstance(self.train, dict), f"experiment {self.name}: train must be a table of overrides")
+        for name in ("predictors", "analyses", "figures", "panel"):
+            value = getattr(self, name)
+            check(
+                isinstance(value, (tuple, list)) and all(isinstance(v, str) for v in value),
+                f"experiment {self.name}: {name} must be a list of names, got {value!r}",
+            )
+        check(
+            all(isinstance(c, Condition) for c in self.conditions),
+            f"experiment {self.name}: conditions must be a list of condition tables",
+        )
+        check(
+            all(isinstance(c, Claim) for c in self.claims),
+            f"experiment {self.name}: claims must be a list of claim tables",
+        )
         check(bool(self.predictors), f"experiment {self.name}: list at least one predictor")
         names = [c.name for c in self.conditions]
         check(len(set(names)) == len(names), f"experiment {self.name}: condition names repeat: {names}")

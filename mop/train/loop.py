@@ -25,6 +25,7 @@ import torch
 import torch.distributed as dist
 from torch import Tensor, nn
 
+from mop.atomic import clean_orphans
 from mop.config import RunConfig
 from mop.errors import MopError
 from mop.models import build_model
@@ -32,6 +33,7 @@ from mop.progress import progress as make_progress
 from mop.runs import load_model
 from mop.train.data import TrainingData, validation_batch
 from mop.train.device import init_distributed, setup_device
+from mop.train.lock import run_lock
 from mop.train.optim import (
     LossModule,
     learning_rate,
@@ -43,11 +45,13 @@ from mop.train.optim import (
 from mop.train.rundir import (
     MetricsLog,
     check_run_dir,
+    fresh_start,
     resolve_config,
     restore_training_state,
     save_training_state,
     write_config,
     write_done,
+    write_input_stats,
 )
 
 
@@ -69,20 +73,35 @@ class TrainState:
     log: MetricsLog | None = None
 
 
-def train(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = True) -> Path:
-    """Train `config` into `out_dir` (resuming from its checkpoint if any); returns the run directory."""
-    _train(config, Path(out_dir), progress)
+def train(
+    config: RunConfig,
+    out_dir: str | os.PathLike,
+    *,
+    progress: bool = True,
+    wait: bool = True,
+    fresh: bool = False,
+) -> Path:
+    """Train `config` into `out_dir` (resuming from its checkpoint if any); returns the run directory.
+
+    Rank 0 holds the run directory's lock (mop.train.lock) while training: another process training the
+    same directory is waited for (wait=True; then its finished run is reused) or refused in one line.
+    fresh: start over, removing what the directory holds besides config.json (a damaged run).
+    Temporaries of writes killed in an earlier run are removed first.
+    """
+    _train(config, Path(out_dir), progress, wait, fresh)
     return Path(out_dir)
 
 
-def train_model(config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = True) -> nn.Module:
+def train_model(
+    config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = True, wait: bool = True
+) -> nn.Module:
     """Train like train() and hand back the trained model, in eval mode on the CPU, so a caller predicts
     with it without reloading it; a run `out_dir` already finished is loaded from there (mop.runs)."""
-    model = _train(config, Path(out_dir), progress)
+    model = _train(config, Path(out_dir), progress, wait, False)
     return load_model(out_dir)[0] if model is None else model.to("cpu").eval()
 
 
-def _train(config: RunConfig, out_dir: Path, progress: bool) -> nn.Module | None:
+def _train(config: RunConfig, out_dir: Path, progress: bool, wait: bool, fresh: bool) -> nn.Module | None:
     """The trained model, or None when `out_dir` holds a finished run of `config` (nothing is trained)."""
     config = resolve_config(config)
     cfg = config.train
@@ -91,9 +110,20 @@ def _train(config: RunConfig, out_dir: Path, progress: bool) -> nn.Module | None
         raise MopError(
             f"train.batch_size ({cfg.batch_size}) must be divisible by the number of processes ({world})"
         )
-    if check_run_dir(out_dir, config):  # every rank reads it, so all return together
+    if check_run_dir(out_dir, config) and not fresh:  # every rank reads it, so all return together
         return None
-    device = setup_device(cfg, world)
+    with run_lock(out_dir, wait) if rank == 0 else contextlib.nullcontext():
+        if check_run_dir(out_dir, config) and not fresh:  # finished by the process we waited for
+            return None
+        if rank == 0:
+            clean_orphans(out_dir)
+            if fresh:
+                fresh_start(out_dir)
+        return _train_locked(config, out_dir, rank, world, progress)
+
+
+def _train_locked(config: RunConfig, out_dir: Path, rank: int, world: int, progress: bool) -> nn.Module:
+    device = setup_device(config.train, world)
     if rank == 0:
         write_config(out_dir, config)
     state = _start(config, out_dir, device, rank, world)
@@ -120,6 +150,7 @@ def _start(config: RunConfig, out_dir: Path, device: torch.device, rank: int, wo
     state = TrainState(config, out_dir, device, model, loss_fn, optimizer, data, step, rank, world)
     if rank == 0:
         state.val = validation_batch(config, device)
+        write_input_stats(out_dir, state.val[0])
         state.log = MetricsLog(out_dir, step)
     return state
 
@@ -141,11 +172,7 @@ def _loop(state: TrainState, progress: bool) -> None:
                 continue
             mean_loss = float(loss_sum) / since
             if not math.isfinite(mean_loss):
-                raise MopError(
-                    f"training loss became {mean_loss} between steps {state.step - since} and {state.step}; "
-                    f"the last good checkpoint (step {last_good}) is kept in {state.out_dir}; "
-                    f"try a lower train.lr"
-                )
+                raise MopError(_diverged(state, mean_loss, since, last_good))
             if state.rank == 0 and at_log:
                 rate = since / (time.perf_counter() - t0)
                 record = {"step": state.step, "loss": mean_loss, "lr": learning_rate(cfg, state.step - 1)}
@@ -164,6 +191,15 @@ def _loop(state: TrainState, progress: bool) -> None:
     bar.close()
     if state.rank == 0:
         write_done(state.out_dir, state.step)
+
+
+def _diverged(state: TrainState, loss: float, since: int, last_good: int) -> str:
+    """The message of a non-finite loss: where it happened, which checkpoint is kept (if any), what to do."""
+    where = f"training loss became {loss} between steps {state.step - since} and {state.step}"
+    lr = f"try a lower train.lr (it is {state.config.train.lr:g})"
+    if last_good == 0:
+        return f"{where}, before the first checkpoint, so no weights were saved in {state.out_dir}; {lr}"
+    return f"{where}; the last good checkpoint (step {last_good}) is kept in {state.out_dir}; {lr}"
 
 
 def _step(state: TrainState) -> Tensor:

@@ -6,9 +6,14 @@
     checkpoint.safetensors  model + AdamW state + RNG states + step (mop.checkpoint), for resuming
     metrics.jsonl           {"step", "loss", "lr", "steps_per_s"} and {"step", "val_loss"} records
     tb/                     TensorBoard scalars
+    inputs.json             per-channel mean and std of the model's inputs on the validation systems (what
+                            the predictor's out-of-distribution warning compares new inputs with)
     done.json               written last; train() on a finished run with the same config returns at once
+    .lock                   the advisory lock of the process training it (mop.train.lock)
 
-A directory holding another config is refused, naming the first differing key.
+A directory holding another config is refused, naming the first differing key. `fresh_start` removes what
+a damaged run holds (weights, checkpoint, metrics, done.json) so `mop train RUN/config.json --out RUN
+--fresh` trains it again in place.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import shutil
 from pathlib import Path
 
 import torch
@@ -26,8 +32,11 @@ from mop.checkpoint import load_checkpoint, save_checkpoint, save_model
 from mop.config import RunConfig, to_dict
 from mop.errors import MopError
 from mop.models import check_arch
+from mop.runs import read_run_json, retrain_hint
 from mop.systems import make_family
 from mop.train.data import recorded_data
+
+TRAINING_FILES = ("model.safetensors", "checkpoint.safetensors", "metrics.jsonl", "done.json", "inputs.json")
 
 
 def resolve_config(config: RunConfig) -> RunConfig:
@@ -82,14 +91,33 @@ def check_run_dir(out_dir: Path, config: RunConfig) -> bool:
     path = out_dir / "config.json"
     if not path.exists():
         return False
-    try:
-        saved = json.loads(path.read_text())
-    except json.JSONDecodeError:
-        raise MopError(f"{path} is not valid JSON; remove the run directory or use another --out") from None
+    saved = read_run_json(path)
+    if not isinstance(saved, dict):
+        raise MopError(
+            f"{path} is damaged (a {type(saved).__name__}, not a config table); delete the run directory "
+            f"{out_dir} and train it again"
+        )
     if saved != to_dict(config):
         diff = _diff(saved, to_dict(config))
-        raise MopError(f"{out_dir} holds a run with a different config ({diff}); use another --out directory")
+        raise MopError(
+            f"{out_dir} holds a run with a different config ({diff}); train into another --out, or delete "
+            f"{out_dir} to train this config there"
+        )
     return (out_dir / "done.json").exists()
+
+
+def fresh_start(out_dir: Path) -> None:
+    """Remove a run's training files (weights, checkpoint, metrics, done.json, tb/); keep config.json."""
+    for name in TRAINING_FILES:
+        (out_dir / name).unlink(missing_ok=True)
+    shutil.rmtree(out_dir / "tb", ignore_errors=True)
+
+
+def write_input_stats(out_dir: Path, inputs: Tensor) -> None:
+    """inputs.json: per-channel mean and std of the model inputs (N, T, d_in) the run was validated on."""
+    flat = inputs.reshape(-1, inputs.shape[-1]).double()
+    stats = {"mean": flat.mean(0).tolist(), "std": flat.std(0).clamp_min(1e-12).tolist()}
+    write_json(out_dir / "inputs.json", stats)
 
 
 def _diff(a: dict, b: dict, prefix: str = "") -> str:
@@ -169,7 +197,7 @@ def restore_training_state(
     path = out_dir / "checkpoint.safetensors"
     if not path.exists():
         return 0
-    step, rng, _ = load_checkpoint(path, model, optimizer)
+    step, rng, _ = load_checkpoint(path, model, optimizer, retrain=retrain_hint(out_dir))
     _set_rng_state(generator, rng, device)
     return step
 
