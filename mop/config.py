@@ -119,6 +119,8 @@ class ModelConfig:
     position: str = (
         "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact relative streaming)
     )
+    input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
+    rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
 
     def __post_init__(self) -> None:
         check(
@@ -143,6 +145,14 @@ class ModelConfig:
             f"model.readout must be 'mean' or 'gaussian', got {self.readout!r}",
         )
         check(0 <= self.dropout < 1, f"model.dropout must be in [0, 1), got {self.dropout}")
+        check(
+            self.input_scale in ("none", "running"),
+            f"model.input_scale must be 'none' or 'running', got {self.input_scale!r}",
+        )
+        check(
+            isinstance(self.rls_order, int) and 0 <= self.rls_order <= 10,
+            f"model.rls_order must be an integer in 0..10 (0 = off), got {self.rls_order!r}",
+        )
 
 
 @dataclasses.dataclass(frozen=True)
