@@ -36,6 +36,7 @@ LINEAR = Experiment(
     title="Fig. 2a",
     train={"system.family": "linear"},
     predictors=LINEAR_PREDICTORS,
+    authors="1.025 (MOP/KF, t in [20,50), their 12 x 256 model, H100)",
     analyses=("floor", "forecast"),
     figures=("error", "forecast"),
     claims=(
@@ -52,6 +53,8 @@ COLORED_NOISE = Experiment(
     "optimum (a KF on the state augmented with the noise draws)",
     train={"system.family": "colored-noise"},
     predictors=(*LINEAR_PREDICTORS, "kalman-colored"),
+    best="kalman-colored",
+    authors="about 1.23 (error 0.511 against the optimum's 0.46; 0.27 x the white-noise KF)",
     panel=("mop", "", "rls", "kalman-colored"),
     claims=(
         Claim("MOP beats the KF, which is misspecified here", ratio(bound="high"), "<", 1.0),
@@ -67,6 +70,7 @@ SWITCHING = Experiment(
     description="the plain linear model (trained once, shared with `linear`) on systems switching at t = 50",
     train={"system.family": "linear"},
     predictors=("mop", "gru", "kalman", "kalman-system1", "rls", "zero", "last"),
+    authors="not reported (their Fig. 2c: MOP near the KF that knows the switch)",
     conditions=(Condition("test", system={"family": "switching", "switch_time": 50}, horizon=100),),
     claims=(
         Claim("MOP matches the KF that knows the switch after ~20 steps", ratio(), "<=", 1.1),
@@ -86,6 +90,8 @@ QUADROTOR = Experiment(
     train={"system.family": "quadrotor"},
     predictors=("mop", "gru", "ekf", "ekf-noclip", "ukf", "pf", "zero", "last"),
     reference="ekf",
+    best="pf",
+    authors="0.07 x their clipping EKF (no particle filter in the paper)",
     panel=("mop", "", "last"),
     analyses=("forecast",),
     figures=("error", "forecast"),
@@ -100,6 +106,7 @@ UPPER_TRIANGULAR = Experiment(
     title="Fig. 4",
     train={"system.family": "upper-triangular"},
     predictors=LINEAR_PREDICTORS,
+    authors="2.33 (MOP/KF; worse than RLS: error 1.023 against 0.835)",
     conditions=(
         Condition("test"),
         Condition(
