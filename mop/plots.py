@@ -28,7 +28,11 @@ def save(fig, out_dir: Path, stem: str) -> list[Path]:
     return paths
 
 
-RATIO_PANEL_MAX = 10.0  # predictors whose median MSE ratio is above this are left out of the ratio panel
+def ratio_panel_top(panel_ratios: dict[str, np.ndarray]) -> float:
+    """Upper limit of the ratio panel: 1.5 x the largest 90th percentile over t of the panel predictors'
+    ratios (T,) each, at least 2."""
+    highest = max((float(np.quantile(r, 0.9)) for r in panel_ratios.values()), default=1.0)
+    return max(2.0, 1.5 * highest)
 
 
 def error_figure(
@@ -38,14 +42,14 @@ def error_figure(
     title: str,
     floor_mse: list[float] | None = None,
     floor_norm: list[float] | None = None,
-    max_ratio: float = RATIO_PANEL_MAX,
 ):
     """Two panels. Left, the paper's: mean error ||yhat_t - y_t|| against t (log scale) with +-1 std bands
     (floored above 0) for the `panel` predictors (those present), and, where given, the optimum in the same
     metric, E||e_t|| for e_t ~ N(0, S_t) of the known system (dashed). Right: the MSE ratio to the
-    reference against t (log scale) of every predictor whose median ratio is at most `max_ratio` (trivial
-    ones such as `zero` would squash the range that matters; the title names those left out), and the
-    floor's."""
+    reference against t (log scale), its axis clipped at 1.5 x the largest 90th percentile (over t) of the
+    panel predictors' ratios (at least 2), so trivial predictors such as `zero` (ratios up to 40) do not
+    squash the range that matters; predictors whose median ratio lies above the clip are left out and named
+    in the title. The floor's ratio is dashed."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
     colors = {name: f"C{i}" for i, name in enumerate(predictors)}
     for name in dict.fromkeys(n for n in panel if n in predictors):
@@ -61,19 +65,19 @@ def error_figure(
     left.grid(alpha=0.3, which="both")
     if reference in predictors:
         den = np.asarray(predictors[reference]["squared_error"][1:])
-        left_out = []
-        for name, c in predictors.items():
-            ratio = np.asarray(c["squared_error"][1:]) / den
-            if np.median(ratio) > max_ratio:
-                left_out.append(name)
-                continue
-            right.plot(np.arange(1, len(ratio) + 1), ratio, label=name, color=colors[name], lw=1.2)
+        ratios = {name: np.asarray(c["squared_error"][1:]) / den for name, c in predictors.items()}
+        top = ratio_panel_top({n: r for n, r in ratios.items() if n in panel})
+        left_out = [name for name, r in ratios.items() if np.median(r) > top]
+        for name, ratio in ratios.items():
+            if name not in left_out:
+                right.plot(np.arange(1, len(ratio) + 1), ratio, label=name, color=colors[name], lw=1.2)
         if floor_mse is not None:
             right.plot(
                 np.arange(1, len(den) + 1), np.asarray(floor_mse[1:]) / den, "k--", lw=0.9, label="floor"
             )
-        dropped = f" (left out, median ratio > {max_ratio:g}: {', '.join(left_out)})" if left_out else ""
+        dropped = f" (left out, median ratio > {top:.3g}: {', '.join(left_out)})" if left_out else ""
         right.set(yscale="log", xlabel="t", ylabel=f"MSE ratio to {reference}", title="predictors" + dropped)
+        right.set_ylim(top=top)
         right.legend(fontsize=7, ncol=2)
         right.grid(alpha=0.3, which="both")
     fig.tight_layout()

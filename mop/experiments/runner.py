@@ -266,7 +266,7 @@ def run_experiment(
         "settings": _settings(session),
     }
     write_json(out / "eval.json", data)
-    sections = [s for s in [best_table(exp, results)] if s] + _sections(exp, results, figures)
+    sections = _sections(exp, results, figures)
     sections += [_sweep_section(axis, fit) for axis, fit in sweeps.items()]
     settings = {
         "seed": session.train_seed,
@@ -275,7 +275,12 @@ def run_experiment(
     }
     title = f"mop reproduce {exp.name} ({exp.title}), preset {preset}"
     text = build_report(
-        title, sections, settings, [claim_text(c) for c in claims], time.perf_counter() - start
+        title,
+        sections,
+        settings,
+        [claim_text(c) for c in claims],
+        time.perf_counter() - start,
+        lead=best_table(exp, results),
     )
     write_text(out / "report.md", text)
     return out / "report.md"
