@@ -1,5 +1,6 @@
 """The `mop` command: a thin dispatcher. Each subcommand lives in mop/commands/<name>.py and
-provides `add_arguments(parser)` and `run(args) -> int`."""
+provides `add_arguments(parser)` and `run(args) -> int`; only the subcommand given is imported (importlib:
+the one place in mop where a module is chosen at run time)."""
 
 from __future__ import annotations
 
@@ -19,20 +20,29 @@ COMMANDS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser; only `command`'s module is imported for its arguments (the others show their help line),
+    so `mop reproduce` loads what reproducing needs and nothing of, e.g., `mop bench`."""
     parser = argparse.ArgumentParser(
         prog="mop", description="mop: meta-learned output prediction of dynamical systems."
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         cmd = sub.add_parser(name, help=help_text, description=help_text)
-        importlib.import_module(module).add_arguments(cmd)
+        if name == command:
+            importlib.import_module(module).add_arguments(cmd)
         cmd.set_defaults(_module=module)
     return parser
 
 
+def _command(argv: list[str]) -> str | None:
+    """The subcommand named by argv: its first word that is not an option."""
+    return next((word for word in argv if not word.startswith("-")), None)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(_command(argv)).parse_args(argv)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except MopError as err:

@@ -13,7 +13,7 @@ import typing
 from typing import Any, TypeVar
 
 from mop.errors import MopError, check  # noqa: F401  (check: re-exported for config validation)
-from mop.systems.base import SystemConfig
+from mop.systems.base import SystemConfig, config_class
 
 T = TypeVar("T")
 
@@ -49,18 +49,31 @@ def to_dict(config: Any) -> dict[str, Any]:
     return data
 
 
-def apply_overrides(config: T, overrides: list[str]) -> T:
-    """Return a copy of `config` with dotted `key=value` overrides applied.
-
-    Values are parsed as JSON where possible, else kept as strings. A `family` override is applied first
-    and keeps only the knobs the new family's config also has (system.family=quadrotor drops spectral_radius).
-    """
-    data = to_dict(config)
-    items = sorted(overrides, key=lambda item: item.split("=", 1)[0].split(".")[-1] != "family")
-    for item in items:
+def parse_overrides(overrides: list[str]) -> dict[str, Any]:
+    """Dotted `key=value` strings (the command line's) -> {key: value}, values parsed as JSON where possible,
+    else kept as strings; a key given twice keeps its last value."""
+    settings = {}
+    for item in overrides:
         if "=" not in item:
             raise MopError(f"override {item!r} is not key=value (e.g. train.steps=200)")
         key, raw = item.split("=", 1)
+        settings[key] = _parse_value(raw)
+    return settings
+
+
+def apply_overrides(config: T, overrides: list[str]) -> T:
+    """Return a copy of `config` with dotted `key=value` overrides applied (apply_settings)."""
+    return apply_settings(config, parse_overrides(overrides))
+
+
+def apply_settings(config: T, settings: dict[str, Any]) -> T:
+    """Return a copy of `config` with {dotted key: value} applied, e.g. {"train.steps": 200}.
+
+    A `family` setting is applied first and keeps only the knobs the new family's config also has
+    (system.family=quadrotor drops spectral_radius).
+    """
+    data = to_dict(config)
+    for key, value in sorted(settings.items(), key=lambda item: item[0].split(".")[-1] != "family"):
         node = data
         *path, leaf = key.split(".")
         if path[:1] == ["data"] and "data" not in data:
@@ -71,7 +84,6 @@ def apply_overrides(config: T, overrides: list[str]) -> T:
             node = node[part]
         if leaf not in node:
             raise MopError(f"unknown config key {key!r}; known keys here: {', '.join(node)}")
-        value = _parse_value(raw)
         if leaf == "family" and value != node["family"]:
             _change_family(node, value)
         node[leaf] = value
@@ -81,8 +93,6 @@ def apply_overrides(config: T, overrides: list[str]) -> T:
 
 def _change_family(node: dict[str, Any], family: Any) -> None:
     """Make `node` a config of `family`: keep the knobs both families have, add the new ones' defaults."""
-    from mop.systems.base import config_class
-
     defaults = dataclasses.asdict(config_class(str(family))())
     for key in [k for k in node if k not in defaults]:
         del node[key]

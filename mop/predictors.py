@@ -13,16 +13,19 @@ Registering a predictor is one decorator in its own module:
     class MyFilter: ...
 
 Metadata: needs_system (reads traj.params: it knows the system), gaussian (has predict_distribution),
-learned (resolves a trained run directory; the entry's `arch` names the model architecture).
+learned (resolves a trained run directory; the entry's `arch` names the model architecture;
+mop.runs.register_learned adds one).
 """
 
 from __future__ import annotations
 
 import inspect
+from collections.abc import Iterable
 from typing import Any, Protocol, runtime_checkable
 
 from torch import Tensor
 
+from mop.errors import MopError
 from mop.registry import Registry
 from mop.systems.base import Trajectories
 
@@ -36,29 +39,9 @@ class Predictor(Protocol):
         ...
 
 
-def _load_builtin() -> None:
-    import mop.filters  # noqa: F401  (each module registers its predictors)
-    from mop.systems import FAMILIES
-
-    FAMILIES.names()  # family modules may register their own baselines (e.g. kalman-system1)
-
-    register_learned("mop", arch="gpt")
-    register_learned("gru", arch="gru")
-
-
-PREDICTORS: Registry = Registry("predictor", loader=_load_builtin, group="mop.predictors")
-
-
-def register_learned(name: str, arch: str) -> None:
-    """Register predictor `name`: a trained run of model architecture `arch` (mop.models), loaded from the
-    run directory given as make_predictor(name, run_dir=...); mode "window" (the paper's) or "stream"."""
-
-    def load(run_dir: str, mode: str = "window", device: str = "cpu") -> Predictor:
-        from mop.runs import load_predictor
-
-        return load_predictor(run_dir, device=device, mode=mode)
-
-    PREDICTORS.add(name, load, learned=True, arch=arch, gaussian=True)
+# Filled by the modules that define predictors: mop.filters (classical), mop.runs (learned, one per model
+# architecture); `import mop` imports both. Plugins: the entry points of the group mop.predictors.
+PREDICTORS: Registry = Registry("predictor", group="mop.predictors")
 
 
 def make_predictor(name: str, **options: Any) -> Predictor:
@@ -83,6 +66,14 @@ def needs_system(name: str) -> bool:
     return bool(PREDICTORS.meta(name).get("needs_system"))
 
 
+def first_learned(names: Iterable[str]) -> str:
+    """The first learned predictor among `names` (the model an experiment is about); MopError if none."""
+    for name in names:
+        if name in PREDICTORS and is_learned(name):
+            return name
+    raise MopError(f"no learned predictor among {', '.join(names)}; add one (e.g. a trained model)")
+
+
 def forecast(predictor: Predictor, traj: Trajectories, steps: int) -> Tensor:
     """k-step-ahead forecasts (B, T+1, K, m), K = steps, of a predictor with a `forecast` method.
 
@@ -91,8 +82,6 @@ def forecast(predictor: Predictor, traj: Trajectories, steps: int) -> Tensor:
     are NaN. Each predictor documents how it rolls out (filters: their time update with no measurement;
     RLS / subspace: iterating the fitted model; learned: autoregressively on their own predictions).
     """
-    from mop.errors import MopError
-
     if not isinstance(steps, int) or steps < 1:
         raise MopError(f"forecast steps must be an integer >= 1, got {steps!r}")
     method = getattr(predictor, "forecast", None)

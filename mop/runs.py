@@ -19,8 +19,9 @@ from torch import nn
 from mop.checkpoint import load_model_weights
 from mop.config import ModelConfig, RunConfig, from_dict
 from mop.errors import MopError
-from mop.models import build_model
+from mop.models import build_model, predictor_names, skip_presets
 from mop.models.predictor import LearnedPredictor, Normalization
+from mop.predictors import PREDICTORS, Predictor
 
 
 def load_config(run_dir: str | os.PathLike) -> RunConfig:
@@ -54,8 +55,9 @@ def load_predictor(
 
     A run on recorded data predicts in the data's units (its normalisation, from config.json, is applied).
     """
-    model, _ = load_model(run_dir, device)
-    return LearnedPredictor(model, name="mop", mode=mode, normalization=load_normalization(run_dir))
+    model, config = load_model(run_dir, device)
+    name = predictor_names().get(config.arch, config.arch)  # the predictor its architecture registered
+    return LearnedPredictor(model, name=name, mode=mode, normalization=load_normalization(run_dir))
 
 
 def load_normalization(run_dir: str | os.PathLike) -> Normalization | None:
@@ -66,3 +68,18 @@ def load_normalization(run_dir: str | os.PathLike) -> Normalization | None:
     if not data.fitted:
         raise MopError(f"{run_dir}/config.json has data without its fitted normalisation; retrain the run")
     return Normalization.from_lists(data.y_mean, data.y_std, data.u_mean, data.u_std)
+
+
+def register_learned(name: str, arch: str, skip_presets: tuple[str, ...] = ()) -> None:
+    """Register predictor `name`: a trained run of model architecture `arch` (mop.models), loaded from the
+    run directory given as make_predictor(name, run_dir=...); mode "window" (the paper's) or "stream".
+    skip_presets: presets under which experiments train it only when asked."""
+
+    def load(run_dir: str, mode: str = "window", device: str = "cpu") -> Predictor:
+        return load_predictor(run_dir, device=device, mode=mode)
+
+    PREDICTORS.add(name, load, learned=True, arch=arch, gaussian=True, skip_presets=tuple(skip_presets))
+
+
+for _arch, _name in sorted(predictor_names().items()):  # the built-in architectures' predictors (mop, gru)
+    register_learned(_name, _arch, skip_presets(_arch))

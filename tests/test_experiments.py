@@ -10,7 +10,8 @@ from mop.config import RunConfig
 from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment, get_preset, run_config
 from mop.experiments.files import experiment_from_dict, load_experiment
-from mop.experiments.runner import ConditionResult, check_claim, config_hash
+from mop.experiments.results import ConditionResult
+from mop.experiments.runner import check_claim, config_hash
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.metrics import mse_ratio_ci
 from mop.predictors import PREDICTORS
@@ -180,3 +181,20 @@ def test_bad_experiment_files_are_refused(tmp_path, change, message):
     bad.write_text("name = [")
     with pytest.raises(MopError, match="not valid TOML"):
         load_experiment(bad)
+
+
+@pytest.mark.parametrize(
+    "preset, flag, gru",
+    [("paper", None, True), ("small", None, False), ("smoke", None, False), ("smoke", True, True)]
+    + [("paper", False, False)],
+)
+def test_which_learned_baselines_a_preset_trains_is_their_metadata(tmp_path, preset, flag, gru):
+    """The GRU declares the presets that skip it (skip_presets); --gru / --no-gru override; the runner
+    names no predictor. Same choice as the presets' former train_gru (paper on, small and smoke off)."""
+    from mop.experiments.runner import Session, wanted
+
+    exp = get_experiment("linear")
+    session = Session(exp, preset, 0, tmp_path, [], False, flag)
+    names = wanted(session, exp.conditions[0])
+    assert ("gru" in names) is gru and "mop" in names and "kalman" in names
+    assert PREDICTORS.meta("n4sid-kf")["preset_options"]["small"] == {"every": 10}

@@ -8,7 +8,7 @@ from mop.config import RunConfig, SystemConfig, apply_overrides
 from mop.errors import MopError
 from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor
 from mop.systems import FAMILIES
-from mop.systems.base import Trajectories, linear_state_space
+from mop.systems.base import Trajectories
 
 K = 4
 
@@ -51,6 +51,28 @@ def numpy_kalman_priors(A, C, Q, R, P0, y):
         P = (np.eye(len(m)) - Kg @ C) @ P
         m, P = A @ m, A @ P @ A.T + Q
     return means, covs
+
+
+def numpy_switching_forecast(p, b, y, s, K):
+    """Independent forecasts of one switching system b: a numpy KF with the time-varying model
+    (A_t, C_t) = (A, C) for t < s, (A2, C2) from s on; mean[t, k] = C_{t+k} A_{t+k-1} ... A_t m_t from the
+    prior m_t given y_<t (NaN past T)."""
+    A1, C1, A2, C2, Q, R, P0 = (p[k][b].double().numpy() for k in ("A", "C", "A2", "C2", "Q", "R", "P0"))
+    A_at, C_at = (lambda t: A2 if t >= s else A1), (lambda t: C2 if t >= s else C1)
+    T1, m, P = len(y), np.zeros(A1.shape[0]), P0.copy()
+    out = np.full((T1, K, C1.shape[0]), np.nan)
+    for t in range(T1):
+        x = m.copy()
+        for k in range(K):
+            if t + k < T1:
+                out[t, k] = C_at(t + k) @ x
+            x = A_at(t + k) @ x
+        C = C_at(t)
+        S = C @ P @ C.T + R
+        gain = P @ C.T @ np.linalg.inv(S)
+        m, P = m + gain @ (y[t] - C @ m), (np.eye(len(m)) - gain @ C) @ P
+        m, P = A_at(t) @ m, A_at(t) @ P @ A_at(t).T + Q
+    return out
 
 
 def test_kalman_forecast_equals_C_A_power_prior_and_its_covariance():
@@ -114,33 +136,49 @@ def _trajectory_for(name: str, tiny_run) -> Trajectories:
 
 
 @pytest.mark.parametrize("name", PREDICTORS.names())
-def test_horizon_zero_is_predict_for_every_predictor(name, tiny_run, tiny_gru):
+def test_every_forecast_is_causal_and_starts_at_predict(name, tiny_run, tiny_gru):
+    """forecast[:, t, j] uses y_<t only: changing y_s for s >= 7 changes no forecast from an origin
+    t <= 7 (an independent check for every predictor, including those whose forecast repeats predict);
+    j = 0 is the one-step prediction; NaN exactly where t + j > T."""
     run_dir = {"mop": tiny_run, "gru": tiny_gru}.get(name)
-    p = make_predictor(name, run_dir=run_dir, num_particles=50)
+    options = {"run_dir": run_dir, "num_particles": 50, "seed": 0}
     traj = _trajectory_for(name, tiny_run)
-    f = forecast(p, traj, K)
+    f = forecast(make_predictor(name, **options), traj, K)
     T = traj.horizon
     assert f.shape == (traj.num_systems, T + 1, K, traj.output_dim)
-    torch.testing.assert_close(f[:, :, 0], p.predict(traj), rtol=1e-5, atol=1e-6)
+    later = traj.select(slice(None))
+    later.y = traj.y.clone()
+    later.y[:, 7:] += 2.0
+    f_later = forecast(make_predictor(name, **options), later, K)
+    torch.testing.assert_close(f_later[:, :8], f[:, :8], rtol=1e-5, atol=1e-6, equal_nan=True)
+    assert (f_later[:, 9:, 0] - f[:, 9:, 0]).abs().max() > 1e-3 or name == "zero"  # the data is used
+    torch.testing.assert_close(
+        f[:, :, 0], make_predictor(name, **options).predict(traj), rtol=1e-5, atol=1e-6
+    )
     for j in range(1, K):
         assert torch.isnan(f[:, T + 1 - j :, j]).all() and torch.isfinite(f[:, : T + 1 - j, j]).all()
 
 
-def test_ekf_and_ukf_on_a_linear_family_equal_the_kalman_forecast():
+def test_kf_ekf_and_ukf_forecasts_across_a_switch_equal_a_numpy_kalman_filter():
+    """On a (linear, time-varying) switching family the KF, the EKF and the UKF are the same filter; each
+    one's forecast, across the switch at t = 9, against the numpy roll-out of the true model."""
     traj = generate("switching", switch_time=9)
-    kf = forecast(make_predictor("kalman"), traj, 6)
-    for name in ("ekf", "ukf"):
-        torch.testing.assert_close(forecast(make_predictor(name), traj, 6), kf, equal_nan=True)
+    for name in ("kalman", "ekf", "ukf"):
+        f = forecast(make_predictor(name), traj, 6)
+        for b in range(traj.num_systems):
+            ref = numpy_switching_forecast(traj.params, b, traj.y[b].double().numpy(), 9, 6)
+            np.testing.assert_allclose(f[b].double().numpy(), ref, rtol=1e-4, atol=1e-5, err_msg=name)
 
 
 def test_kalman_system1_forecast_keeps_system_1_after_the_switch():
+    """Independent: the numpy KF of system 1 alone (a "switch" that never comes), forecasts past t = 9."""
     traj = generate("switching", switch_time=9)
-    p = traj.params
-    one = traj.select(slice(None))
-    one.family = "linear"  # the linear family's state space is system 1's
-    ref = forecast(make_predictor("kalman"), one, 5)
-    torch.testing.assert_close(forecast(make_predictor("kalman-system1"), traj, 5), ref, equal_nan=True)
-    assert linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"]).m0.shape[-1] == p["A"].shape[-1]
+    f = forecast(make_predictor("kalman-system1"), traj, 5)
+    for b in range(traj.num_systems):
+        ref = numpy_switching_forecast(traj.params, b, traj.y[b].double().numpy(), 10**9, 5)
+        np.testing.assert_allclose(f[b].double().numpy(), ref, rtol=1e-4, atol=1e-5)
+    truth = numpy_switching_forecast(traj.params, 0, traj.y[0].double().numpy(), 9, 5)
+    assert np.nanmax(np.abs(f[0, 12:].double().numpy() - truth[12:])) > 1e-2  # system 2 is not used
 
 
 def test_quadrotor_ekf_forecast_steps_through_f_with_the_inputs():

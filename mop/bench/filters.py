@@ -17,8 +17,11 @@ import numpy as np
 import torch
 
 from mop.config import SystemConfig
+from mop.errors import MopError, require
+from mop.filters.ekf import EKFPredictor
 from mop.filters.kalman import KalmanPredictor
 from mop.filters.rls import RLSPredictor
+from mop.filters.subspace import N4SIDKalmanPredictor
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
 from mop.systems.quadrotor import BOUNDS, GRAVITY, TAU
@@ -136,16 +139,10 @@ def measure(
 
 
 def _ekf_predictor():
-    from mop.filters.ekf import EKFPredictor
-
     return EKFPredictor()
 
 
 def _n4sid_predictor():
-    try:
-        from mop.filters.subspace import N4SIDKalmanPredictor
-    except ImportError:
-        return None
     return N4SIDKalmanPredictor()
 
 
@@ -185,8 +182,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mop.errors import MopError, require
-
     require("filterpy", "mop bench filters (the per-system reference loop)")
 
     if args.systems < 1 or not 1 <= args.loop_systems <= args.systems or args.repeats < 1:

@@ -33,9 +33,18 @@ from pathlib import Path
 
 import torch
 
+from mop import train as mt
 from mop.config import RunConfig, SystemConfig, apply_overrides
 from mop.errors import MopError
+from mop.experiments import TEST_SEED_OFFSET, get_preset
+from mop.metrics import errors, mse_ratio_ci
 from mop.models import build_model
+from mop.models.predictor import LearnedPredictor
+from mop.plots import save
+from mop.predictors import PREDICTORS, make_predictor
+from mop.progress import progress as progress_bar
+from mop.systems import generator, make_family
+from mop.systems.base import FAMILIES, config_class
 
 WINDOW = (20, 51)  # t in [20, 50]
 
@@ -53,8 +62,6 @@ class Recipe:
 
     def config(self, family: str = "linear", seed: int | None = None) -> RunConfig:
         """The recipe's RunConfig on `family` (its default knobs), train.seed = `seed` when given."""
-        from mop.experiments import get_preset
-
         p = get_preset(self.base)
         model = dataclasses.replace(p.model, context=p.train.horizon)
         train = dataclasses.replace(p.train, compile="off", device="cpu")
@@ -109,9 +116,6 @@ def train_for(
     seed: int | None = None,
 ):
     """Train `recipe` on `family` until `seconds` of wall clock or `steps` steps; returns (model, info)."""
-    from mop import train as mt
-    from mop.progress import progress as progress_bar
-
     if recipe.threads:
         torch.set_num_threads(recipe.threads)
     start = time.perf_counter()
@@ -156,12 +160,6 @@ class TestSet:
         compare: tuple[str, ...] = (),
         horizon: int = 50,
     ) -> None:
-        from mop.experiments import TEST_SEED_OFFSET
-        from mop.metrics import errors
-        from mop.predictors import make_predictor
-        from mop.systems import generator, make_family
-        from mop.systems.base import config_class
-
         fam = make_family(config_class(family)(family=family), dtype=torch.float64)
         self.traj = fam.generate(num_systems, horizon, generator=generator(seed + TEST_SEED_OFFSET))
         self.family, self.reference, self.seed = family, reference, seed
@@ -173,14 +171,9 @@ class TestSet:
             self.others[name] = self._ratio(e)[0]
 
     def _ratio(self, e) -> tuple[float, float, float]:
-        from mop.metrics import mse_ratio_ci
-
         return mse_ratio_ci(e, self.e_ref, *self.window, seed=self.seed)
 
     def ratio(self, model) -> tuple[float, float, float]:
-        from mop.metrics import errors
-        from mop.models.predictor import LearnedPredictor
-
         return self._ratio(errors(LearnedPredictor(model).predict(self.traj), self.traj.y))
 
 
@@ -240,8 +233,6 @@ def _line(r: dict) -> str:
 
 def plot(rows: list[dict], out_dir: Path, family: str = "linear", reference: str = "kalman") -> list[Path]:
     import matplotlib.pyplot as plt
-
-    from mop.plots import save
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for name in dict.fromkeys(r["recipe"] for r in rows):
@@ -320,9 +311,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_names(args: argparse.Namespace) -> None:
     """One-line errors for an unknown family or predictor, before any training."""
-    from mop.predictors import PREDICTORS
-    from mop.systems.base import FAMILIES
-
     if args.family not in FAMILIES.names():
         raise MopError(f"unknown --family {args.family!r}; choose one of {', '.join(FAMILIES.names())}")
     for name in (args.reference, *args.compare):

@@ -19,7 +19,11 @@ import time
 import torch
 from torch import nn
 
+from mop import train as mt
 from mop.config import ModelConfig, RunConfig, TrainConfig
+from mop.errors import require
+from mop.models import build_model
+from mop.train import resolve_device
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -63,9 +67,6 @@ def _sync(device: torch.device) -> None:
 
 
 def mop_step(config: RunConfig, device: torch.device):
-    from mop import train as mt
-    from mop.models import build_model
-
     config = mt.resolve_config(config)
     torch.manual_seed(0)
     model = build_model(config.model).to(device).train()
@@ -102,8 +103,6 @@ class HFModel(nn.Module):
 
 
 def hf_step(config: RunConfig, device: torch.device):
-    from mop import train as mt
-
     config = mt.resolve_config(config)
     torch.manual_seed(0)
     model = HFModel(config.model).to(device).train()
@@ -122,9 +121,6 @@ def hf_step(config: RunConfig, device: torch.device):
 
 
 def run(args: argparse.Namespace) -> int:
-    from mop.errors import require
-    from mop.train import resolve_device
-
     if not args.skip_hf:
         require("transformers", "mop bench train (the Hugging Face GPT2Model loop; or pass --skip-hf)")
 

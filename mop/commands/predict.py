@@ -1,9 +1,9 @@
 """`mop predict PREDICTOR DATA`: predictions yhat_t (of y_t from y_<t, u_<t) for measured or simulated
 trajectories, by a trained run (PREDICTOR a run directory of `mop train`) or a registered predictor (a name).
 
-Predictors that need only y (and u) run on any .csv or .npz: rls, rls-best, n4sid-kf, last, zero. Predictors
-that know the system (kalman, ekf, ukf, pf, ...) read it from the `family` string array and the `param_<name>`
-arrays of an .npz written by `mop simulate`.
+Predictors that need only y (and u) run on any .csv or .npz (those registered with needs_system=False, e.g.
+rls, last). Predictors that know the system (needs_system=True, e.g. kalman, ekf) read it from the `family`
+string array and the `param_<name>` arrays of an .npz written by `mop simulate`.
 
 Output: CSV long format `trajectory,t,yhat0..` or NPZ yhat (B, T+1, m) (all trajectories of one length).
 With --steps K: k-step forecasts, forecast[t, j] predicting y_{t+j} from y_<t (j = 0..K-1, j = 0 the one-step
@@ -22,26 +22,35 @@ import numpy as np
 import torch
 
 from mop.atomic import atomic_path
+from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.io import read_system, read_trajectories
+from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor, needs_system
+from mop.runs import load_predictor
+from mop.systems import FAMILIES
 from mop.systems.base import Trajectories
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("predictor", help="run directory of `mop train`, or a registered predictor name")
+    parser.add_argument(
+        "predictor",
+        help="run directory of `mop train`, or a registered predictor name; these need only the data: "
+        + ", ".join(model_free()),
+    )
     parser.add_argument("data", help="trajectories: .csv (trajectory,t,y0..,u0..) or .npz (y, u[, param_*])")
     parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
     parser.add_argument("--stream", action="store_true", help="KV-cache streaming (constant cost per step)")
     parser.add_argument("--steps", type=int, help="k-step forecasts for k = 1..STEPS (see above)")
 
 
+def model_free() -> list[str]:
+    """The registered predictors that need neither the system nor a run directory (from their metadata)."""
+    return [n for n in PREDICTORS.names() if not needs_system(n) and not is_learned(n)]
+
+
 def resolve_predictor(spec: str, stream: bool = False):
     """(predictor, needs_system) for a run directory or a registered (non-learned) predictor name."""
-    from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
-
     if Path(spec).is_dir():
-        from mop.runs import load_predictor
-
         return load_predictor(spec, mode="stream" if stream else "window"), False
     names = PREDICTORS.names()
     if spec not in names:
@@ -56,13 +65,10 @@ def resolve_predictor(spec: str, stream: bool = False):
 
 def system_of(name: str, data_path: Path, num: int) -> tuple[str, dict[str, torch.Tensor]]:
     """The family and params a system-aware predictor needs from DATA, or a one-line MopError."""
-    from mop.config import SystemConfig
-    from mop.systems import FAMILIES
-
     if data_path.suffix == ".csv":
         raise MopError(
             f"{name} needs the system's parameters, and a CSV has no system parameters; "
-            "give an .npz written by mop simulate, or use rls, rls-best, n4sid-kf, last, zero"
+            f"give an .npz written by mop simulate, or use {', '.join(model_free())}"
         )
     family, params = read_system(data_path, num)
     if not family:
@@ -94,8 +100,6 @@ def batches(data, family: str, params: dict) -> list[Trajectories]:
 
 def predict_all(predictor, data, steps: int | None = None, family: str = "", params=None) -> list[np.ndarray]:
     """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps), batched where lengths agree."""
-    from mop.predictors import forecast
-
     out = []
     for traj in batches(data, family, params or {}):
         pred = predictor.predict(traj) if steps is None else forecast(predictor, traj, steps)

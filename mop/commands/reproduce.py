@@ -24,6 +24,8 @@ from mop.commands import OverridesAnywhere
 from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
+from mop.experiments.runner import run_experiment
+from mop.experiments.seeds import lead_table, seed_summary, seeds_table
 
 EPILOG = """examples:
   mop reproduce linear                                   # GPU: paper preset, else small
@@ -66,9 +68,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mop.experiments.runner import run_experiment
-    from mop.experiments.seeds import lead_table, seed_summary, seeds_table
-
     if args.seeds < 1:
         raise MopError(f"--seeds must be at least 1, got {args.seeds}")
     preset = args.preset or ("paper" if torch.cuda.is_available() else "small")

@@ -12,9 +12,12 @@ import dataclasses
 import json
 from pathlib import Path
 
+import mop.experiments as experiments
 from mop.commands import OverridesAnywhere
 from mop.config import DataConfig, RunConfig, apply_overrides, from_dict
 from mop.errors import MopError
+from mop.train import train
+from mop.train.data import recorded_data
 
 EPILOG = """examples:
   mop train --out runs/linear                                   # the paper's config (10000 steps)
@@ -65,8 +68,6 @@ def base_config(source: str | None, preset: str | None) -> RunConfig:
 
 def _experiment_config(name: str, preset: str | None) -> RunConfig:
     try:
-        import mop.experiments as experiments
-
         exp = experiments.get_experiment(name)
     except (ImportError, AttributeError):
         raise MopError(f"{name!r} is neither a config file nor a known experiment") from None
@@ -77,8 +78,6 @@ def _experiment_config(name: str, preset: str | None) -> RunConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mop.train import train
-
     source, overrides = args.source, list(args.overrides or [])
     if source is not None and "=" in source:  # no config file: the first word is an override
         source, overrides = None, [source, *overrides]
@@ -90,8 +89,6 @@ def run(args: argparse.Namespace) -> int:
     if config.data is not None:  # the trainer fits the normalisation afresh (a saved config's is refitted)
         unfitted = dict.fromkeys(("y_mean", "y_std", "u_mean", "u_std"))
         config = dataclasses.replace(config, data=dataclasses.replace(config.data, **unfitted))
-        from mop.train.data import recorded_data
-
         print(recorded_data(config.data).summary(config.train.horizon))
     out = train(config, args.out, progress=not args.no_progress)
     print(f"run directory: {out}  (load with: mop.load({str(out)!r}))")

@@ -11,9 +11,9 @@ runs either through the one generic runner (mop.experiments.runner).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
-from mop.config import DataConfig, RunConfig, apply_overrides
+from mop.config import DataConfig, RunConfig, apply_settings, parse_overrides
+from mop.experiments.paper import PAPER_EXPERIMENTS
 from mop.experiments.presets import PRESETS, Preset, get_preset
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.registry import Registry
@@ -21,25 +21,13 @@ from mop.registry import Registry
 TEST_SEED_OFFSET = 7_000_001  # test systems: generator seed + this, apart from training (seed) and validation
 
 
-def _load_builtin() -> None:
-    from mop.experiments.paper import PAPER_EXPERIMENTS
-
-    for exp in PAPER_EXPERIMENTS:
-        EXPERIMENTS.add(exp.name, exp)
-
-
-EXPERIMENTS: Registry = Registry("experiment", loader=_load_builtin, group="mop.experiments")
+EXPERIMENTS: Registry = Registry("experiment", group="mop.experiments")
+for _exp in PAPER_EXPERIMENTS:  # the built-in experiments (plugins: entry points of mop.experiments)
+    EXPERIMENTS.add(_exp.name, _exp)
 
 
 def get_experiment(name: str) -> Experiment:
     return EXPERIMENTS.get(name)
-
-
-def overrides_list(overrides: dict[str, Any]) -> list[str]:
-    """{"train.steps": 5} -> ["train.steps=5"] (values JSON-encoded, as on the command line)."""
-    import json
-
-    return [f"{k}={json.dumps(v)}" for k, v in overrides.items()]
 
 
 def run_config(
@@ -64,8 +52,9 @@ def run_config(
     layers = {**exp.train, **exp.presets.get(preset, {}), **(condition.train if condition else {})}
     if "data.path" in layers:  # trained on recorded trajectories (mop train --data)
         base = dataclasses.replace(base, data=DataConfig(path=layers["data.path"]))
-    config = apply_overrides(base, overrides_list(layers) + list(overrides))
-    if "model.context" not in layers and not any(o.startswith("model.context=") for o in overrides):
+    settings = {**layers, **parse_overrides(list(overrides))}
+    config = apply_settings(base, settings)  # one merge of the layers' dicts, no key=value strings
+    if "model.context" not in settings:
         config = dataclasses.replace(
             config, model=dataclasses.replace(config.model, context=config.train.horizon)
         )

@@ -10,19 +10,23 @@ from __future__ import annotations
 from pathlib import Path
 
 from mop import plots
+from mop.experiments.measures import slope_fit
+from mop.experiments.results import Results
+from mop.experiments.spec import Experiment
+from mop.predictors import first_learned
 from mop.registry import Registry
 
 FIGURES: Registry = Registry("figure")
 
 
-def _stem(exp, results: dict, condition: str, suffix: str) -> str:
+def _stem(exp: Experiment, results: Results, condition: str, suffix: str) -> str:
     return (
         f"{exp.name}_{suffix}" if len(results) == 1 else f"{exp.name}_{condition}_{suffix}".replace(" ", "_")
     )
 
 
 @FIGURES.register("error")
-def error(exp, results: dict, out: Path) -> list[Path]:
+def error(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Per condition: the paper's panel (error with +-1 std bands) beside every predictor's MSE ratio."""
     paths = []
     for name, r in results.items():
@@ -37,11 +41,11 @@ def error(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("ratio_by_condition")
-def ratio_by_condition(exp, results: dict, out: Path) -> list[Path]:
+def ratio_by_condition(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Fig. 4a: MOP / reference MSE ratio against t, one line per condition."""
     curves = {
         name: (
-            r.summary["predictors"]["mop"]["squared_error"],
+            r.summary["predictors"][first_learned(r.summary["predictors"])]["squared_error"],
             r.summary["predictors"][exp.reference]["squared_error"],
         )
         for name, r in results.items()
@@ -50,7 +54,7 @@ def ratio_by_condition(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("matrix_powers")
-def matrix_powers(exp, results: dict, out: Path) -> list[Path]:
+def matrix_powers(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Fig. 4b: mean ||A^k|| / rho(A)^k against k, one line per condition."""
     curves = {
         name: r.extras["matrix_power_ratio"]
@@ -61,7 +65,7 @@ def matrix_powers(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("noise_levels")
-def noise_levels(exp, results: dict, out: Path) -> list[Path]:
+def noise_levels(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Fig. 5: each predictor's mean error over all t against the conditions' sweep value."""
     points = [r for r in results.values() if r.condition.x]
     names = list(points[0].summary["predictors"])
@@ -73,7 +77,7 @@ def noise_levels(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("calibration")
-def calibration(exp, results: dict, out: Path) -> list[Path]:
+def calibration(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Reliability diagram per condition: empirical against nominal coverage of central intervals."""
     paths = []
     for name, r in results.items():
@@ -89,10 +93,8 @@ def calibration(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("loglog")
-def loglog(exp, results: dict, out: Path) -> list[Path]:
+def loglog(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Excess MSE against each sweep axis on log-log axes with the fitted slope."""
-    from mop.experiments.measures import slope_fit
-
     paths = []
     for axis in dict.fromkeys(r.condition.x[0] for r in results.values() if r.condition.x):
         fit = slope_fit(results, axis)
@@ -104,7 +106,7 @@ def loglog(exp, results: dict, out: Path) -> list[Path]:
 
 
 @FIGURES.register("forecast")
-def forecast(exp, results: dict, out: Path) -> list[Path]:
+def forecast(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Per condition: k-step forecast error against k, one line per predictor (the "forecast" analysis)."""
     import matplotlib.pyplot as plt
 

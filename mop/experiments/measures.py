@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from mop.errors import MopError
+from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Measure
 from mop.metrics import loglog_slope, mse_ratio_ci
 from mop.registry import Registry
@@ -23,7 +24,7 @@ def _span(measure: Measure, horizon: int) -> tuple[int, int]:
     return start, min(horizon + 1, stop if stop is not None else horizon + 1)
 
 
-def _errors(result, name: str) -> np.ndarray:
+def _errors(result: ConditionResult, name: str) -> np.ndarray:
     if name not in result.errors:
         raise MopError(
             f"condition {result.condition.name!r} has no predictor {name!r} "
@@ -33,21 +34,21 @@ def _errors(result, name: str) -> np.ndarray:
 
 
 @MEASURES.register("mse_ratio")
-def mse_ratio(measure: Measure, result, reference: str, seed: int) -> float:
+def mse_ratio(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     e_num, e_den = _errors(result, measure.predictor), _errors(result, measure.reference or reference)
     ratio, low, high = mse_ratio_ci(e_num, e_den, *_span(measure, e_num.shape[1] - 1), seed=seed)
     return {"ratio": ratio, "low": low, "high": high}[measure.bound]
 
 
 @MEASURES.register("mean_error")
-def mean_error(measure: Measure, result, reference: str, seed: int) -> float:
+def mean_error(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     e = _errors(result, measure.predictor)
     start, stop = _span(measure, e.shape[1] - 1)
     return float(e[:, start:stop].mean())
 
 
 @MEASURES.register("coverage")
-def coverage(measure: Measure, result, reference: str, seed: int) -> float:
+def coverage(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     table = result.extras.get("calibration", {}).get(measure.predictor)
     if table is None:
         raise MopError(
@@ -57,13 +58,13 @@ def coverage(measure: Measure, result, reference: str, seed: int) -> float:
 
 
 @MEASURES.register("matrix_power_max")
-def matrix_power_max(measure: Measure, result, reference: str, seed: int) -> float:
+def matrix_power_max(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     if "matrix_power_ratio" not in result.extras:
         raise MopError("matrix_power_max needs the 'matrix_powers' analysis")
     return float(max(result.extras["matrix_power_ratio"]))
 
 
-def sweep(results: dict, axis: str) -> list:
+def sweep(results: Results, axis: str) -> list:
     """The condition results placed on sweep axis `axis`, in the experiment's order."""
     points = [r for r in results.values() if r.condition.x and r.condition.x[0] == axis]
     if not points:
@@ -71,7 +72,7 @@ def sweep(results: dict, axis: str) -> list:
     return points
 
 
-def slope_fit(results: dict, axis: str) -> dict:
+def slope_fit(results: Results, axis: str) -> dict:
     """Log-log OLS fit of the excess MSE against the axis value, with a Student-t 95% interval (n - 2 dof)."""
     from scipy.stats.distributions import t as student_t  # imported here, not at `mop` start-up
 
@@ -90,7 +91,9 @@ def slope_fit(results: dict, axis: str) -> dict:
     }
 
 
-def measure_value(measure: Measure, results: dict, reference: str, seed: int) -> float | tuple[float, float]:
+def measure_value(
+    measure: Measure, results: Results, reference: str, seed: int
+) -> float | tuple[float, float]:
     """Evaluate `measure` on the results (one condition, or every one reduced by max/min)."""
     if measure.metric == "slope":
         fit = slope_fit(results, measure.axis)

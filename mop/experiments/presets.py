@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 from mop.config import ModelConfig, TrainConfig
 from mop.errors import MopError
@@ -11,17 +10,13 @@ from mop.errors import MopError
 
 @dataclasses.dataclass(frozen=True)
 class Preset:
-    """Model size, optimisation and test-set size of one preset.
-
-    train_gru: train the GRU baseline where an experiment lists it (off: skipped unless --gru).
-    predictor_options: constructor options per predictor name, e.g. {"n4sid-kf": {"every": 5}}.
+    """Model size, optimisation and test-set size of one preset. What a predictor does under a preset
+    (its options, whether it is trained) is the predictor's own metadata (preset_options, skip_presets).
     """
 
     model: ModelConfig
     train: TrainConfig
     num_test_systems: int
-    train_gru: bool = True
-    predictor_options: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
 
 PRESETS: dict[str, Preset] = {
@@ -48,8 +43,6 @@ PRESETS: dict[str, Preset] = {
             checkpoint_every=500,
         ),
         num_test_systems=500,
-        train_gru=False,
-        predictor_options={"n4sid-kf": {"every": 10}},
     ),
     # tests and CI: < 60 s on 2 cores
     "smoke": Preset(
@@ -65,8 +58,6 @@ PRESETS: dict[str, Preset] = {
             checkpoint_every=30,
         ),
         num_test_systems=32,
-        train_gru=False,
-        predictor_options={"n4sid-kf": {"every": 10}},
     ),
 }
 

@@ -21,30 +21,22 @@ import numpy as np
 import torch
 
 from mop.atomic import write_json, write_text
-from mop.config import RunConfig, SystemConfig, apply_overrides, to_dict
+from mop.config import RunConfig, SystemConfig, apply_settings, to_dict
 from mop.errors import MopError
 from mop.evaluate import evaluate, summarize
-from mop.experiments import TEST_SEED_OFFSET, get_preset, overrides_list, run_config
+from mop.experiments import TEST_SEED_OFFSET, get_preset, run_config
 from mop.experiments.analyses import ANALYSES
 from mop.experiments.figures import FIGURES
 from mop.experiments.measures import describe, measure_value, slope_fit
+from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
+from mop.io import read_trajectories
 from mop.metrics import mse_ratio_ci
 from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
 from mop.report import build_report, claim_line, summary_section
+from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
-
-
-@dataclasses.dataclass
-class ConditionResult:
-    """One test condition's outcome: trajectories, per-system errors e (N, T+1) per predictor, the eval.json
-    summary and the analyses' extras."""
-
-    condition: Condition
-    traj: Trajectories
-    errors: dict[str, np.ndarray]
-    summary: dict[str, Any]
-    extras: dict[str, Any] = dataclasses.field(default_factory=dict)
+from mop.train import train
 
 
 @dataclasses.dataclass
@@ -72,18 +64,24 @@ def config_hash(config: RunConfig) -> str:
 
 
 def wanted(session: Session, condition: Condition) -> list[str]:
-    """The predictors evaluated under `condition` (the GRU only where the preset or --gru asks for it)."""
-    names = list(condition.predictors or session.exp.predictors)
-    train_gru = get_preset(session.preset).train_gru if session.with_gru is None else session.with_gru
-    names = [n for n in names if n != "gru" or train_gru]
+    """The predictors evaluated under `condition`: those an entry's skip_presets leave out under this preset
+    (the GRU under small and smoke) only where --gru asks for them; --no-gru drops every such entry."""
+    names = [n for n in condition.predictors or session.exp.predictors if _included(session, n)]
     return [n for n in names if not (condition.data and needs_system(n))]  # recordings carry no system
 
 
-def learned_predictor(session: Session, name: str, condition: Condition):
-    """Train (or reuse) the run of learned predictor `name` for `condition`, and load it once."""
-    from mop.train import train
+def _included(session: Session, name: str) -> bool:
+    skip = PREDICTORS.meta(name).get("skip_presets", ())
+    if session.with_gru is None:
+        return session.preset not in skip
+    return session.with_gru or not skip
 
-    config = condition_config(session, condition, PREDICTORS.meta(name)["arch"])
+
+def learned_predictor(session: Session, name: str, condition: Condition, trained: RunConfig):
+    """Train (or reuse) the run of learned predictor `name` for `condition` (its RunConfig `trained`, with
+    the predictor's architecture), and load it once."""
+    arch = PREDICTORS.meta(name)["arch"]
+    config = dataclasses.replace(trained, model=dataclasses.replace(trained.model, arch=arch))
     run_dir = session.runs_dir / f"{name}-{config_hash(config)}"
     key = str(run_dir)
     if key not in session.loaded:
@@ -100,21 +98,17 @@ def condition_config(session: Session, condition: Condition, arch: str = "gpt") 
 
 def test_system(trained: RunConfig, condition: Condition) -> SystemConfig:
     """The condition's test family: the trained family's config with the condition's overrides."""
-    return apply_overrides(trained.system, overrides_list(condition.system))
+    return apply_settings(trained.system, condition.system)
 
 
 def test_trajectories(system: SystemConfig, num_systems: int, horizon: int, seed: int) -> Trajectories:
     """Seeded test systems (float64), apart from the training (seed) and validation streams."""
-    from mop.systems import generator, make_family
-
     family = make_family(system, dtype=torch.float64)
     return family.generate(num_systems, horizon, generator=generator(seed + TEST_SEED_OFFSET))
 
 
 def recorded_trajectories(path: str, horizon: int) -> Trajectories:
     """The recordings of `path` with at least horizon + 1 outputs, cut to y_0..y_horizon (float64)."""
-    from mop.io import read_trajectories
-
     _, data = read_trajectories(path)
     long = [(y, u) for y, u in data if len(y) > horizon]
     if not long:
@@ -126,14 +120,15 @@ def recorded_trajectories(path: str, horizon: int) -> Trajectories:
 
 def run_condition(session: Session, condition: Condition) -> ConditionResult:
     exp, preset = session.exp, get_preset(session.preset)
+    trained = condition_config(session, condition)  # built once: the runs, the test horizon and family
     predictors = []
     for name in wanted(session, condition):
         if is_learned(name):
-            predictors.append(learned_predictor(session, name, condition))
+            predictors.append(learned_predictor(session, name, condition, trained))
         else:
-            options = {"seed": session.seed, **preset.predictor_options.get(name, {})}
+            per_preset = PREDICTORS.meta(name).get("preset_options", {})  # the entry's own options
+            options = {"seed": session.seed, **per_preset.get(session.preset, {})}
             predictors.append(make_predictor(name, **options))
-    trained = condition_config(session, condition)
     horizon = condition.horizon or trained.train.horizon  # with the command line's overrides, like the run
     if condition.data:
         traj = recorded_trajectories(condition.data, horizon)
@@ -163,7 +158,7 @@ def distance_to_best(raw: dict, best: str, seed: int, model: str = "mop") -> dic
     return {"predictor": best, "window": [start, stop], "ratio": ratio, "low": low, "high": high}
 
 
-def best_table(exp: Experiment, results: dict) -> str:
+def best_table(exp: Experiment, results: Results) -> str:
     """The report's lead: MOP's ratio to the best predictor per condition, beside the authors' number."""
     lines = [
         "## Distance to the best predictor",
@@ -179,7 +174,7 @@ def best_table(exp: Experiment, results: dict) -> str:
     return "\n".join(lines) + "\n" if len(lines) > 4 else ""
 
 
-def check_claim(claim: Claim, results: dict, reference: str, seed: int) -> dict:
+def check_claim(claim: Claim, results: Results, reference: str, seed: int) -> dict:
     """{"claim", "measure", "value", "threshold", "holds"} for one claim (holds None for op "info")."""
     value = measure_value(claim.measure, results, reference, seed)
     threshold = claim.threshold
@@ -286,7 +281,7 @@ def run_experiment(
     return out / "report.md"
 
 
-def _sweeps(results: dict) -> dict:
+def _sweeps(results: Results) -> dict:
     axes = dict.fromkeys(r.condition.x[0] for r in results.values() if r.condition.x)
     return {axis: slope_fit(results, axis) for axis in axes}
 
@@ -303,7 +298,7 @@ def _settings(session: Session) -> dict:
     }
 
 
-def _sections(exp: Experiment, results: dict, figures: list[Path]) -> list[str]:
+def _sections(exp: Experiment, results: Results, figures: list[Path]) -> list[str]:
     pngs = [f.name for f in figures if f.suffix == ".png"]
     sections = []
     if exp.description:

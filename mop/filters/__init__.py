@@ -1,8 +1,20 @@
 """Classical predictors, batched over systems, each registered in mop.predictors.PREDICTORS by its module:
 the Gaussian filtering core (gaussian.py) with the Kalman filter, EKF and UKF; the particle filter; the exact
-colored-noise filter; RLS; subspace identification; simple baselines."""
+colored-noise filter; the switching baseline kalman-system1 (system1.py); RLS; subspace identification;
+simple baselines."""
 
-from mop.filters import colored, ekf, gaussian, kalman, particle, rls, simple, subspace, ukf  # noqa: F401
+from mop.filters import (  # noqa: F401 (each module registers its predictors)
+    colored,
+    ekf,
+    gaussian,
+    kalman,
+    particle,
+    rls,
+    simple,
+    subspace,
+    system1,
+    ukf,
+)
 from mop.filters.kalman import (
     KalmanPredictor,
     KalmanResult,

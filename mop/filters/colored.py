@@ -112,6 +112,8 @@ class ColoredNoiseKalmanPredictor:
     colored-noise family when the system is known. Needs params A, C, P0, noise_var_w, noise_var_v (B,),
     color_window (B,) (all systems of one batch share the window)."""
 
+    name = "kalman-colored"
+
     def __init__(self, name: str = "kalman-colored") -> None:
         self.name = name
 

@@ -36,6 +36,8 @@ class EKFPredictor(GaussianFilterPredictor):
     """The EKF that knows each system; project=True ("ekf") also clips its means as the simulator clips the
     state (the authors' EKF), False ("ekf-noclip") does not."""
 
+    name = "ekf"
+
     def __init__(self, project: bool = True) -> None:
         super().__init__(ekf_step, project, "ekf" if project else "ekf-noclip")
 

@@ -130,7 +130,9 @@ def steady_state_predict(A: Tensor, C: Tensor, K: Tensor, y: Tensor, x0: Tensor 
 class KalmanPredictor(GaussianFilterPredictor):
     """The Kalman filter that knows each system: its family's (linear) StateSpace, x_0 ~ N(0, P0).
     On switching systems the family's model switches too (the authors' KF that keeps system 1 is the
-    predictor "kalman-system1" of mop.systems.switching)."""
+    predictor "kalman-system1" of mop.filters.system1)."""
+
+    name = "kalman"
 
     def __init__(self) -> None:
         super().__init__(kalman_step, project=False, name="kalman")

@@ -18,7 +18,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from mop.predictors import PREDICTORS
+from mop.predictors import PREDICTORS, nan_beyond_horizon
 from mop.systems.base import StateSpace, Trajectories, state_space_of
 
 Dynamics = Callable[[Tensor, "Tensor | None"], Tensor]  # f: (x (B, N, n), u (B, N, k) | None) -> (B, N, n)
@@ -80,8 +80,6 @@ def pf_forecast(
     and the filter's own draws do not depend on `steps`. Entries with t + j > T are NaN. Variances: the
     diagonal of C Cov_i(X^i) C^T + R over the prior particles of x_t.
     """
-    from mop.predictors import nan_beyond_horizon
-
     ahead_gen = torch.Generator(device=y.device).manual_seed(seed + 1)
     generator = torch.Generator(device=y.device).manual_seed(seed)
     proj = model.project if project and model.project is not None else (lambda x: x)
@@ -114,6 +112,8 @@ def pf_forecast(
 class ParticleFilterPredictor:
     """Bootstrap particle filter knowing each system; seeded, `num_particles` per system. project=True
     ("pf") also knows the simulator's state projection (the quadrotor's clipping), False ("pf-noclip") not."""
+
+    name = "pf"
 
     def __init__(self, num_particles: int = 1000, seed: int = 0, project: bool = True) -> None:
         self.num_particles, self.seed, self.project = num_particles, seed, project

@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from mop.predictors import PREDICTORS
+from mop.predictors import PREDICTORS, nan_beyond_horizon
 from mop.systems.base import Trajectories
 
 
@@ -65,8 +65,6 @@ def rls_forecast(y: Tensor, order: int = 2, steps: int = 1) -> Tensor:
     predictions, yhat_{t+j} = theta_t^T [yhat_{t+j-1}; ...] (observed y_{t-1}, ... where the regressor reaches
     back before t). During the start-up (t <= p, no regression yet) the one-step prediction (y_{t-1}, 0 at
     t = 0) is repeated for every horizon. j = 0 is rls_predict; entries with t + j >= T are NaN."""
-    from mop.predictors import nan_beyond_horizon
-
     preds, phi, thetas = _rls_run(y, order)
     m = y.shape[2]
     out = preds[:, :, None].repeat(1, 1, steps, 1)  # (B, T, K, m)
@@ -112,6 +110,8 @@ def adaptive_order_rls_forecast(y: Tensor, max_order: int = 5, steps: int = 1) -
 class RLSPredictor:
     """Matrix RLS autoregression of a fixed order (the paper's baseline: order 2, 2m regressors)."""
 
+    name = "rls"
+
     def __init__(self, order: int = 2, name: str = "rls") -> None:
         self.order, self.name = order, name
 
@@ -126,6 +126,8 @@ class RLSPredictor:
 @PREDICTORS.register("rls-best")
 class AdaptiveOrderRLSPredictor:
     """Matrix RLS with the order 1..max_order chosen online by the lowest past one-step error ("rls-best")."""
+
+    name = "rls-best"
 
     def __init__(self, max_order: int = 5, name: str = "rls-best") -> None:
         self.max_order, self.name = max_order, name

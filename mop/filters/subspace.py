@@ -19,7 +19,7 @@ from torch import Tensor
 
 from mop.errors import MopError
 from mop.filters.rls import rls_forecast
-from mop.predictors import PREDICTORS
+from mop.predictors import PREDICTORS, nan_beyond_horizon
 from mop.systems.base import Trajectories
 
 
@@ -108,8 +108,6 @@ def n4sid_kalman_forecast(
     """k-step forecasts (B, T, K, m): where n4sid_kalman_predict uses the identified model at t, its state m_t
     is propagated with no measurement, yhat_{t+j} = C A^j m_t; where it uses RLS-AR(2), rls_forecast's
     iterated AR recursion. j = 0 is n4sid_kalman_predict; entries with t + j >= T are NaN."""
-    from mop.predictors import nan_beyond_horizon
-
     B, T, m = y.shape
     i = num_block_rows or max(2, math.ceil(order / m) + 1)
     min_columns = 2 * i * m if min_columns is None else min_columns
@@ -137,7 +135,7 @@ def n4sid_kalman_forecast(
     return nan_beyond_horizon(out)
 
 
-@PREDICTORS.register("n4sid-kf")
+@PREDICTORS.register("n4sid-kf", preset_options={"small": {"every": 10}, "smoke": {"every": 10}})
 class N4SIDKalmanPredictor:
     """Subspace identification from the prefix + steady-state Kalman predictor ("n4sid-kf").
 
@@ -146,6 +144,8 @@ class N4SIDKalmanPredictor:
     re-identify every `every` steps (1: at each t, the most accurate; larger is faster); min_columns,
     select: see n4sid_kalman_predict.
     """
+
+    name = "n4sid-kf"
 
     def __init__(
         self,

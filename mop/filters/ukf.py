@@ -17,6 +17,8 @@ from mop.predictors import PREDICTORS
 class UKFPredictor(GaussianFilterPredictor):
     """The UKF that knows each system (alpha, beta, kappa: sigma-point scaling)."""
 
+    name = "ukf"
+
     def __init__(
         self, alpha: float = 1.0, beta: float = 0.0, kappa: float = 0.0, project: bool = True
     ) -> None:

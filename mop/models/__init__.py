@@ -8,6 +8,13 @@ imported below.
 """
 
 from mop.models import gru, transformer  # noqa: F401 (importing registers the built-in models)
-from mop.models.registry import build_model, check_arch, model_names, register_model
+from mop.models.registry import (
+    build_model,
+    check_arch,
+    model_names,
+    predictor_names,
+    register_model,
+    skip_presets,
+)
 
-__all__ = ["build_model", "check_arch", "model_names", "register_model"]
+__all__ = ["build_model", "check_arch", "model_names", "predictor_names", "register_model", "skip_presets"]

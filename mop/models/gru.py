@@ -25,7 +25,7 @@ class GRUCache:
         self.t = 0
 
 
-@register_model("gru")
+@register_model("gru", skip_presets=("small", "smoke"))
 class GRUModel(nn.Module):
     context_limited = False  # forward takes any T
 

@@ -1,6 +1,6 @@
 """The model registry: each learned architecture registers its class under the name model.arch selects.
 
-    @register_model("gpt")
+    @register_model("gpt", predictor="mop")
     class Transformer(nn.Module):
         def __init__(self, cfg: ModelConfig) -> None: ...
 
@@ -19,18 +19,36 @@ from mop.config import ModelConfig
 from mop.errors import MopError
 
 _MODELS: dict[str, type[nn.Module]] = {}
+_PREDICTORS: dict[str, str] = {}  # arch -> the name of its learned predictor
+_SKIP_PRESETS: dict[str, tuple[str, ...]] = {}  # arch -> presets under which it is trained only if asked
 
 
-def register_model(name: str) -> Callable[[type[nn.Module]], type[nn.Module]]:
-    """Class decorator: build_model(cfg) with cfg.arch == name builds this class. Names are unique."""
+def register_model(
+    name: str, predictor: str = "", skip_presets: tuple[str, ...] = ()
+) -> Callable[[type[nn.Module]], type[nn.Module]]:
+    """Class decorator: build_model(cfg) with cfg.arch == name builds this class. Names are unique.
+
+    predictor: the name its trained runs go by as a predictor (mop.runs registers it; default: `name`).
+    skip_presets: presets under which experiments leave it out unless asked (`mop reproduce --gru`).
+    """
 
     def register(cls: type[nn.Module]) -> type[nn.Module]:
         if name in _MODELS:
             raise MopError(f"model architecture {name!r} is already registered (by {_MODELS[name].__name__})")
-        _MODELS[name] = cls
+        _MODELS[name], _PREDICTORS[name], _SKIP_PRESETS[name] = cls, predictor or name, tuple(skip_presets)
         return cls
 
     return register
+
+
+def predictor_names() -> dict[str, str]:
+    """arch -> the predictor name of its trained runs, for every registered architecture."""
+    return dict(_PREDICTORS)
+
+
+def skip_presets(arch: str) -> tuple[str, ...]:
+    """The presets under which architecture `arch` is trained only when asked."""
+    return _SKIP_PRESETS.get(arch, ())
 
 
 def model_names() -> list[str]:

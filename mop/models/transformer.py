@@ -155,7 +155,7 @@ class KVCache:
         self.features = FeatureState(cfg, batch_size, device, dtype)  # running scale / RLS fit
 
 
-@register_model("gpt")
+@register_model("gpt", predictor="mop")
 class Transformer(nn.Module):
     """GPT-2 body with a linear read-in (d_in -> d) and read-out (d -> m, or 2m for the Gaussian readout)."""
 

@@ -3,14 +3,16 @@
 family = make_family(SystemConfig(family="linear"))
 traj = family.generate(1000, 50, generator=generator(seed=0))   # Trajectories, y (1000, 51, 5)
 
-Each family is one module that registers itself (mop.systems.base.register_family); a family outside the
-package registers the same way when its module is imported (e.g. as a plugin of an experiment file).
+Each family is one module that registers itself (mop.systems.base.register_family) and is imported below; a
+family outside the package registers the same way when its module is imported (e.g. as a plugin of an
+experiment file, or through the entry points of the group mop.families).
 """
 
 from __future__ import annotations
 
 import torch
 
+from mop.systems import colored_noise, linear, quadrotor, switching, upper_triangular  # noqa: F401 (built-ins)
 from mop.systems.base import (
     FAMILIES,
     StateSpace,

@@ -241,15 +241,8 @@ class SystemFamily:
         )
 
 
-def _load_builtin_families() -> None:
-    import mop.systems.colored_noise  # noqa: F401
-    import mop.systems.linear  # noqa: F401
-    import mop.systems.quadrotor  # noqa: F401
-    import mop.systems.switching  # noqa: F401
-    import mop.systems.upper_triangular  # noqa: F401
-
-
-FAMILIES: Registry = Registry("system family", loader=_load_builtin_families, group="mop.families")
+# filled by the family modules, which mop.systems imports; plugins through the entry points of mop.families
+FAMILIES: Registry = Registry("system family", group="mop.families")
 
 
 def register_family(name: str, config: type[SystemConfig]) -> Callable[[type], type]:
@@ -272,7 +265,7 @@ def state_space_of(traj: Trajectories) -> StateSpace:
     if not traj.family:
         raise MopError(
             "these trajectories carry no system family, so a predictor that knows the system cannot run; "
-            "use one that needs no model (rls, rls-best, n4sid-kf, last, zero)"
+            "use one that needs no model (`mop predict --help` lists them)"
         )
     return FAMILIES.get(traj.family).state_space(traj.params)
 

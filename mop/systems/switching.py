@@ -6,7 +6,7 @@ continuing from the current state:
 So y_0..y_{s-1} come from system 1 and the state x_s (reached with system 1) is system 2's initial state.
 Both systems are dense linear systems drawn as in mop.systems.linear (the paper tests on 100 steps).
 The family's state_space knows the switch; the authors' baseline, the KF that keeps system 1's model after
-the switch, is the predictor "kalman-system1" registered here.
+the switch, is a predictor (mop.filters.system1).
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError, check
-from mop.predictors import PREDICTORS
 from mop.systems.base import StateSpace, Trajectories, linear_state_space, register_family
 from mop.systems.linear import (
     LinearConfig,
@@ -78,32 +77,3 @@ class SwitchingFamily(LinearFamily):
             P0=first.P0,
             jacobian=lambda x, u, t: A_at(t),
         )
-
-
-@PREDICTORS.register("kalman-system1", needs_system=True, gaussian=True)
-class KalmanKeepingSystem1:
-    """The authors' switching baseline: the Kalman filter of system 1, kept after the switch."""
-
-    name = "kalman-system1"
-
-    @staticmethod
-    def _model(traj: Trajectories) -> StateSpace:
-        p = traj.params
-        missing = [k for k in ("A", "C", "Q", "R", "P0") if k not in p]
-        if missing:
-            raise MopError(f"kalman-system1 needs a linear family's {missing}; use it on switching systems")
-        return linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"])
-
-    def predict_distribution(self, traj: Trajectories) -> tuple[Tensor, Tensor]:
-        from mop.filters.gaussian import filter_distribution, kalman_step
-
-        return filter_distribution(self._model(traj), kalman_step, traj)
-
-    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
-        """(B, T+1, K, m): system 1's Kalman forecast (mop.filters.gaussian.gaussian_forecast)."""
-        from mop.filters.gaussian import filter_forecast, kalman_step
-
-        return filter_forecast(self._model(traj), kalman_step, traj, steps)[0]
-
-    def predict(self, traj: Trajectories) -> Tensor:
-        return self.predict_distribution(traj)[0]

@@ -27,6 +27,7 @@ from mop.config import RunConfig, to_dict
 from mop.errors import MopError
 from mop.models import check_arch
 from mop.systems import make_family
+from mop.train.data import recorded_data
 
 
 def resolve_config(config: RunConfig) -> RunConfig:
@@ -51,8 +52,6 @@ def _with_dims(config: RunConfig, d_in: int, m: int, source: str) -> RunConfig:
 
 
 def _resolve_data(config: RunConfig) -> RunConfig:
-    from mop.train.data import recorded_data
-
     data = recorded_data(config.data)
     data.check_lengths(config.train.horizon)
     stats = data.fit()
