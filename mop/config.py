@@ -41,11 +41,25 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
         raise MopError(f"bad config{where and ' ' + where}: {err}") from None
 
 
-def to_dict(config: Any) -> dict[str, Any]:
-    """The config as nested dicts; a RunConfig without recorded data has no "data" key (as before)."""
+# Keys left out of a RunConfig's dict while they hold these defaults, so configs (and their hashes, which name
+# run directories) written before the keys existed are unchanged.
+OMITTED_AT_DEFAULT = {
+    "model": {"observation_mask": False},
+    "train": {"missing_rate": 0.0, "missing_burst_rate": 0.0, "missing_burst_length": 5},
+}
+
+
+def to_dict(config: Any, omit_defaults: bool = True) -> dict[str, Any]:
+    """The config as nested dicts; a RunConfig without recorded data has no "data" key (as before), and the
+    keys of OMITTED_AT_DEFAULT are left out while they hold their defaults (unless omit_defaults=False)."""
     data = dataclasses.asdict(config)
-    if isinstance(config, RunConfig) and config.data is None:
-        del data["data"]
+    if isinstance(config, RunConfig):
+        if config.data is None:
+            del data["data"]
+        for section, defaults in OMITTED_AT_DEFAULT.items() if omit_defaults else ():
+            for key, default in defaults.items():
+                if data[section][key] == default:
+                    del data[section][key]
     return data
 
 
@@ -72,7 +86,7 @@ def apply_settings(config: T, settings: dict[str, Any]) -> T:
     A `family` setting is applied first and keeps only the knobs the new family's config also has
     (system.family=quadrotor drops spectral_radius).
     """
-    data = to_dict(config)
+    data = to_dict(config, omit_defaults=False)
     for key, value in sorted(settings.items(), key=lambda item: item[0].split(".")[-1] != "family"):
         node = data
         *path, leaf = key.split(".")
@@ -131,6 +145,9 @@ class ModelConfig:
     )
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
+    # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
+    # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
+    observation_mask: bool = False
 
     def __post_init__(self) -> None:
         check(
@@ -163,6 +180,10 @@ class ModelConfig:
             isinstance(self.rls_order, int) and 0 <= self.rls_order <= 10,
             f"model.rls_order must be an integer in 0..10 (0 = off), got {self.rls_order!r}",
         )
+        check(
+            isinstance(self.observation_mask, bool),
+            f"model.observation_mask must be true or false, got {self.observation_mask!r}",
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,6 +192,10 @@ class TrainConfig:
 
     num_source_systems: M, systems with one trajectory each, drawn once; 0 = fresh systems every batch.
     horizon: T, training trajectories hold y_0..y_T; the model reads y_0..y_{T-1} and predicts y_1..y_T.
+    missing_rate: fraction of training outputs dropped at random, independently per channel and step
+        (mop.missing.drop_outputs); with missing_burst_rate (the chance per step that a burst of
+        missing_burst_length steps with every channel missing starts there) > 0 too, the model gets an
+        observation mask channel (model.observation_mask) and the loss counts only the measured targets.
     """
 
     steps: int = 10000
@@ -189,8 +214,26 @@ class TrainConfig:
     log_every: int = 50
     checkpoint_every: int = 1000
     deterministic: bool = False
+    missing_rate: float = 0.0
+    missing_burst_rate: float = 0.0
+    missing_burst_length: int = 5
+
+    @property
+    def drops_outputs(self) -> bool:
+        """True when training drops outputs (so the model needs the observation mask)."""
+        return self.missing_rate > 0 or self.missing_burst_rate > 0
 
     def __post_init__(self) -> None:
+        for name in ("missing_rate", "missing_burst_rate"):
+            value = getattr(self, name)
+            check(
+                isinstance(value, (int, float)) and 0 <= value < 1,
+                f"train.{name} must be in [0, 1), got {value!r}",
+            )
+        check(
+            isinstance(self.missing_burst_length, int) and self.missing_burst_length > 0,
+            f"train.missing_burst_length must be a positive integer, got {self.missing_burst_length!r}",
+        )
         for name in ("steps", "batch_size", "horizon", "log_every", "checkpoint_every"):
             value = getattr(self, name)
             check(

@@ -3,12 +3,16 @@
 CSV: a header, one row per (trajectory, time step): columns `trajectory, t, y0..y{m-1}[, u0..u{k-1}]`.
 Trajectories may have different lengths; t runs 0..T_i within each trajectory (rows in any order).
 NPZ: arrays y (B, T+1, m) and optionally u (B, T+1, k).
+Missing outputs: an empty CSV cell (or NaN) in a y column, NaN in the .npz y, marks an output channel not
+measured at that step; it stays NaN in the arrays returned (Trajectories.observed is the mask). Inputs u must
+be complete. Inf, non-numbers and missing inputs are refused naming the line and column.
 Every problem raises MopError with a one-line message.
 """
 
 from __future__ import annotations
 
 import csv
+import math
 import os
 import re
 from pathlib import Path
@@ -20,12 +24,15 @@ from mop.errors import MopError
 MAX_ABS = 1e6  # larger magnitudes are refused: a model trained on O(1) data cannot use them
 
 
-def _check_values(name: str, a: np.ndarray, where: str) -> None:
-    if not np.all(np.isfinite(a)):
-        raise MopError(f"{where}: {name} holds NaN or Inf; remove or fill those values")
-    if a.size and np.abs(a).max() > MAX_ABS:
+def _check_values(name: str, a: np.ndarray, where: str, gaps: bool = False) -> None:
+    """MopError for Inf, for NaN unless `gaps` (outputs: NaN marks a missing value), or |values| > MAX_ABS."""
+    if np.isinf(a).any():
+        raise MopError(f"{where}: {name} holds Inf; remove it, or leave it empty / NaN to mark it missing")
+    if not gaps and np.isnan(a).any():
+        raise MopError(f"{where}: {name} has missing values (NaN); inputs u must be complete, fill them")
+    if a.size and np.nan_to_num(np.abs(a)).max() > MAX_ABS:
         raise MopError(
-            f"{where}: {name} holds values up to {np.abs(a).max():.3g} (limit {MAX_ABS:.0e}); "
+            f"{where}: {name} holds values up to {np.nanmax(np.abs(a)):.3g} (limit {MAX_ABS:.0e}); "
             "rescale the data"
         )
 
@@ -45,7 +52,12 @@ def read_npz(path: Path) -> list[tuple[np.ndarray, np.ndarray | None]]:
         raise MopError(f"{path}: y has shape {y.shape}; need (B, T+1, m) with at least 2 time steps")
     if u is not None and (u.ndim != 3 or u.shape[:2] != y.shape[:2]):
         raise MopError(f"{path}: u has shape {u.shape}; need (B, T+1, k) matching y {y.shape}")
-    _check_values("y", y, str(path))
+    _check_values("y", y, str(path), gaps=True)
+    empty = np.isnan(y).all(axis=(1, 2))
+    if empty.any():
+        raise MopError(
+            f"{path}: trajectory {int(empty.argmax())} has no measured output (y all NaN); drop it or fill it"
+        )
     if u is not None:
         _check_values("u", u, str(path))
     return [(y[b], None if u is None else u[b]) for b in range(y.shape[0])]
@@ -73,9 +85,9 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
             raise MopError(f"{path}: line {n} has {len(r)} columns, the header has {len(header)}")
         try:
             t = int(r[1])
-            vals = [float(c) for c in r[2:]]
         except ValueError:
-            raise MopError(f"{path}: line {n} has a non-numeric value") from None
+            raise MopError(f"{path}: line {n}, column t: {r[1]!r} is not an integer time step") from None
+        vals = [_cell(c, header[i], path, n) for i, c in enumerate(r[2:], start=2)]
         steps = trajs.setdefault(r[0].strip(), {})
         if t in steps:
             raise MopError(f"{path}: line {n}: trajectory {r[0]!r} has time step {t} twice")
@@ -91,9 +103,31 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
         if len(ts) < 2:
             raise MopError(f"{path}: trajectory {name!r} has one row; need at least 2 time steps")
         a = np.array([steps[t] for t in ts])  # (T+1, m+k)
-        _check_values(f"trajectory {name!r}", a, str(path))
+        _check_values(f"trajectory {name!r}", a, str(path), gaps=True)
+        if np.isnan(a[:, :m]).all():
+            raise MopError(f"{path}: trajectory {name!r} has no measured output (every y cell empty)")
         out.append((a[:, :m], a[:, m:] if ucols else None))
     return list(trajs), out
+
+
+def _cell(text: str, column: str, path: Path, line: int) -> float:
+    """One CSV value: a number; empty or NaN is a missing output (NaN); Inf, garbage or a missing input is
+    refused naming the line and column."""
+    text = text.strip()
+    try:
+        value = float(text) if text else float("nan")
+    except ValueError:
+        raise MopError(f"{path}: line {line}, column {column}: {text!r} is not a number") from None
+    if math.isinf(value):
+        raise MopError(
+            f"{path}: line {line}, column {column}: {text!r} is infinite; leave the cell empty to mark a "
+            "missing output"
+        )
+    if math.isnan(value) and column.startswith("u"):
+        raise MopError(
+            f"{path}: line {line}, column {column}: the input is missing; inputs u must be complete, fill it"
+        )
+    return value
 
 
 Data = list[tuple[np.ndarray, np.ndarray | None]]

@@ -1,11 +1,16 @@
 """Error curves, window means, MSE ratios with bootstrap confidence intervals, and calibration metrics.
 
 Shapes: per-system errors e (N, T+1) with e[i, t] = ||yhat_t - y_t||_2 for test system i.
+
+Missing outputs (NaN in y): e[i, t] is the norm over the measured channels only, NaN where none was
+measured; every summary then averages over the measured (non-NaN) entries. Without gaps the plain formulas
+run unchanged.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import torch
@@ -13,19 +18,32 @@ from torch import Tensor
 
 
 def errors(yhat: Tensor, y: Tensor) -> np.ndarray:
-    """e[i, t] = ||yhat[i, t] - y[i, t]||_2, (N, T+1, m) -> (N, T+1) float64."""
-    return torch.linalg.vector_norm((yhat.double() - y.double()), dim=-1).cpu().numpy()
+    """e[i, t] = ||yhat[i, t] - y[i, t]||_2, (N, T+1, m) -> (N, T+1) float64; with NaN in y (missing
+    outputs) the norm over the measured channels, NaN at steps with none measured."""
+    diff = yhat.double() - y.double()
+    seen = ~torch.isnan(y)
+    if bool(seen.all()):
+        return torch.linalg.vector_norm(diff, dim=-1).cpu().numpy()
+    e = torch.linalg.vector_norm(torch.where(seen, diff, 0), dim=-1)
+    return torch.where(seen.any(-1), e, float("nan")).cpu().numpy()
 
 
 def error_curves(e: np.ndarray) -> dict[str, list[float]]:
-    """Mean over systems of e_t, of e_t^2, and the std of e_t over systems: each a list of length T+1."""
+    """Mean over systems of e_t, of e_t^2, and the std of e_t over systems: each a list of length T+1
+    (over the systems measured at t where e holds NaN)."""
+    if np.isnan(e).any():
+        with warnings.catch_warnings():  # a step no system measured gives NaN ("mean of empty slice")
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean, sq, std = np.nanmean(e, 0), np.nanmean(e**2, 0), np.nanstd(e, 0)
+        return {"error": mean.tolist(), "squared_error": sq.tolist(), "std": std.tolist()}
     return {"error": e.mean(0).tolist(), "squared_error": (e**2).mean(0).tolist(), "std": e.std(0).tolist()}
 
 
 def window_mean(curve: np.ndarray | list[float], start: int, stop: int) -> float:
     """Mean of curve[t] over t in [start, stop) (stop clipped to the curve's length)."""
     curve = np.asarray(curve, dtype=float)
-    return float(curve[start : min(stop, len(curve))].mean())
+    part = curve[start : min(stop, len(curve))]
+    return float(np.nanmean(part) if np.isnan(part).any() else part.mean())
 
 
 def mse_ratio_ci(
@@ -45,6 +63,10 @@ def mse_ratio_ci(
     """
     s_num = (e_num[:, start:stop] ** 2).sum(1)  # (N,)
     s_den = (e_den[:, start:stop] ** 2).sum(1)  # (N,)
+    if np.isnan(s_num).any() or np.isnan(s_den).any():  # missing outputs: both over the measured steps
+        both = ~(np.isnan(e_num[:, start:stop]) | np.isnan(e_den[:, start:stop]))
+        s_num = (np.where(both, e_num[:, start:stop], 0.0) ** 2).sum(1)
+        s_den = (np.where(both, e_den[:, start:stop], 0.0) ** 2).sum(1)
     rng = np.random.default_rng(seed)
     index = rng.integers(0, len(s_num), size=(num_boot, len(s_num)))  # (num_boot, N)
     boot = s_num[index].sum(1) / s_den[index].sum(1)

@@ -96,6 +96,28 @@ def ratio_figure(curves: dict[str, tuple[list[float], list[float]]], title: str)
     return fig
 
 
+def ratio_by_x_figure(
+    xs: list[float],
+    curves: dict[str, list[tuple[float, float, float]]],
+    reference: str,
+    axis: str,
+    title: str,
+):
+    """MSE ratio to `reference` (with its CI as error bars) against a sweep value, one line per predictor:
+    curves {name: [(ratio, low, high) per x]}."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name, points in curves.items():
+        r = np.array(points)  # (len(xs), 3)
+        ax.errorbar(
+            xs, r[:, 0], yerr=[r[:, 0] - r[:, 1], r[:, 2] - r[:, 0]], marker="o", capsize=3, label=name
+        )
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.axhline(1.1, color="grey", lw=0.8, ls=":", label="1.1")
+    ax.set(yscale="log", xlabel=axis, ylabel=f"MSE ratio to {reference}, t in [20, T]", title=title)
+    ax.legend(fontsize=8)
+    return fig
+
+
 def matrix_power_figure(curves: dict[str, list[float]], title: str):
     """Average over systems of ||A^k|| / rho(A)^k against k for each family (Fig. 4b)."""
     fig, ax = plt.subplots(figsize=(6, 4))

@@ -104,3 +104,95 @@ def sigint_during_step(monkeypatch, step: int):
 
     monkeypatch.setattr(mt.TrainingData, "batch", interrupting_batch)
     return lambda: monkeypatch.setattr(mt.TrainingData, "batch", batch)
+
+
+def filterpy_predict_gaps(A, C, Q, R, y, x0, P0):
+    """filterpy_predict for y with NaN: a step with every channel missing is update(None) (filterpy skips it);
+    a step with some channels missing conditions on the measured ones through filterpy's update with the
+    rows H_o and the block R_oo passed per step."""
+    out = np.zeros_like(y)
+    for b in range(A.shape[0]):
+        kf = KalmanFilter(dim_x=A.shape[-1], dim_z=C.shape[1])
+        kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = A[b], C[b], Q[b], R[b], x0[b].copy(), P0[b].copy()
+        for t in range(y.shape[1]):
+            out[b, t] = C[b] @ kf.x
+            seen = ~np.isnan(y[b, t])
+            if not seen.any():
+                kf.update(None)
+            else:
+                kf.update(y[b, t, seen], R=R[b][np.ix_(seen, seen)], H=C[b][seen])
+            kf.predict()
+    return out
+
+
+def joint_gaussian_predict(A, C, Q, R, P0, y):
+    """E[y_t | the measured entries of y_0..y_{t-1}] by brute force, one system: every y_t is linear in
+    xi = (x_0, w_0..w_{T-1}, v_0..v_T) (zero mean), so the outputs are jointly Gaussian with covariance
+    G Cov(xi) G^T; condition on the observed (non-NaN) entries of the past. A (n, n), C (m, n), Q, R, P0,
+    y (T+1, m) -> (T+1, m)."""
+    n, m, T1 = A.shape[0], C.shape[0], y.shape[0]
+    dim = n * T1 + m * T1  # x_0, w_0..w_{T-1} (n each), v_0..v_T (m each)
+    G = np.zeros((T1 * m, dim))
+    for t in range(T1):
+        # x_t = A^t x_0 + sum_{i<t} A^{t-1-i} w_i
+        for i in range(t + 1):
+            block = np.linalg.matrix_power(A, t - i)  # i = 0 is x_0 (A^t); i >= 1 is w_{i-1}: A^{t-i}
+            G[t * m : (t + 1) * m, i * n : (i + 1) * n] = C @ block
+        G[t * m : (t + 1) * m, n * T1 + t * m : n * T1 + (t + 1) * m] = np.eye(m)
+    cov_xi = scipy_block_diag(P0, *[Q] * (T1 - 1), *[R] * T1)
+    S = G @ cov_xi @ G.T  # (T1 m, T1 m)
+    flat = y.reshape(-1)
+    out = np.zeros((T1, m))
+    for t in range(T1):
+        past = np.arange(t * m)
+        o = past[~np.isnan(flat[past])]
+        target = np.arange(t * m, (t + 1) * m)
+        if len(o):
+            out[t] = S[np.ix_(target, o)] @ np.linalg.solve(S[np.ix_(o, o)], flat[o])
+    return out
+
+
+def scipy_block_diag(*blocks):
+    from scipy.linalg import block_diag
+
+    return block_diag(*blocks)
+
+
+def rls_gaps_reference(y, order=2, u=None, input_order=2):
+    """The RLS-AR(order) predictor with missing outputs, by batch ridge regression, one system, numpy:
+    theta_i(t) = (I + sum phi phi^T)^{-1} sum phi y_{s,i} over the pairs (phi_{s-1}, y_s), s < t, whose target
+    y_{s,i} and whole regressor phi_{s-1} = [y_{s-1}; ...; y_{s-p}] (zero before y_0) were measured;
+    yhat_t = theta(t)^T phi~_{t-1}, phi~ with each missing entry replaced by its own prediction;
+    yhat_0 = 0, yhat_t = y~_{t-1} for t <= p. y (T, m) with NaN -> (T, m). With inputs u (T, k) (ARX):
+    phi also holds [u_{s-1}; ...; u_{s-q}] (q = input_order) and the start-up runs to r = max(p, q)."""
+    T, m = y.shape
+    filled, preds = np.zeros_like(y), np.zeros_like(y)
+    r = order if u is None else max(order, input_order)
+
+    def lagged(values, s):
+        ys = [values[s - j] if s - j >= 0 else np.zeros(m) for j in range(order)]
+        if u is None:
+            return np.concatenate(ys)
+        us = [u[s - j] if s - j >= 0 else np.zeros(u.shape[1]) for j in range(input_order)]
+        return np.concatenate(ys + us)
+
+    d = len(lagged(y, 0))
+    for t in range(T):
+        if t == 0:
+            pred = np.zeros(m)
+        elif t <= r:
+            pred = filled[t - 1]
+        else:
+            pred = np.zeros(m)
+            for i in range(m):
+                G, b = np.eye(d), np.zeros(d)
+                for s in range(r, t):
+                    phi = lagged(y, s - 1)
+                    if np.isnan(y[s, i]) or np.isnan(phi).any():
+                        continue
+                    G += np.outer(phi, phi)
+                    b += phi * y[s, i]
+                pred[i] = np.linalg.solve(G, b) @ lagged(filled, t - 1)
+        preds[t] = pred
+        filled[t] = np.where(np.isnan(y[t]), pred, y[t])
+    return preds

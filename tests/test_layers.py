@@ -19,6 +19,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mop"
 # lowest first; a module belongs to the layer of its longest matching prefix
 LAYERS: list[tuple[str, ...]] = [
     ("mop.errors", "mop.registry", "mop.atomic", "mop.progress", "mop.metrics", "mop.io", "mop.report"),
+    ("mop.missing",),
     ("mop.plots", "mop.checkpoint"),
     ("mop.systems", "mop.config"),
     ("mop.predictors",),

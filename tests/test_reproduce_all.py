@@ -108,6 +108,24 @@ def test_scaling_fits_a_slope_per_axis(tmp_path, tiny_smoke):
     assert "slope" in report and len(data["runs"]) == 6
 
 
+def test_missing_data_sweeps_p_and_bursts(tmp_path, tiny_smoke):
+    data, report = _reproduce(tmp_path, "missing-data")
+    assert list(data["conditions"]) == ["p=0.00", "p=0.10", "p=0.30", "p=0.50", "bursts"]
+    for entry in data["conditions"].values():
+        _check_schema(entry, {"mop", "kalman", "rls", "last"})
+    for entry in data["conditions"].values():  # errors over measured outputs: finite ratios everywhere
+        ratios = entry["ratios_to_reference"]["ratios"]
+        assert set(ratios) == {"mop", "rls", "last"} and all(
+            math.isfinite(r["all"]["ratio"]) for r in ratios.values()
+        )
+    assert (tmp_path / "missing-data" / "missing-data_ratio.png").exists()
+    assert len(data["claims"]) == 5 and "p=0.30" in report
+    runs = set(data["runs"].values())
+    assert len(runs) == 1, "one model trained with drop-outs serves every condition"
+    config = json.loads((Path(runs.pop()) / "config.json").read_text())
+    assert config["model"]["observation_mask"] and config["train"]["missing_rate"] == 0.3
+
+
 def test_every_experiment_is_covered():
     """Every registered experiment is run end to end by some test: `reproduce` with its name in tests/."""
     source = "\n".join(p.read_text() for p in Path(__file__).parent.glob("test_*.py"))

@@ -203,7 +203,11 @@ def _bad_files(tmp: Path) -> dict[str, tuple[Path, str]]:
     nan = y.copy()
     nan[2, 3, 1] = np.nan
     np.savez(tmp / "nan.npz", y=nan)
-    files["nan"] = (tmp / "nan.npz", "NaN or Inf")
+    files["nan"] = (tmp / "nan.npz", "has 1 missing outputs (NaN / empty cells); train a model that reads")
+    inf = y.copy()
+    inf[2, 3, 1] = np.inf
+    np.savez(tmp / "inf.npz", y=inf)
+    files["inf"] = (tmp / "inf.npz", "y holds Inf")
     np.savez(tmp / "huge.npz", y=y * 1e7)
     files["huge"] = (tmp / "huge.npz", "limit")
     np.savez(tmp / "u.npz", y=y, u=np.zeros((6, 11, 1)))
@@ -215,7 +219,7 @@ def _bad_files(tmp: Path) -> dict[str, tuple[Path, str]]:
     (tmp / "bad.csv").write_text("trajectory,t,y0\nr0,0,1.0\nr0,1\n")
     files["malformed csv"] = (tmp / "bad.csv", "columns")
     (tmp / "mixed.csv").write_text("trajectory,t,y0,u0\nr0,0,1.0,x\n")
-    files["non-numeric csv"] = (tmp / "mixed.csv", "non-numeric")
+    files["non-numeric csv"] = (tmp / "mixed.csv", "line 2, column u0: 'x' is not a number")
     files["missing"] = (tmp / "missing.npz", "does not exist")
     return files
 

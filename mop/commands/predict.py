@@ -130,21 +130,23 @@ def write_output(path: Path, names: list[str], yhat: list[np.ndarray]) -> None:
         raise MopError(f"--out {path}: use a .csv or .npz file name")
 
 
+def observed_norms(e: np.ndarray) -> np.ndarray:
+    """||e_t|| over the measured channels (e NaN where y was missing) for the steps with any measured:
+    e (T, m) -> (T',)."""
+    seen = ~np.isnan(e).all(axis=-1)
+    return np.sqrt(np.nansum(e[seen] ** 2, axis=-1))
+
+
 def print_errors(names, data, yhat) -> None:
+    """RMSE and mean ||e_t|| over t >= 1, on the measured outputs only (missing ones, NaN, are skipped)."""
     print(f"{'trajectory':>12} {'steps':>6} {'rmse':>10} {'mean|e|':>10}")
     errs = []
     for name, (y, _), p in zip(names, data, yhat, strict=True):
         e = y[1:] - p[1:]  # (T, m), skip t=0 (no data)
         errs.append(e)
-        print(
-            f"{name:>12} {len(e):>6} {np.sqrt((e**2).mean()):>10.4g} "
-            f"{np.linalg.norm(e, axis=-1).mean():>10.4g}"
-        )
+        print(f"{name:>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
     e = np.concatenate(errs)
-    print(
-        f"{'overall':>12} {len(e):>6} {np.sqrt((e**2).mean()):>10.4g} "
-        f"{np.linalg.norm(e, axis=-1).mean():>10.4g}"
-    )
+    print(f"{'overall':>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
 
 
 def print_horizon_errors(data, forecasts, steps: int) -> None:
@@ -152,7 +154,7 @@ def print_horizon_errors(data, forecasts, steps: int) -> None:
     print(f"{'k':>4} {'count':>8} {'mean|e|':>10}")
     for j in range(steps):
         err = [y[1 + j :] - f[1 : len(y) - j, j] for (y, _), f in zip(data, forecasts, strict=True)]
-        e = np.concatenate([np.linalg.norm(d, axis=-1) for d in err])
+        e = np.concatenate([observed_norms(d) for d in err])
         print(f"{j + 1:>4} {len(e):>8} {e.mean() if len(e) else float('nan'):>10.4g}")
 
 

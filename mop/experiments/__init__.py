@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 from mop.config import DataConfig, RunConfig, apply_settings, parse_overrides
+from mop.experiments.missing_data import MISSING_DATA
 from mop.experiments.paper import PAPER_EXPERIMENTS
 from mop.experiments.presets import PRESETS, Preset, get_preset
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
@@ -22,7 +23,10 @@ TEST_SEED_OFFSET = 7_000_001  # test systems: generator seed + this, apart from 
 
 
 EXPERIMENTS: Registry = Registry("experiment", group="mop.experiments")
-for _exp in PAPER_EXPERIMENTS:  # the built-in experiments (plugins: entry points of mop.experiments)
+for _exp in (
+    *PAPER_EXPERIMENTS,
+    MISSING_DATA,
+):  # the built-in ones (plugins: entry points of mop.experiments)
     EXPERIMENTS.add(_exp.name, _exp)
 
 

@@ -53,6 +53,24 @@ def ratio_by_condition(exp: Experiment, results: Results, out: Path) -> list[Pat
     return plots.save(plots.ratio_figure(curves, f"{exp.title}: MOP / {exp.reference}"), out, "fig4a_ratio")
 
 
+@FIGURES.register("ratio_by_x")
+def ratio_by_x(exp, results: dict, out: Path) -> list[Path]:
+    """Each predictor's MSE ratio to the reference over t in [20, T] (95% bootstrap CI) against the
+    conditions' sweep value x (conditions without x are left out)."""
+    points = [r for r in results.values() if r.condition.x]
+    if not points:
+        return []
+    xs = [r.condition.x[1] for r in points]
+    curves: dict[str, list[tuple[float, float, float]]] = {}
+    for r in points:
+        horizon = r.summary["horizon"]
+        for name, wins in r.summary["ratios_to_reference"]["ratios"].items():
+            w = wins.get(f"[20,{horizon + 1})", wins["all"])
+            curves.setdefault(name, []).append((w["ratio"], w["low"], w["high"]))
+    fig = plots.ratio_by_x_figure(xs, curves, exp.reference, points[0].condition.x[0], exp.title)
+    return plots.save(fig, out, f"{exp.name}_ratio")
+
+
 @FIGURES.register("matrix_powers")
 def matrix_powers(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Fig. 4b: mean ||A^k|| / rho(A)^k against k, one line per condition."""

@@ -44,7 +44,8 @@ def mse_ratio(measure: Measure, result: ConditionResult, reference: str, seed: i
 def mean_error(measure: Measure, result: ConditionResult, reference: str, seed: int) -> float:
     e = _errors(result, measure.predictor)
     start, stop = _span(measure, e.shape[1] - 1)
-    return float(e[:, start:stop].mean())
+    part = e[:, start:stop]
+    return float(np.nanmean(part) if np.isnan(part).any() else part.mean())  # NaN: nothing measured
 
 
 @MEASURES.register("coverage")

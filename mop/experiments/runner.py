@@ -32,6 +32,7 @@ from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.io import read_trajectories
 from mop.metrics import mse_ratio_ci
+from mop.missing import drop_mask, drop_outputs
 from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
 from mop.report import build_report, claim_line, summary_section
 from mop.systems import generator, make_family
@@ -118,6 +119,22 @@ def recorded_trajectories(path: str, horizon: int) -> Trajectories:
     return Trajectories(y=y, u=None if u is None else torch.tensor(u, dtype=torch.float64))
 
 
+MISSING_SEED_OFFSET = 9_000_011  # the test drop-out masks: generator seed + this
+
+
+def with_missing(traj: Trajectories, missing: dict[str, float], seed: int) -> Trajectories:
+    """traj with outputs removed (NaN) as the condition's `missing` says; y_0 always kept; seeded."""
+    g = torch.Generator(device=traj.y.device).manual_seed(seed + MISSING_SEED_OFFSET)
+    drop = drop_mask(
+        tuple(traj.y.shape),
+        missing.get("rate", 0.0),
+        g,
+        missing.get("burst_rate", 0.0),
+        int(missing.get("burst_length", 5)),
+    )
+    return dataclasses.replace(traj, y=drop_outputs(traj.y, drop))
+
+
 def run_condition(session: Session, condition: Condition) -> ConditionResult:
     exp, preset = session.exp, get_preset(session.preset)
     trained = condition_config(session, condition)  # built once: the runs, the test horizon and family
@@ -136,6 +153,8 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
         traj = test_trajectories(
             test_system(trained, condition), preset.num_test_systems, horizon, session.seed
         )
+    if condition.missing:
+        traj = with_missing(traj, condition.missing, session.seed)
     raw = evaluate(predictors, traj, session.progress)
     summary = summarize(raw, reference=exp.reference, seed=session.seed)
     summary["to_best"] = distance_to_best(raw, exp.best_predictor, session.seed)

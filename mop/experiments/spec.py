@@ -20,6 +20,7 @@ from typing import Any
 
 from mop.config import check
 
+MISSING_KEYS = ("rate", "burst_rate", "burst_length")
 OPERATORS = ("<", "<=", ">", ">=", "between", "contains", "info")
 
 
@@ -95,6 +96,9 @@ class Condition:
     data: a file of recorded test trajectories (.csv / .npz, as `mop predict` reads) used instead of simulated
         systems: every trajectory with at least horizon + 1 outputs, cut to that length; predictors that need
         the system are skipped there.
+    missing: outputs of the test trajectories removed before any predictor sees them (mop.missing.drop_mask,
+        seeded apart from the systems): {"rate": p} per channel and step, {"burst_rate": q,
+        "burst_length": L} whole-step bursts; errors are then measured on the measured outputs only.
     """
 
     name: str = "test"
@@ -104,9 +108,23 @@ class Condition:
     x: tuple[str, float] | None = None
     predictors: tuple[str, ...] = ()  # () = every predictor of the experiment
     data: str = ""
+    missing: dict[str, float] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         check(bool(self.name), "a condition needs a name")
+        unknown = set(self.missing) - set(MISSING_KEYS)
+        check(
+            not unknown,
+            f"condition {self.name}: unknown missing keys {sorted(unknown)}; use {', '.join(MISSING_KEYS)}",
+        )
+        for key in ("rate", "burst_rate"):
+            value = self.missing.get(key, 0.0)
+            check(0 <= value < 1, f"condition {self.name}: missing.{key} must be in [0, 1), got {value}")
+        length = self.missing.get("burst_length", 5)
+        check(
+            isinstance(length, int) and length >= 1,
+            f"condition {self.name}: missing.burst_length must be an integer >= 1, got {length!r}",
+        )
         check(self.horizon is None or self.horizon >= 1, f"condition {self.name}: horizon must be >= 1")
 
 

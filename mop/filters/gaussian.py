@@ -8,6 +8,12 @@ With m_t, P_t the prior mean / covariance of x_t given y_{<t} (and u_{<t}), for 
                                      P <- (I - K C) P (I - K C)^T + K R K^T
     time update (the filter's step):  (m, P) <- step(model, m, P, u_t, t)
 
+Missing outputs (NaN in y): only the measured channels o of y_t are conditioned on, i.e. the rows C_o of C
+and the block R_oo of R; a step with nothing measured keeps the prior (filterpy's update(None)). Batched, with
+a mask M = diag(observed_t) per system, this is condition_on with
+    C~ = M C,  R~ = M R M + (I - M),  y~ = M y      (S~ = blockdiag(S_oo, I), so K~ = [K_o, 0] exactly).
+The predictive covariance S_t returned is still that of all of y_t.
+
 Steps: kalman_step (linear f: m <- A_t m, P <- A_t P A_t^T + Q), ekf_step (linearise f at the posterior
 mean; `project` clips means as the simulator clips states), ukf_step (unscented transform).
 """
@@ -28,14 +34,35 @@ Step = Callable[
 ]
 
 
-def condition_on(m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Measurement update, Joseph form. m (B, n), P (B, n, n), y (B, m) -> (m, P, S (B, m, m))."""
+def condition_on(
+    m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor, observed: Tensor | None = None
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Measurement update, Joseph form. m (B, n), P (B, n, n), y (B, m) -> (m, P, S (B, m, m)).
+
+    observed (B, m) bool or None (all measured): condition only on the measured channels of y (the entries of
+    y elsewhere, NaN, are never read); S is the predictive covariance of the whole y either way.
+    """
+    if observed is not None:
+        return _condition_on_observed(m, P, y, C, R, observed)
     S = C @ P @ C.mT + R  # (B, m, m)
     L = torch.linalg.cholesky(S)  # (B, m, m)
     K = torch.cholesky_solve(C @ P, L).mT  # (B, n, m) = P C^T S^{-1}
     m = m + (K @ (y - (C @ m[..., None])[..., 0])[..., None])[..., 0]
     I_KC = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device) - K @ C  # (B, n, n)
     P = I_KC @ P @ I_KC.mT + K @ R @ K.mT
+    return m, P, S
+
+
+def _condition_on_observed(
+    m: Tensor, P: Tensor, y: Tensor, C: Tensor, R: Tensor, observed: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """condition_on for the channels `observed` (B, m) only: C~ = M C, R~ = M R M + (I - M), y~ = M y."""
+    M = observed.to(P.dtype)  # (B, m)
+    C_o = M[..., None] * C  # (B, m, n): rows of unmeasured channels zeroed
+    R_o = M[..., None] * R * M[:, None, :] + torch.diag_embed(1 - M)  # (B, m, m)
+    y_o = torch.where(observed, y, torch.zeros_like(y))
+    S = C @ P @ C.mT + R  # (B, m, m): the predictive covariance of all of y_t, from the prior
+    m, P, _ = condition_on(m, P, y_o, C_o, R_o)
     return m, P, S
 
 
@@ -49,19 +76,22 @@ def gaussian_filter(
 ) -> tuple[Tensor, Tensor]:
     """Predictive means yhat (B, T+1, m) and covariances S (B, T+1, m, m) of y_t given y_{<t}, u_{<t}.
 
-    y (B, T+1, m), u (B, T+1, k) or None; `project` applies the model's state projection (if any) to m_0 and
-    inside `step`. at_prior(t, m_t, P_t, projection) is called with each prior before it is conditioned on y_t
-    (gaussian_forecast rolls the k-step forecasts out from there).
+    y (B, T+1, m) with NaN where a channel was not measured, u (B, T+1, k) or None; `project` applies the
+    model's state projection (if any) to m_0 and inside `step`. at_prior(t, m_t, P_t, projection) is called
+    with each prior before it is conditioned on y_t (gaussian_forecast rolls the k-step forecasts out from
+    there).
     """
     proj = model.project if project and model.project is not None else None
     m, P = (model.m0 if proj is None else proj(model.m0)), model.P0
+    seen = ~torch.isnan(y)  # (B, T+1, m)
+    observed = None if bool(seen.all()) else seen
     means, covs = [], []
     for t in range(y.shape[1]):
         C = model.output_matrix(t)
         if at_prior is not None:
             at_prior(t, m, P, proj)
         means.append((C @ m[..., None])[..., 0])
-        m, P, S = condition_on(m, P, y[:, t], C, model.R)
+        m, P, S = condition_on(m, P, y[:, t], C, model.R, None if observed is None else observed[:, t])
         covs.append(S)
         m, P = step(model, m, P, None if u is None else u[:, t], t, proj)
     return torch.stack(means, dim=1), torch.stack(covs, dim=1)

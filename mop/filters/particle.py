@@ -4,6 +4,8 @@ With N particles X_t^i ~ p(x_t | y_{<t}) (start: X_0^i ~ N(m_0, P_0)):
 
     yhat_t = C mean_i(X_t^i)
     weights  w_i ∝ N(y_t; C X_t^i, R),  systematic resampling by w
+             (missing outputs, NaN in y: N(y_o; C_o X, R_oo) over the measured channels o; no resampling
+             when nothing was measured)
     propagate X_{t+1}^i = project(f(X_t^i, u_t) + L eps_i),  L L^T = Q,  eps_i ~ N(0, I)
 
 The filter knows (f, C, Q, R) from traj.params and, with project=True ("pf"), the family's state projection
@@ -24,9 +26,29 @@ from mop.systems.base import StateSpace, Trajectories, state_space_of
 Dynamics = Callable[[Tensor, "Tensor | None"], Tensor]  # f: (x (B, N, n), u (B, N, k) | None) -> (B, N, n)
 
 
-def _condition_on(X: Tensor, y: Tensor, C: Tensor, R_inv: Tensor, generator: torch.Generator) -> Tensor:
-    """Resample particles X (B, N, n) by their likelihood N(y; C x, R) of y (B, m) (systematic resampling)."""
+def _condition_on(
+    X: Tensor,
+    y: Tensor,
+    C: Tensor,
+    R_inv: Tensor,
+    generator: torch.Generator,
+    observed: Tensor | None = None,
+    R: Tensor | None = None,
+) -> Tensor:
+    """Resample particles X (B, N, n) by their likelihood N(y; C x, R) of y (B, m) (systematic resampling).
+
+    observed (B, m) bool (None: all measured): the likelihood of the measured channels o only,
+    N(y_o; C_o x, R_oo), from R~ = M R M + (I - M) with the residual zeroed elsewhere (R (B, m, m) needed);
+    systems with nothing measured keep their particles (the draw for the offset is still taken, so the
+    generator stays in step).
+    """
+    if observed is not None:
+        M = observed.to(X.dtype)  # (B, m)
+        R_inv = torch.linalg.inv(M[..., None] * R * M[:, None, :] + torch.diag_embed(1 - M))
+        y = torch.where(observed, y, torch.zeros_like(y))  # its residual is zeroed below
     resid = y[:, None] - X @ C.mT  # (B, N, m)
+    if observed is not None:
+        resid = resid * M[:, None, :]
     log_w = -0.5 * ((resid @ R_inv) * resid).sum(-1)  # (B, N)
     w = torch.softmax(log_w, dim=-1)
     B, N = w.shape
@@ -35,7 +57,10 @@ def _condition_on(X: Tensor, y: Tensor, C: Tensor, R_inv: Tensor, generator: tor
     offset = torch.rand((B, 1), generator=generator, device=generator.device, dtype=w.dtype)
     positions = (offset + torch.arange(N, dtype=w.dtype, device=w.device)) / N  # (B, N)
     idx = torch.searchsorted(cdf, positions).clamp_max(N - 1)
-    return torch.gather(X, 1, idx[..., None].expand_as(X))
+    resampled = torch.gather(X, 1, idx[..., None].expand_as(X))
+    if observed is None:
+        return resampled
+    return torch.where(observed.any(-1)[:, None, None], resampled, X)
 
 
 def _predict(X: Tensor, u: Tensor | None, f: Dynamics, L_Q: Tensor, generator: torch.Generator) -> Tensor:
@@ -91,6 +116,8 @@ def pf_forecast(
     X = proj(model.m0[:, None] + eps @ L_0.mT)  # (B, N, n)
     R_inv = torch.linalg.inv(model.R)  # (B, m, m)
     T1 = y.shape[1]
+    seen = ~torch.isnan(y)  # (B, T+1, m)
+    observed = None if bool(seen.all()) else seen
     out = y.new_full((B, T1, steps, model.R.shape[-1]), float("nan"))
     var = y.new_empty(B, T1, model.R.shape[-1])
     for t in range(T1):
@@ -102,7 +129,10 @@ def pf_forecast(
             f = lambda x, v, s=t + j - 1: model.f(x, v, s)  # noqa: E731
             Xj = proj(_predict(Xj, None if u is None else u[:, t + j - 1], f, L_Q, ahead_gen))
             out[:, t, j] = (model.output_matrix(t + j) @ Xj.mean(1)[..., None])[..., 0]
-        X = _condition_on(X, y[:, t], C, R_inv, generator)
+        if observed is None:
+            X = _condition_on(X, y[:, t], C, R_inv, generator)
+        else:
+            X = _condition_on(X, y[:, t], C, R_inv, generator, observed[:, t], model.R)
         f = lambda x, v, t=t: model.f(x, v, t)  # noqa: E731
         X = proj(_predict(X, None if u is None else u[:, t], f, L_Q, generator))
     return nan_beyond_horizon(out), var

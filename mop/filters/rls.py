@@ -12,6 +12,9 @@ ridge solution theta = (I + sum phi phi^T)^{-1} sum phi y^T, updated one pair (p
 
 Start-up as the authors' baseline (DESIGN.md): yhat_0 = 0 and yhat_t = y_{t-1} for 1 <= t <= p (for p = 2:
 yhat_1 = y_0, yhat_2 = y_1); from t = p + 1 on yhat_t = theta^T phi_{t-1}, theta fitted to the pairs so far.
+
+Missing outputs (NaN in y): a missing regressor entry is replaced by the model's own one-step prediction, and
+pairs whose target channel or any regressor was missing are skipped (_rls_run_gaps).
 """
 
 from __future__ import annotations
@@ -40,7 +43,11 @@ def rls_update(theta: Tensor, P: Tensor, phi: Tensor, target: Tensor) -> tuple[T
 
 
 def _rls_run(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
-    """(yhat (B, T, m), phi (B, T, p*m), {t: theta (B, d, m) used for yhat_t, t >= p + 1})."""
+    """(yhat (B, T, m), phi (B, T, p*m), {t: theta (B, d, m) used for yhat_t, t >= p + 1}).
+
+    y with NaN (missing outputs): _rls_run_gaps, phi then built from the filled outputs."""
+    if torch.isnan(y).any():
+        return _rls_run_gaps(y, order)
     B, T, m = y.shape
     phi = regressors(y, order)  # (B, T, p*m)
     d = order * m
@@ -53,6 +60,57 @@ def _rls_run(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
         thetas[t] = theta
         preds.append((theta.mT @ phi[:, t - 1, :, None])[..., 0])
     return torch.stack(preds, dim=1), phi, thetas
+
+
+def _rls_run_gaps(
+    y: Tensor, order: int, extra: Tensor | None = None, start: int | None = None
+) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
+    """_rls_run for y (B, T, m) with NaN where an output is missing.
+
+    The regressors use the filled outputs y~_s = y_s where measured, else the model's own one-step
+    prediction yhat_s. The pair (phi_{t-2}, y_{t-1}) updates output channel i only when y_{t-1, i} was
+    measured and no entry of phi_{t-2} was filled in; so each channel keeps its own P (B, m, d, d) (equal
+    to the shared P of rls_update while nothing is missing). Start-up as without gaps: yhat_t = y~_{t-1}
+    for 1 <= t <= start (default: order). extra (B, T, e): complete regressors appended to phi_t (ARX's
+    input lags [u_t; ...; u_{t-q+1}]).
+    """
+    B, T, m = y.shape
+    start = order if start is None else start
+    d = order * m + (0 if extra is None else extra.shape[-1])
+    seen = ~torch.isnan(y)  # (B, T, m)
+    filled = torch.zeros_like(y)
+    theta = y.new_zeros(B, d, m)
+    P = torch.eye(d, dtype=y.dtype, device=y.device).repeat(B, m, 1, 1)  # (B, m, d, d)
+    preds, thetas = [], {}
+
+    def lagged(s: int, values: Tensor) -> Tensor:  # (B, p m): [v_s; v_{s-1}; ...], zero before step 0
+        rows = [values[:, s - j] if s - j >= 0 else values.new_zeros(B, m) for j in range(order)]
+        return torch.cat(rows, dim=-1)
+
+    def regressor(s: int) -> Tensor:  # (B, d): phi_s of the filled outputs (and the extra regressors)
+        return lagged(s, filled) if extra is None else torch.cat([lagged(s, filled), extra[:, s]], dim=-1)
+
+    imputed = (~seen).to(y.dtype)
+    for t in range(T):
+        if t == 0:
+            pred = y.new_zeros(B, m)
+        elif t <= start:
+            pred = filled[:, t - 1]
+        else:
+            phi, target = regressor(t - 2), y[:, t - 1]
+            update = seen[:, t - 1] & (lagged(t - 2, imputed) == 0).all(-1, keepdim=True)  # (B, m)
+            Pphi = (P @ phi[:, None, :, None])[..., 0]  # (B, m, d)
+            k = Pphi / (1 + (phi[:, None] * Pphi).sum(-1, keepdim=True))  # (B, m, d)
+            err = torch.where(seen[:, t - 1], target, 0) - (theta.mT @ phi[..., None])[..., 0]  # (B, m)
+            theta = torch.where(update[:, None, :], theta + (k * err[..., None]).mT, theta)
+            P_new = P - k[..., None] * Pphi[..., None, :]
+            P = torch.where(update[..., None, None], 0.5 * (P_new + P_new.mT), P)
+            thetas[t] = theta
+            pred = (theta.mT @ regressor(t - 1)[..., None])[..., 0]
+        preds.append(pred)
+        filled[:, t] = torch.where(seen[:, t], y[:, t], pred)
+    phi = regressors(filled, order)
+    return torch.stack(preds, dim=1), phi if extra is None else torch.cat([phi, extra], dim=-1), thetas
 
 
 def rls_predict(y: Tensor, order: int = 2) -> Tensor:
@@ -90,7 +148,10 @@ def adaptive_order_rls_predict(y: Tensor, max_order: int = 5) -> tuple[Tensor, T
 
 
 def _best_order(y: Tensor, all_preds: Tensor, max_order: int) -> tuple[Tensor, Tensor]:
-    sq_err = ((all_preds - y[:, None]) ** 2).sum(-1)  # (B, P, T)
+    sq = (all_preds - y[:, None]) ** 2  # (B, P, T, m)
+    if torch.isnan(y).any():  # score on the measured outputs only
+        sq = torch.where(torch.isnan(sq), 0, sq)
+    sq_err = sq.sum(-1)  # (B, P, T)
     sq_err[:, :, : max_order + 1] = 0  # score only where every order predicts by regression
     past = torch.cumsum(sq_err, dim=-1) - sq_err  # (B, P, T): errors strictly before t
     best = past.argmin(dim=1)  # (B, T), argmin returns the first (lowest) order on ties

@@ -135,6 +135,17 @@ def n4sid_kalman_forecast(
     return nan_beyond_horizon(out)
 
 
+def refuse_gaps(traj: Trajectories) -> Tensor:
+    """traj.y in float64; MopError for missing outputs: the block Hankel matrices of N4SID need every output,
+    and this implementation does not identify from data with gaps."""
+    if traj.observed is not None:
+        raise MopError(
+            f"n4sid-kf needs every output, and these trajectories have {traj.num_missing} missing (NaN / "
+            "empty cells); use rls, rls-best or last, or fill the gaps"
+        )
+    return traj.y.double()
+
+
 @PREDICTORS.register("n4sid-kf", preset_options={"small": {"every": 10}, "smoke": {"every": 10}})
 class N4SIDKalmanPredictor:
     """Subspace identification from the prefix + steady-state Kalman predictor ("n4sid-kf").
@@ -171,7 +182,7 @@ class N4SIDKalmanPredictor:
         self.min_columns, self.select = min_columns, select
 
     def predict(self, traj: Trajectories) -> Tensor:
-        y = traj.y.double()
+        y = refuse_gaps(traj)
         out = n4sid_kalman_predict(
             y, self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select
         )
@@ -180,7 +191,7 @@ class N4SIDKalmanPredictor:
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): the identified model propagated with no measurement (n4sid_kalman_forecast)."""
         out = n4sid_kalman_forecast(
-            traj.y.double(),
+            refuse_gaps(traj),
             steps,
             self.order,
             self.num_block_rows,

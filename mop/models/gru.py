@@ -63,7 +63,7 @@ class GRUModel(nn.Module):
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         mu, var, _ = self._run(inputs)
-        return prediction_loss(mu, var, targets)
+        return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
 
     def init_cache(self, batch_size: int) -> GRUCache:
         p = self.read_in.weight

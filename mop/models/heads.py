@@ -50,8 +50,16 @@ def require_gaussian(cfg: ModelConfig) -> None:
         )
 
 
-def prediction_loss(mu: Tensor, var: Tensor | None, targets: Tensor) -> Tensor:
-    """MSE when var is None, else mean over all entries of 0.5 [log(2 pi var) + (y - mu)^2 / var]."""
+def prediction_loss(mu: Tensor, var: Tensor | None, targets: Tensor, masked: bool = False) -> Tensor:
+    """MSE when var is None, else mean over all entries of 0.5 [log(2 pi var) + (y - mu)^2 / var].
+
+    masked (models with an observation mask): targets may hold NaN (missing outputs); the mean is over the
+    measured entries only (0 when there are none)."""
+    if masked:
+        seen = ~torch.isnan(targets)
+        y = torch.where(seen, targets, mu.detach())
+        per = (y - mu) ** 2 if var is None else 0.5 * (torch.log(2 * math.pi * var) + (y - mu) ** 2 / var)
+        return (per * seen).sum() / seen.sum().clamp_min(1)
     if var is None:
         return F.mse_loss(mu, targets)
     return 0.5 * (torch.log(2 * math.pi * var) + (targets - mu) ** 2 / var).mean()

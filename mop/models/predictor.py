@@ -12,6 +12,10 @@ the GRU) runs the full recurrence in both modes (streaming it is exact).
 A model trained on recorded data (`mop train --data`) reads normalised inputs: `normalization` maps
 z -> (z - z_mean) / z_std before the model (in float64) and the model's mean mu -> mu * y_std + y_mean
 (variance var * y_std^2) after it, so predictions are in the data's units; yhat[:, 0] is then y_mean.
+
+Missing outputs (NaN in traj.y): a model trained with drop-outs (model.observation_mask) reads
+[y_t zero-filled, u_t, observed_t] (after normalisation) and predicts every step, gaps included; forecasts
+feed back its own predictions as measured. A model without the mask refuses data with gaps in one line.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import torch
 from torch import Tensor, nn
 
 from mop.errors import MopError
+from mop.missing import masked_inputs
 from mop.systems.base import Trajectories
 
 
@@ -74,17 +79,29 @@ class LearnedPredictor:
         self.normalization = normalization
 
     def _inputs(self, traj: Trajectories) -> Tensor:
-        z = traj.model_inputs()  # (B, T+1, d_in)
-        if z.shape[-1] != self.cfg.input_dim or traj.output_dim != self.cfg.output_dim:
+        z = traj.model_inputs()  # (B, T+1, m + k), NaN where y is missing
+        width = z.shape[-1] + (traj.output_dim if self.cfg.observation_mask else 0)
+        if width != self.cfg.input_dim or traj.output_dim != self.cfg.output_dim:
             raise MopError(
-                f"trajectories have output_dim={traj.output_dim}, input width {z.shape[-1]}, "
+                f"trajectories have output_dim={traj.output_dim}, input width {width}, "
                 f"but the model expects output_dim={self.cfg.output_dim}, "
                 f"input width {self.cfg.input_dim}; use a model trained on this family"
             )
-        p = next(self.model.parameters())
-        z = z[:, :-1]  # (B, T, d_in): z_0..z_{T-1}
+        if not self.cfg.observation_mask and traj.observed is not None:
+            raise MopError(
+                f"the trajectories have {traj.num_missing} missing outputs (NaN / empty cells) but this "
+                "model was trained without them; train one with train.missing_rate > 0, or fill the gaps"
+            )
+        return self._model_inputs(z[:, :-1])  # (B, T, d_in): z_0..z_{T-1}
+
+    def _model_inputs(self, z: Tensor) -> Tensor:
+        """z (B, L, m + k) in data units (NaN where y is missing) -> the model's inputs (B, L, d_in):
+        normalised, then zero-filled with the observation mask appended for a model that has one."""
         if self.normalization is not None:
             z = self.normalization.inputs(z)
+        if self.cfg.observation_mask:
+            z = masked_inputs(z, self.cfg.output_dim)
+        p = next(self.model.parameters())
         return z.to(device=p.device, dtype=p.dtype)
 
     @torch.no_grad()
@@ -167,11 +184,8 @@ class LearnedPredictor:
         return out
 
     def _last_output(self, z: Tensor) -> Tensor:
-        """The model's mean output (B, m) in data units, float64, at the last position of z (B, L, d_in)."""
-        if self.normalization is not None:
-            z = self.normalization.inputs(z)
-        p = next(self.model.parameters())
-        mu, _ = self._run(z.to(device=p.device, dtype=p.dtype), gaussian=False)
+        """The model's mean output (B, m) in data units, float64, at the last position of z (B, L, m + k)."""
+        mu, _ = self._run(self._model_inputs(z), gaussian=False)
         return mu[:, -1].double().cpu()
 
 

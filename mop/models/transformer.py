@@ -228,7 +228,8 @@ class Transformer(nn.Module):
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m)."""
-        return prediction_loss(*self._distribution(inputs), targets)
+        mu, var = self._distribution(inputs)
+        return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
 
     # ---- streaming ----
     def init_cache(self, batch_size: int) -> KVCache:

@@ -40,7 +40,8 @@ MAX_REDRAWS = 100
 class Trajectories:
     """A batch of simulated (or measured) trajectories.
 
-    y: (B, T+1, m) outputs y_0..y_T.
+    y: (B, T+1, m) outputs y_0..y_T; NaN marks an output channel not measured at a step (a gap; `observed`
+        is the mask). Every predictor skips what was not measured; inputs u must be complete.
     u: (B, T+1, k) inputs u_0..u_T, or None for families without inputs.
     x: (B, T+1, n) true states, or None for measured data.
     params: per-system parameters, each with leading dim B (e.g. "A": (B, n, n), "C": (B, m, n),
@@ -71,8 +72,20 @@ class Trajectories:
     def input_dim(self) -> int:
         return 0 if self.u is None else self.u.shape[2]
 
+    @property
+    def observed(self) -> Tensor | None:
+        """(B, T+1, m) bool, True where y was measured; None when every entry was (no gaps)."""
+        seen = ~torch.isnan(self.y)
+        return None if bool(seen.all()) else seen
+
+    @property
+    def num_missing(self) -> int:
+        """How many scalar outputs are missing (NaN in y)."""
+        return int(torch.isnan(self.y).sum())
+
     def model_inputs(self) -> Tensor:
-        """(B, T+1, m + k): [y_t, u_t] per step, the sequence a learned predictor reads."""
+        """(B, T+1, m + k): [y_t, u_t] per step, the sequence a learned predictor reads (NaN where y is
+        missing; mop.missing.masked_inputs gives the layout of a model with an observation mask)."""
         return self.y if self.u is None else torch.cat([self.y, self.u], dim=-1)
 
     def _map(self, fn: Callable[[Tensor], Tensor]) -> Trajectories:

@@ -8,6 +8,10 @@ Recorded data (config.data, `mop train --data FILE`): RecordedData splits the fi
 permutation seeded by data.split_seed, fits per-channel mean/std on the training split, and TrainingData
 samples windows of train.horizon + 1 steps uniformly over all valid (trajectory, start) pairs of the
 normalised training trajectories; num_source_systems is unused (the file fixes the systems).
+
+Missing outputs: with train.missing_rate / missing_burst_rate > 0 (model.observation_mask) every batch has
+outputs dropped at random (with_drop_outs, from the same generator); outputs missing in a recorded file (NaN)
+stay missing. Targets then hold NaN where missing and the loss counts only the measured ones.
 """
 
 from __future__ import annotations
@@ -21,9 +25,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from mop.config import DataConfig, RunConfig
+from mop.config import DataConfig, RunConfig, TrainConfig
 from mop.errors import MopError
 from mop.io import read_trajectories
+from mop.missing import drop_mask, drop_outputs, masked_inputs
 from mop.systems import make_family
 
 NUM_VAL_SYSTEMS = 256
@@ -34,6 +39,7 @@ class TrainingData:
 
     def __init__(self, config: RunConfig, device: torch.device) -> None:
         self.cfg = config.train
+        self.masked = config.model.observation_mask
         self.generator = torch.Generator(device=device).manual_seed(self.cfg.seed)
         self.inputs = self.targets = None
         if config.data is not None:
@@ -50,6 +56,12 @@ class TrainingData:
         return z[:, :-1].float().contiguous(), traj.y[:, 1:].float().contiguous()
 
     def batch(self) -> tuple[Tensor, Tensor]:
+        """(inputs (B, T, d_in), targets (B, T, m)); with a model that has an observation mask, targets hold
+        NaN where an output is missing (dropped here, or missing in the data) and inputs the mask layout."""
+        batch = self._clean_batch()
+        return with_drop_outs(*batch, self.cfg, self.generator) if self.masked else batch
+
+    def _clean_batch(self) -> tuple[Tensor, Tensor]:
         if self.family is None:
             return self.windows.sample(self.cfg.batch_size, self.generator)
         if self.inputs is None:
@@ -64,17 +76,37 @@ class TrainingData:
         return self.inputs[index], self.targets[index]
 
 
+def with_drop_outs(
+    inputs: Tensor, targets: Tensor, cfg: TrainConfig, generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
+    """Drop outputs (mop.missing.drop_mask with train.missing_rate / missing_burst_*; y_0 kept) from a batch
+    inputs (B, T, m + k) = [y_0..y_{T-1}, u], targets (B, T, m) = y_1..y_T: a dropped y_t is missing both as
+    the input at t and as the target at t - 1. Returns (masked inputs (B, T, m + k + m), targets with NaN)."""
+    m = targets.shape[-1]
+    y = torch.cat([inputs[:, :1, :m], targets], dim=1)  # (B, T+1, m): y_0..y_T
+    drop = drop_mask(
+        tuple(y.shape), cfg.missing_rate, generator, cfg.missing_burst_rate, cfg.missing_burst_length
+    )
+    y = drop_outputs(y, drop)
+    z = torch.cat([y[:, :-1], inputs[..., m:]], dim=-1)
+    return masked_inputs(z, m), y[:, 1:].contiguous()
+
+
 def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, Tensor]:
     """Held-out systems (a generator seeded apart from training) for the validation loss.
 
     Recorded data: the first train.horizon + 1 steps of each held-out trajectory long enough for them.
     """
-    if config.data is not None:
-        return recorded_data(config.data).validation(config.data, config.train.horizon, device)
-    family = make_family(config.system)
     g = torch.Generator(device=device).manual_seed(config.train.seed + 1_000_003)
-    traj = family.generate(NUM_VAL_SYSTEMS, config.train.horizon, generator=g)
-    return traj.model_inputs()[:, :-1].float(), traj.y[:, 1:].float()  # (N, T, d_in), (N, T, m)
+    if config.data is not None:
+        val = recorded_data(config.data).validation(config.data, config.train.horizon, device)
+    else:
+        family = make_family(config.system)
+        traj = family.generate(NUM_VAL_SYSTEMS, config.train.horizon, generator=g)
+        val = traj.model_inputs()[:, :-1].float(), traj.y[:, 1:].float()  # (N, T, d_in), (N, T, m)
+    if config.model.observation_mask:  # the same kind of drop-outs as in training, seeded apart
+        return with_drop_outs(*val, config.train, g)
+    return val
 
 
 # ----------------------------------------------------------------------------- recorded trajectories
@@ -115,6 +147,7 @@ class RecordedData:
             raise MopError(f"{cfg.path}: trajectories differ in output/input widths {sorted(widths)}")
         (self.output_dim, self.input_dim), n = widths.pop(), len(data)
         self.y = [y for y, _ in data]
+        self.num_missing = int(sum(np.isnan(y).sum() for y in self.y))  # outputs missing in the file
         self.u = [np.zeros((len(y), 0)) if u is None else u for y, u in data]
         n_val = int(round(cfg.validation_fraction * n))
         if n < 2 or not 1 <= n_val <= n - 1:
@@ -131,8 +164,10 @@ class RecordedData:
         stats = {}
         for name, arrays in (("y", self.y), ("u", self.u)):
             a = np.concatenate([arrays[i] for i in self.train_index])  # (sum T_i+1, m or k)
-            std = a.std(axis=0)
-            stats[f"{name}_mean"] = [float(v) for v in a.mean(axis=0)]
+            if np.isnan(a).all(axis=0).any():
+                raise MopError(f"{self.path}: an output channel is missing at every training step")
+            std = np.nanstd(a, axis=0)  # missing outputs (NaN) left out
+            stats[f"{name}_mean"] = [float(v) for v in np.nanmean(a, axis=0)]
             stats[f"{name}_std"] = [float(v) if v > 0 else 1.0 for v in std]
         return stats
 

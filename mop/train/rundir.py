@@ -31,9 +31,12 @@ from mop.train.data import recorded_data
 
 
 def resolve_config(config: RunConfig) -> RunConfig:
-    """Fill model.input_dim / output_dim (0 = from the system family or the data file): d_in = m + k,
-    d_out = m; for recorded data also the normalisation fitted on the training split (data.y_mean, ...)."""
+    """Fill model.input_dim / output_dim (0 = from the system family or the data file): d_in = m + k
+    (+ m with model.observation_mask, which training with drop-outs sets), d_out = m; for recorded data
+    also the normalisation fitted on the training split (data.y_mean, ...)."""
     check_arch(config.model.arch)
+    if config.train.drops_outputs and not config.model.observation_mask:
+        config = dataclasses.replace(config, model=dataclasses.replace(config.model, observation_mask=True))
     if config.data is not None:
         return _resolve_data(config)
     family = make_family(config.system)
@@ -42,7 +45,9 @@ def resolve_config(config: RunConfig) -> RunConfig:
 
 
 def _with_dims(config: RunConfig, d_in: int, m: int, source: str) -> RunConfig:
+    """d_in = m + k, plus m mask channels for a model with an observation mask."""
     model = config.model
+    d_in += m if model.observation_mask else 0
     for name, value in (("input_dim", d_in), ("output_dim", m)):
         if getattr(model, name) not in (0, value):
             raise MopError(
@@ -53,6 +58,11 @@ def _with_dims(config: RunConfig, d_in: int, m: int, source: str) -> RunConfig:
 
 def _resolve_data(config: RunConfig) -> RunConfig:
     data = recorded_data(config.data)
+    if data.num_missing and not config.model.observation_mask:
+        raise MopError(
+            f"{config.data.path} has {data.num_missing} missing outputs (NaN / empty cells); train a model "
+            "that reads them with model.observation_mask=true (or train.missing_rate=0.1), or fill them"
+        )
     data.check_lengths(config.train.horizon)
     stats = data.fit()
     for name, value in stats.items():

@@ -1,0 +1,98 @@
+"""Missing outputs (NaN in y) in the filters that know the system: KF against filterpy (update(None) for whole
+missing steps, H_o / R_oo for partial ones) and against brute-force Gaussian conditioning on the measured
+entries of the joint covariance; EKF/UKF on a linear model equal to the KF; the PF near the KF."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from mop.filters.ekf import EKFPredictor
+from mop.filters.kalman import kalman_predict
+from mop.filters.particle import ParticleFilterPredictor
+from mop.filters.ukf import UKFPredictor
+from mop.predictors import make_predictor
+from tests.reference import filterpy_predict_gaps, joint_gaussian_predict, linear_traj
+from tests.test_kalman import random_spd, random_system, simulate
+
+
+def with_gaps(traj, rate=0.3, whole_steps=(), seed=0):
+    """traj with a random `rate` of the outputs set to NaN (not at t = 0) and every channel at whole_steps."""
+    y = traj.y.clone()
+    g = torch.Generator().manual_seed(seed)
+    drop = torch.rand(y.shape, generator=g, dtype=torch.float64) < rate
+    drop[:, 0] = False
+    drop[:, list(whole_steps)] = True
+    y[drop] = float("nan")
+    return dataclasses.replace(traj, y=y)
+
+
+def test_whole_missing_steps_equal_filterpy_update_none():
+    rng = np.random.default_rng(0)
+    A, C, Q, R = random_system(rng, 3, 3, 2)
+    y = simulate(rng, A, C, Q, R, 20)
+    y[:, [3, 4, 5, 11, 17]] = np.nan  # whole steps: filterpy's update(None)
+    y[1, 8] = np.nan  # one system only
+    x0, P0 = rng.normal(size=(3, 3)), random_spd(rng, 3, 3, scale=1.0)
+    ref = filterpy_predict_gaps(A, C, Q, R, y, x0, P0)
+    np.testing.assert_allclose(kalman_predict(A, C, Q, R, y, x0, P0), ref, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("n,m", [(3, 2), (2, 4)])
+def test_single_missing_channels_equal_joint_gaussian_conditioning(n, m):
+    rng = np.random.default_rng(n + m)
+    A, C, Q, R = random_system(rng, 2, n, m)
+    P0 = random_spd(rng, 2, n, scale=1.0)
+    y = simulate(rng, A, C, Q, R, 9, P0=P0)
+    y[rng.random(y.shape) < 0.35] = np.nan  # single channels here and there, some whole steps by chance
+    yhat = kalman_predict(A, C, Q, R, y, np.zeros((2, n)), P0)
+    for b in range(2):
+        ref = joint_gaussian_predict(A[b], C[b], Q[b], R[b], P0[b], y[b])
+        np.testing.assert_allclose(yhat[b], ref, atol=1e-8, rtol=0)
+    ref_fp = filterpy_predict_gaps(A, C, Q, R, y, np.zeros((2, n)), P0)
+    np.testing.assert_allclose(yhat, ref_fp, atol=1e-9, rtol=0)
+
+
+def test_kalman_predictor_distribution_with_gaps_is_finite_and_skips_missing():
+    traj = with_gaps(linear_traj(num_systems=4, horizon=25), whole_steps=(7,))
+    mean, var = make_predictor("kalman").predict_distribution(traj)
+    assert torch.isfinite(mean).all() and (var > 0).all()
+    # the prior at t = 8 after a whole missing step is the two-step prediction from t = 6
+    fc = make_predictor("kalman").forecast(traj, 3)
+    torch.testing.assert_close(mean[:, 8], fc[:, 7, 1], rtol=0, atol=1e-12)
+
+
+def test_ekf_and_ukf_on_a_linear_model_with_gaps_equal_the_kalman_filter():
+    traj = with_gaps(linear_traj(seed=1), whole_steps=(4, 5))
+    kf = make_predictor("kalman").predict(traj)
+    torch.testing.assert_close(EKFPredictor().predict(traj), kf, rtol=0, atol=1e-9)
+    torch.testing.assert_close(UKFPredictor().predict(traj), kf, rtol=0, atol=1e-8)
+
+
+def test_particle_filter_with_gaps_approaches_the_kalman_filter():
+    traj = linear_traj(num_systems=4, horizon=15, seed=2, noise_var_w=0.1, noise_var_v=0.1)
+    traj = with_gaps(traj, rate=0.3, whole_steps=(6,))
+    kf = make_predictor("kalman").predict(traj).numpy()
+    gap = lambda n: np.abs(ParticleFilterPredictor(n, seed=0).predict(traj).numpy() - kf).mean()  # noqa: E731
+    scale = np.nanmean(np.abs(traj.y.numpy() - kf))
+    small, large = gap(100), gap(20000)
+    assert large < 0.05 * scale and large < small / 3
+
+
+def test_particle_filter_with_gaps_and_correlated_noise_weighs_by_the_marginal_of_the_measured():
+    """With correlated R the likelihood of the measured channels is N(y_o; C_o x, R_oo), not R^-1's block."""
+    traj = linear_traj(num_systems=4, horizon=12, seed=5, noise_var_w=0.1, noise_var_v=0.1)
+    R = 0.2 * torch.tensor([[1.0, 0.9], [0.9, 1.0]], dtype=torch.float64)
+    traj = with_gaps(dataclasses.replace(traj, params={**traj.params, "R": R.expand(4, 2, 2).clone()}), 0.4)
+    kf = make_predictor("kalman").predict(traj).numpy()
+    pf = ParticleFilterPredictor(20000, seed=0).predict(traj).numpy()
+    scale = np.nanmean(np.abs(traj.y.numpy() - kf))
+    assert np.abs(pf - kf).mean() < 0.05 * scale
+
+
+def test_no_gaps_takes_the_unchanged_path():
+    traj = linear_traj()
+    assert traj.observed is None and traj.num_missing == 0
+    gappy = with_gaps(traj)
+    assert gappy.observed is not None and gappy.num_missing == int((~gappy.observed).sum())
