@@ -32,8 +32,10 @@ def error(exp: Experiment, results: Results, out: Path) -> list[Path]:
     for name, r in results.items():
         panel = [p or exp.reference for p in exp.panel]
         title = f"{exp.name} ({exp.title})" + ("" if len(results) == 1 else f", {name}")
-        floor = r.extras.get("floor", {}).get("mse")
-        fig = plots.error_figure(r.summary["predictors"], panel, exp.reference, title, floor)
+        floor = r.extras.get("floor", {})
+        fig = plots.error_figure(
+            r.summary["predictors"], panel, exp.reference, title, floor.get("mse"), floor.get("mean_norm")
+        )
         paths += plots.save(fig, out, _stem(exp, results, name, "error"))
     return paths
 
