@@ -49,7 +49,7 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
 # Keys left out of a RunConfig's dict while they hold these defaults, so configs (and their hashes, which name
 # run directories) written before the keys existed are unchanged.
 OMITTED_AT_DEFAULT = {
-    "model": {"observation_mask": False},
+    "model": {"observation_mask": False, "input_scale": "none", "rls_order": 0},
     "train": {"missing_rate": 0.0, "missing_burst_rate": 0.0, "missing_burst_length": 5},
 }
 
@@ -202,6 +202,8 @@ class ModelConfig:
     position: str = (
         "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact relative streaming)
     )
+    input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
+    rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
     # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
     observation_mask: bool = False
@@ -229,6 +231,14 @@ class ModelConfig:
             f"model.readout must be 'mean' or 'gaussian', got {self.readout!r}",
         )
         check(0 <= self.dropout < 1, f"model.dropout must be in [0, 1), got {self.dropout}")
+        check(
+            self.input_scale in ("none", "running"),
+            f"model.input_scale must be 'none' or 'running', got {self.input_scale!r}",
+        )
+        check(
+            isinstance(self.rls_order, int) and 0 <= self.rls_order <= 10,
+            f"model.rls_order must be an integer in 0..10 (0 = off), got {self.rls_order!r}",
+        )
         check(
             isinstance(self.observation_mask, bool),
             f"model.observation_mask must be true or false, got {self.observation_mask!r}",

@@ -28,17 +28,28 @@ def save(fig, out_dir: Path, stem: str) -> list[Path]:
     return paths
 
 
+def ratio_panel_top(panel_ratios: dict[str, np.ndarray]) -> float:
+    """Upper limit of the ratio panel: 1.5 x the largest 90th percentile over t of the panel predictors'
+    ratios (T,) each, at least 2."""
+    highest = max((float(np.quantile(r, 0.9)) for r in panel_ratios.values()), default=1.0)
+    return max(2.0, 1.5 * highest)
+
+
 def error_figure(
     predictors: dict[str, dict],
     panel: list[str],
     reference: str,
     title: str,
     floor_mse: list[float] | None = None,
+    floor_norm: list[float] | None = None,
 ):
     """Two panels. Left, the paper's: mean error ||yhat_t - y_t|| against t (log scale) with +-1 std bands
-    (floored above 0) for the `panel` predictors (those present), and, where given, the optimal RMS error
-    sqrt(E||e_t||^2) of the known system (dashed; the floor of the MSE). Right: every predictor's MSE ratio to
-    the reference against t (log scale), and the floor's."""
+    (floored above 0) for the `panel` predictors (those present), and, where given, the optimum in the same
+    metric, E||e_t|| for e_t ~ N(0, S_t) of the known system (dashed). Right: the MSE ratio to the
+    reference against t (log scale), its axis clipped at 1.5 x the largest 90th percentile (over t) of the
+    panel predictors' ratios (at least 2), so trivial predictors such as `zero` (ratios up to 40) do not
+    squash the range that matters; predictors whose median ratio lies above the clip are left out and named
+    in the title. The floor's ratio is dashed."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
     colors = {name: f"C{i}" for i, name in enumerate(predictors)}
     for name in dict.fromkeys(n for n in panel if n in predictors):
@@ -47,21 +58,26 @@ def error_figure(
         t = np.arange(len(mean))
         left.plot(t, mean, label=name, color=colors[name])
         left.fill_between(t, np.maximum(mean - std, mean * 0.05), mean + std, alpha=0.15, color=colors[name])
-    if floor_mse is not None:
-        left.plot(np.sqrt(floor_mse), "k--", lw=0.9, label="optimal RMS error")
+    if floor_norm is not None:
+        left.plot(floor_norm, "k--", lw=0.9, label=r"optimum $E\|e_t\|$, $e_t \sim N(0, S_t)$")
     left.set(yscale="log", xlabel="t", ylabel=r"$\|\hat y_t - y_t\|_2$", title=title)
     left.legend(fontsize=8)
     left.grid(alpha=0.3, which="both")
     if reference in predictors:
         den = np.asarray(predictors[reference]["squared_error"][1:])
-        for name, c in predictors.items():
-            ratio = np.asarray(c["squared_error"][1:]) / den
-            right.plot(np.arange(1, len(ratio) + 1), ratio, label=name, color=colors[name], lw=1.2)
+        ratios = {name: np.asarray(c["squared_error"][1:]) / den for name, c in predictors.items()}
+        top = ratio_panel_top({n: r for n, r in ratios.items() if n in panel})
+        left_out = [name for name, r in ratios.items() if np.median(r) > top]
+        for name, ratio in ratios.items():
+            if name not in left_out:
+                right.plot(np.arange(1, len(ratio) + 1), ratio, label=name, color=colors[name], lw=1.2)
         if floor_mse is not None:
             right.plot(
                 np.arange(1, len(den) + 1), np.asarray(floor_mse[1:]) / den, "k--", lw=0.9, label="floor"
             )
-        right.set(yscale="log", xlabel="t", ylabel=f"MSE ratio to {reference}", title="every predictor")
+        dropped = f" (left out, median ratio > {top:.3g}: {', '.join(left_out)})" if left_out else ""
+        right.set(yscale="log", xlabel="t", ylabel=f"MSE ratio to {reference}", title="predictors" + dropped)
+        right.set_ylim(top=top)
         right.legend(fontsize=7, ncol=2)
         right.grid(alpha=0.3, which="both")
     fig.tight_layout()

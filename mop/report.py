@@ -69,12 +69,19 @@ def claim_line(claim: str, evidence: str, holds: bool | None) -> str:
 
 
 def build_report(
-    title: str, sections: list[str], settings: dict, claims: list[str], wall_seconds: float
+    title: str,
+    sections: list[str],
+    settings: dict,
+    claims: list[str],
+    wall_seconds: float,
+    lead: str = "",
 ) -> str:
-    """The report.md text: title, claims, sections (tables), settings, versions, wall time."""
+    """The report.md text: title, lead (a table that comes first), claims, sections (tables), settings,
+    versions, wall time."""
     parts = [
         f"# {title}",
         "",
+        *([lead] if lead else []),
         "## Claims against our numbers",
         "",
         *claims,

@@ -53,3 +53,20 @@ def test_recipes_are_data():
     assert cosine.lr_factor(0.5, cosine.config().train) == pytest.approx(0.5)
     with pytest.raises(MopError):
         parse_recipe(["bad", "model.nope=1"])
+
+
+def test_family_reference_and_seeds(tmp_path, capsys):
+    """--seeds 2 trains two seeds (different ratios, range around the mean); --family/--reference/--compare
+    score against that family's predictor; an unknown name is refused before any training."""
+    argv = ["bench", "recipe", "--steps", "2", "--systems", "8", "--seeds", "2", "--recipe", *TINY]
+    argv += ["--family", "upper-triangular", "--reference", "kalman", "--compare", "rls", "--json"]
+    assert main([*argv, "--out", str(tmp_path)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["family"] == "upper-triangular" and result["seeds"] == 2 and "rls" in result["compare"]
+    (row,) = result["results"]
+    ratios = [s["ratio"] for s in row["seeds"]]
+    assert [s["seed"] for s in row["seeds"]] == [0, 1] and ratios[0] != ratios[1]
+    assert row["ratio"] == pytest.approx(sum(ratios) / 2)
+    assert (row["ratio_min"], row["ratio_max"]) == (min(ratios), max(ratios))
+    assert main(["bench", "recipe", "--family", "nope", "--steps", "1"]) == 2
+    assert "unknown --family 'nope'" in capsys.readouterr().err

@@ -65,6 +65,7 @@ STILL_NAMED: dict[tuple[str, str], str] = {
         for n in ("kalman", "rls", "ekf", "n4sid-kf", "linear", "quadrotor")
     },
     ("mop.bench.recipe", "kalman"): "the recipe benchmark's reference",
+    ("mop.bench.recipe", "linear"): "the recipe benchmark's default family",
     **{("mop.bench.simulate", n): "mop bench simulate times these families" for n in ("linear", "quadrotor")},
     **{
         ("mop.bench.forecast", n): "mop bench forecast times these predictors on these families"

@@ -1,6 +1,8 @@
 """Missing outputs in the identifiers: RLS skips the pairs with a missing target or regressor and fills the
 missing regressors with its own predictions (against batch ridge regression); N4SID refuses gaps."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -62,3 +64,16 @@ def test_n4sid_refuses_gaps_in_one_line():
     with pytest.raises(MopError, match="n4sid") as err:
         make_predictor("n4sid-kf").predict(traj)
     assert "\n" not in str(err.value)
+
+
+def test_arx_with_gaps_and_inputs_equals_batch_ridge_on_the_complete_pairs():
+    """The registered `arx` (p = q = 2) skips pairs with a missing target or output regressor; its input
+    lags are complete regressors (the same reference as the gap path above, through the predictor)."""
+    traj = with_gaps(linear_traj(num_systems=2, horizon=20, seed=5), rate=0.25)
+    u = torch.randn(2, 21, 1, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    traj = dataclasses.replace(traj, u=u)
+    yhat = make_predictor("arx").predict(traj).numpy()
+    for b in range(2):
+        ref = rls_gaps_reference(traj.y[b].numpy(), 2, u[b].numpy(), 2)
+        np.testing.assert_allclose(yhat[b], ref, atol=1e-9, rtol=0)
+    assert torch.isfinite(make_predictor("arx-best").predict(traj)).all()

@@ -1,5 +1,7 @@
 """report.md tables and figures: built from a summary of predictors with known errors."""
 
+import numpy as np
+import pytest
 import torch
 
 from mop import plots
@@ -33,6 +35,23 @@ def test_tables_hold_every_predictor_and_window():
     assert "| mop |" in ratios and "| kalman |" not in ratios and "bootstrap" in ratios
     text = build_report("t", [summary_section("linear", s, ["a.png"])], {"seed": 0}, ["- claim"], 1.5)
     assert table in text and "![a.png](a.png)" in text and "torch" in text and "Wall time: 1.5 s" in text
+
+
+def test_ratio_panel_leaves_out_trivial_predictors():
+    """A predictor 40 x the reference is left out of the ratio panel (named in its title); the axis is
+    clipped at 1.5 x the panel predictors' 90th percentile, so ratios near 1 keep their room."""
+    T = 51
+    flat = {"error": [1.0] * T, "std": [0.1] * T}
+    predictors = {
+        "mop": {**flat, "squared_error": [1.2] * T},
+        "kalman": {**flat, "squared_error": [1.0] * T},
+        "zero": {**flat, "squared_error": [40.0] * T},
+    }
+    fig = plots.error_figure(predictors, ["mop", "kalman"], "kalman", "x")
+    right = fig.axes[1]
+    assert [line.get_label() for line in right.get_lines()] == ["mop", "kalman"]
+    assert "zero" in right.get_title() and right.get_ylim()[1] == pytest.approx(2.0)
+    assert plots.ratio_panel_top({"mop": np.array([1.0, 3.0] * 10)}) == pytest.approx(4.5)
 
 
 def test_figures_written_nonempty(tmp_path):

@@ -1,9 +1,15 @@
-"""`mop bench recipe`: the MOP/KF MSE ratio each training recipe reaches within a wall-clock budget.
+"""`mop bench recipe`: the MOP/reference MSE ratio each training recipe reaches within a budget, over seeds.
 
-Every recipe trains from scratch once per budget (default 60, 120, 180 s), then predicts the same N = 500
-seeded linear test systems (T = 50); the score is the MOP/KF MSE ratio over t in [20, 50] with a paired
-bootstrap 95% CI (mop.metrics.mse_ratio_ci). Built in: "small" (PRESETS["small"], mop's CPU recipe) and
-"paper" (12 layers, width 256, 8 heads, AdamW 3e-4 constant, wd 0.01, clip 1, batch 64, M = 20000).
+Every recipe trains from scratch once per budget (default 60, 120, 180 s) and training seed (--seeds K:
+train.seed = 0..K-1, default 2), then predicts the same N = 500 seeded test systems of --family (default
+linear, T = the recipe's train.horizon); the score is the MOP/reference MSE ratio over t in [20, T] (the
+reference: --reference, default the KF; kalman-colored, pf, ... for other families) with a paired bootstrap
+95% CI over test systems (mop.metrics.mse_ratio_ci). Each row reports the mean ratio over seeds, its range
+(min, max over seeds) and every seed's ratio and CI; --compare NAMES adds those predictors' ratios to the
+reference (e.g. rls), so a recipe can be read against them.
+Built in: "small" (PRESETS["small"], mop's CPU recipe) and "paper" (12 layers, width 256, 8 heads, AdamW
+3e-4 constant, wd 0.01, clip 1, batch 64, M = 20000). A new recipe name starts from the small preset with
+the cosine ending at final_lr=0 unless given (final_lr=0.1 is the preset's own schedule).
 
 Time-limited schedule: the run's progress is p = elapsed / budget (or step / steps with --steps, which is
 deterministic); lr(p) = lr * p / warmup for p < warmup, then lr (train.lr_schedule=constant) or a cosine from
@@ -35,9 +41,10 @@ from mop.metrics import errors, mse_ratio_ci
 from mop.models import build_model
 from mop.models.predictor import LearnedPredictor
 from mop.plots import save
-from mop.predictors import make_predictor
+from mop.predictors import PREDICTORS, make_predictor
 from mop.progress import progress as progress_bar
 from mop.systems import generator, make_family
+from mop.systems.base import FAMILIES, config_class
 
 WINDOW = (20, 51)  # t in [20, 50]
 
@@ -53,11 +60,13 @@ class Recipe:
     final_lr: float = 0.0  # cosine end as a fraction of train.lr
     threads: int = 0  # torch.set_num_threads; 0 keeps the default
 
-    def config(self) -> RunConfig:
+    def config(self, family: str = "linear", seed: int | None = None) -> RunConfig:
+        """The recipe's RunConfig on `family` (its default knobs), train.seed = `seed` when given."""
         p = get_preset(self.base)
         model = dataclasses.replace(p.model, context=p.train.horizon)
         train = dataclasses.replace(p.train, compile="off", device="cpu")
-        return apply_overrides(RunConfig(SystemConfig(), model, train), list(self.overrides))
+        first = [f"system.family={family}"] + ([] if seed is None else [f"train.seed={seed}"])
+        return apply_overrides(RunConfig(SystemConfig(), model, train), first + list(self.overrides))
 
     def lr_factor(self, progress: float, cfg) -> float:
         """Multiplier of train.lr at budget fraction `progress` in [0, 1); cfg: the recipe's TrainConfig."""
@@ -98,12 +107,19 @@ def parse_recipe(words: list[str]) -> Recipe:
     return recipe
 
 
-def train_for(recipe: Recipe, seconds: float | None = None, steps: int | None = None, show: bool = False):
-    """Train `recipe` until `seconds` of wall clock or `steps` steps; returns (model, info dict)."""
+def train_for(
+    recipe: Recipe,
+    seconds: float | None = None,
+    steps: int | None = None,
+    show: bool = False,
+    family: str = "linear",
+    seed: int | None = None,
+):
+    """Train `recipe` on `family` until `seconds` of wall clock or `steps` steps; returns (model, info)."""
     if recipe.threads:
         torch.set_num_threads(recipe.threads)
     start = time.perf_counter()
-    config = mt.resolve_config(recipe.config())
+    config = mt.resolve_config(recipe.config(family, seed))
     cfg, device = config.train, torch.device("cpu")
     torch.manual_seed(cfg.seed)
     model = build_model(config.model).to(device).train()
@@ -133,52 +149,100 @@ def train_for(recipe: Recipe, seconds: float | None = None, steps: int | None = 
 
 
 class TestSet:
-    """N seeded linear test systems (float64) and the Kalman filter's errors on them, built once."""
+    """N seeded test systems of `family` (float64, T steps), the reference's and the others' errors."""
 
-    def __init__(self, num_systems: int, seed: int) -> None:
-        family = make_family(SystemConfig(), dtype=torch.float64)
-        self.traj = family.generate(num_systems, 50, generator=generator(seed + TEST_SEED_OFFSET))
-        self.e_kf = errors(make_predictor("kalman").predict(self.traj), self.traj.y)
-        self.seed = seed
+    def __init__(
+        self,
+        num_systems: int,
+        seed: int,
+        family: str = "linear",
+        reference: str = "kalman",
+        compare: tuple[str, ...] = (),
+        horizon: int = 50,
+    ) -> None:
+        fam = make_family(config_class(family)(family=family), dtype=torch.float64)
+        self.traj = fam.generate(num_systems, horizon, generator=generator(seed + TEST_SEED_OFFSET))
+        self.family, self.reference, self.seed = family, reference, seed
+        self.window = (WINDOW[0], horizon + 1)
+        self.e_ref = errors(make_predictor(reference).predict(self.traj), self.traj.y)
+        self.others = {}
+        for name in compare:
+            e = errors(make_predictor(name).predict(self.traj), self.traj.y)
+            self.others[name] = self._ratio(e)[0]
+
+    def _ratio(self, e) -> tuple[float, float, float]:
+        return mse_ratio_ci(e, self.e_ref, *self.window, seed=self.seed)
 
     def ratio(self, model) -> tuple[float, float, float]:
-        e = errors(LearnedPredictor(model).predict(self.traj), self.traj.y)
-        return mse_ratio_ci(e, self.e_kf, *WINDOW, seed=self.seed)
+        return self._ratio(errors(LearnedPredictor(model).predict(self.traj), self.traj.y))
 
 
-def measure(recipes: list[Recipe], budgets: list[float], test: TestSet, unit: str = "seconds", log=print):
+def measure(
+    recipes: list[Recipe],
+    budgets: list[float],
+    test: TestSet,
+    unit: str = "seconds",
+    log=print,
+    seeds: int = 2,
+):
+    """One row per (budget, recipe): every seed's ratio and CI, their mean and range over seeds."""
     rows = []
     for budget in budgets:
         for recipe in recipes:
             limit = {"seconds": float(budget)} if unit == "seconds" else {"steps": int(budget)}
-            model, info = train_for(recipe, **limit)
-            ratio, low, high = test.ratio(model)
-            row = {"recipe": recipe.name, "budget": budget, "unit": unit, **info}
-            rows.append(row | {"ratio": ratio, "ci_low": low, "ci_high": high})
+            per_seed = []
+            for seed in range(seeds):
+                model, info = train_for(recipe, **limit, family=test.family, seed=seed)
+                ratio, low, high = test.ratio(model)
+                per_seed.append({"seed": seed, **info, "ratio": ratio, "ci_low": low, "ci_high": high})
+            rows.append(_aggregate(recipe.name, budget, unit, per_seed))
             log(_line(rows[-1]))
     return rows
 
 
+def _aggregate(name: str, budget: float, unit: str, per_seed: list[dict]) -> dict:
+    """Mean over seeds of steps, seconds, loss and ratio; its range; ci_*: the union of the seeds' CIs."""
+    mean = lambda key: sum(r[key] for r in per_seed) / len(per_seed)  # noqa: E731
+    ratios = [r["ratio"] for r in per_seed]
+    return {
+        "recipe": name,
+        "budget": budget,
+        "unit": unit,
+        "steps": round(mean("steps")),
+        "seconds": mean("seconds"),
+        "steps_per_s": mean("steps_per_s"),
+        "train_loss": mean("train_loss"),
+        "ratio": mean("ratio"),
+        "ratio_min": min(ratios),
+        "ratio_max": max(ratios),
+        "ci_low": min(r["ci_low"] for r in per_seed),
+        "ci_high": max(r["ci_high"] for r in per_seed),
+        "seeds": per_seed,
+    }
+
+
 def _line(r: dict) -> str:
     budget = f"{r['budget']:g} {'s' if r['unit'] == 'seconds' else 'steps'}"
+    each = ", ".join(f"{s['ratio']:.4f}" for s in r["seeds"])
     return (
         f"{r['recipe']:<12} {budget:>10} {r['steps']:>7d} {r['seconds']:>7.1f} {r['steps_per_s']:>8.2f}   "
-        f"{r['ratio']:.4f} [{r['ci_low']:.4f}, {r['ci_high']:.4f}]"
+        f"{r['ratio']:.4f} [{r['ratio_min']:.4f}, {r['ratio_max']:.4f}]  CI [{r['ci_low']:.4f}, "
+        f"{r['ci_high']:.4f}]  seeds: {each}"
     )
 
 
-def plot(rows: list[dict], out_dir: Path) -> list[Path]:
+def plot(rows: list[dict], out_dir: Path, family: str = "linear", reference: str = "kalman") -> list[Path]:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for name in dict.fromkeys(r["recipe"] for r in rows):
         rs = [r for r in rows if r["recipe"] == name]
         x, y = [r["seconds"] for r in rs], [r["ratio"] for r in rs]
-        err = [[r["ratio"] - r["ci_low"] for r in rs], [r["ci_high"] - r["ratio"] for r in rs]]
+        err = [[r["ratio"] - r["ratio_min"] for r in rs], [r["ratio_max"] - r["ratio"] for r in rs]]
         ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=name)
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
-    ax.set(yscale="log", xlabel="training wall clock (s)", ylabel="MOP / KF MSE ratio, t in [20, 50]")
-    ax.set_title(f"mop bench recipe (torch threads: {torch.get_num_threads()})")
+    ax.set(yscale="log", xlabel="training wall clock (s)", ylabel=f"MOP / {reference} MSE ratio, t >= 20")
+    ax.set_title(f"mop bench recipe: {family} (bars: range over seeds; threads {torch.get_num_threads()})")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, which="both")
     return save(fig, out_dir, "bench-recipe")
@@ -200,6 +264,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "warmup=, final_lr=, threads=); repeatable (default: small and paper)",
     )
     parser.add_argument("--systems", type=int, default=500, help="test systems N (500)")
+    parser.add_argument("--seeds", type=int, default=2, help="training seeds 0..K-1 per recipe (2)")
+    parser.add_argument("--family", default="linear", help="system family to train and test on (linear)")
+    parser.add_argument("--reference", default="kalman", help="denominator of the ratio (kalman)")
+    parser.add_argument(
+        "--compare", nargs="*", default=[], help="more predictors whose ratio to the reference is reported"
+    )
     parser.add_argument("--seed", type=int, default=0, help="test systems use seed + 7000001 (0)")
     parser.add_argument("--out", default="runs/bench/recipe", help="plot directory (runs/bench/recipe)")
 
@@ -207,18 +277,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     recipes = [parse_recipe(words) for words in args.recipe] if args.recipe else list(BUILTIN.values())
     unit, budgets = ("steps", args.steps) if args.steps else ("seconds", args.budgets)
-    if min(budgets) <= 0 or args.systems <= 0:
-        raise MopError("budgets and --systems must be positive")
-    test = TestSet(args.systems, args.seed)
+    if min(budgets) <= 0 or args.systems <= 0 or args.seeds <= 0:
+        raise MopError("budgets, --systems and --seeds must be positive")
+    _check_names(args)
+    horizon = recipes[0].config(args.family).train.horizon
+    test = TestSet(args.systems, args.seed, args.family, args.reference, tuple(args.compare), horizon)
     if not args.json:
         print(f"{'recipe':<12} {'budget':>10} {'steps':>7} {'wall s':>7} {'steps/s':>8}   ratio [95% CI]")
-    rows = measure(recipes, budgets, test, unit, log=(lambda _: None) if args.json else print)
-    paths = plot(rows, Path(args.out))
+    rows = measure(recipes, budgets, test, unit, (lambda _: None) if args.json else print, args.seeds)
+    paths = plot(rows, Path(args.out), args.family, args.reference)
     result = {
         "device": "cpu",
         "threads": torch.get_num_threads(),
+        "family": args.family,
+        "reference": args.reference,
+        "seeds": args.seeds,
+        "compare": test.others,
         "num_test_systems": args.systems,
-        "window": list(WINDOW),
+        "window": list(test.window),
         "unit": unit,
         "recipes": [dataclasses.asdict(r) for r in recipes],
         "results": rows,
@@ -227,5 +303,16 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result))
     else:
+        for name, ratio in test.others.items():
+            print(f"{name:<12} ratio to {args.reference}: {ratio:.4f}")
         print(f"plot: {', '.join(result['plot'])}")
     return 0
+
+
+def _check_names(args: argparse.Namespace) -> None:
+    """One-line errors for an unknown family or predictor, before any training."""
+    if args.family not in FAMILIES.names():
+        raise MopError(f"unknown --family {args.family!r}; choose one of {', '.join(FAMILIES.names())}")
+    for name in (args.reference, *args.compare):
+        if name not in PREDICTORS.names():
+            raise MopError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS.names())}")

@@ -1,24 +1,31 @@
-"""mop reproduce EXPERIMENT|FILE [--preset paper|small|smoke] [--out DIR] [--seed S] [key=value ...]
+"""mop reproduce EXPERIMENT|FILE [--preset paper|small|smoke] [--out DIR] [--seed S] [--seeds K] [key=value]
 
 Train (or reuse), evaluate, report: one generic runner (mop.experiments.runner) for every experiment,
 built in (mop.experiments.paper) or written as a TOML/JSON file. DIR holds eval.json, figures (PNG + PDF)
 and report.md; trained runs live in DIR/../runs/<predictor>-<config hash> and are shared by every
 experiment that trains the same config. `all` runs every registered experiment into DIR/<experiment>/.
 key=value overrides change the training config of every run (e.g. train.steps=500 model.num_layers=2).
+--seeds K trains K seeds (train.seed = S..S+K-1) on the same test systems (seed S) into DIR/seed-<s>/ and
+writes DIR/seeds.md and seeds.json: every ratio's mean over seeds, range and each seed's bootstrap CI
+(mop.experiments.seeds). `all` also writes DIR/summary.md: each experiment's MOP / best predictor ratio
+beside the authors' number.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import torch
 
+from mop.atomic import write_json, write_text
 from mop.commands import OverridesAnywhere
 from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.runner import run_experiment
+from mop.experiments.seeds import lead_table, seed_summary, seeds_table
 from mop.experiments.validate import validate_experiment
 from mop.predictors import PREDICTORS
 
@@ -53,6 +60,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--runs", default=None, help="directory of the shared trained runs (default OUT/../runs)"
     )
     parser.add_argument("--seed", type=int, default=0, help="training seed; test systems use seed + 7000001")
+    parser.add_argument(
+        "--seeds", type=int, default=1, help="train K seeds S..S+K-1, report mean, range and CIs (1)"
+    )
     parser.add_argument(
         "--with",
         dest="with_",
@@ -98,6 +108,10 @@ def choices(args: argparse.Namespace) -> dict[str, bool]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.seeds < 1:
+        raise MopError(f"--seeds must be at least 1, got {args.seeds}")
+    if args.pretrained and args.seeds > 1:
+        raise MopError("--seeds K trains K seeds and --pretrained trains none; use one of them")
     default = "small" if args.pretrained else ("paper" if torch.cuda.is_available() else "small")
     preset = args.preset or default
     chosen = choices(args)
@@ -115,26 +129,45 @@ def run(args: argparse.Namespace) -> int:
     overrides = list(args.overrides or [])
     for exp in experiments:  # every mistake in any of them before the first training step
         validate_experiment(exp, preset, seed=args.seed, overrides=overrides, choices=chosen)
+    rows = []
     for exp in experiments:
         out = root / exp.name if (args.experiment == "all" or not args.out) else root
-        try:
-            report = run_experiment(
-                exp,
-                preset,
-                out,
-                seed=args.seed,
-                runs_dir=Path(args.runs) if args.runs else None,
-                overrides=overrides,
-                progress=not args.quiet,
-                choices=chosen,
-                pretrained=args.pretrained,
-                wait=not args.no_wait,
-            )
-        except MopError as err:
-            if not (args.pretrained and args.experiment == "all" and "no pretrained model" in str(err)):
-                raise
-            print(f"mop reproduce {exp.name}: skipped ({err})")  # raised before any work
+        evals = {}
+        for train_seed in range(args.seed, args.seed + args.seeds):
+            seed_out = out if args.seeds == 1 else out / f"seed-{train_seed}"
+            try:
+                report = run_experiment(
+                    exp,
+                    preset,
+                    seed_out,
+                    seed=args.seed,
+                    train_seed=train_seed,
+                    runs_dir=Path(args.runs) if args.runs else (out.parent / "runs"),
+                    overrides=overrides,
+                    progress=not args.quiet,
+                    choices=chosen,
+                    pretrained=args.pretrained,
+                    wait=not args.no_wait,
+                )
+            except MopError as err:
+                if not (args.pretrained and args.experiment == "all" and "no pretrained model" in str(err)):
+                    raise
+                print(f"mop reproduce {exp.name}: skipped ({err})")  # raised before any work
+                break
+            evals[train_seed] = json.loads((seed_out / "eval.json").read_text())
+            suffix = ", pretrained" if args.pretrained else f", seed {train_seed}"
+            print(f"mop reproduce {exp.name} ({preset}{suffix}): report at {report}")
+        if not evals:
             continue
-        suffix = ", pretrained" if args.pretrained else ""
-        print(f"mop reproduce {exp.name} ({preset}{suffix}): report at {report}")
+        summary = seed_summary(evals)
+        if args.seeds > 1:
+            write_json(out / "seeds.json", summary)
+            write_text(out / "seeds.md", seeds_table(exp.name, summary))
+            print(f"mop reproduce {exp.name}: {args.seeds} seeds in {out / 'seeds.md'}")
+        first = next(iter(summary.values()), {})
+        rows.append({"experiment": exp.name, "best": first.get("best"), "authors": exp.authors})
+    if args.experiment == "all":
+        title = f"# mop reproduce all, preset {preset}, seeds {args.seed}..{args.seed + args.seeds - 1}\n\n"
+        write_text(root / "summary.md", title + lead_table(rows))
+        print(f"summary: {root / 'summary.md'}")
     return 0

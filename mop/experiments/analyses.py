@@ -20,7 +20,7 @@ from mop.evaluate import windows
 from mop.experiments.measures import MEASURES, where
 from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Measure
-from mop.filters.kalman import optimal_mse_curve
+from mop.filters.kalman import expected_norm, optimal_covariances
 from mop.metrics import coverage, gaussian_nll, loglog_slope, matrix_power_ratio, window_mean
 from mop.predictors import Predictor, first_learned, forecast, simulate
 from mop.registry import Registry
@@ -191,11 +191,14 @@ def _floor_table(extras: dict) -> str:
 @ANALYSES.register("floor", markdown=_floor_table)
 def floor(result: ConditionResult, predictors: list[Predictor], reference: str) -> dict:
     """The irreducible error of a linear-Gaussian family: mean over test systems of trace(S_t), the optimal
-    filter's E||y_t - yhat_t||^2 at each t (mop.filters.kalman.optimal_mse_curve), and every predictor's
-    excess MSE over it in the report's windows (what no predictor can remove is subtracted)."""
+    filter's E||y_t - yhat_t||^2 at each t (mop.filters.kalman.optimal_covariances), its mean error
+    E||e_t|| for e_t ~ N(0, S_t) (Monte Carlo, the error panel's metric), and every predictor's excess MSE
+    over the floor in the report's windows (what no predictor can remove is subtracted)."""
     p = result.traj.params
-    curve = optimal_mse_curve(p["A"], p["C"], p["Q"], p["R"], result.traj.horizon, p.get("P0")).mean(0)
-    curve = curve.tolist()  # (T+1,)
+    S = optimal_covariances(p["A"], p["C"], p["Q"], p["R"], result.traj.horizon, p.get("P0"))
+    # S (N, T+1, m, m)
+    curve = S.diagonal(dim1=-2, dim2=-1).sum(-1).mean(0).tolist()  # (T+1,)
+    mean_norm = expected_norm(S, num_samples=500).mean(0).tolist()  # (T+1,)
     excess = {
         name: {
             w: window_mean(c["squared_error"], *span) - window_mean(curve, *span)
@@ -203,12 +206,17 @@ def floor(result: ConditionResult, predictors: list[Predictor], reference: str) 
         }
         for name, c in result.summary["predictors"].items()
     }
-    return {"floor": {"mse": curve, "excess_mse": excess}}
+    return {"floor": {"mse": curve, "mean_norm": mean_norm, "excess_mse": excess}}
 
 
 def floor_curve(result: ConditionResult) -> list[float] | None:
-    """The floor analysis's irreducible error per t (T+1,), or None where it did not run."""
+    """The floor analysis's irreducible MSE per t (T+1,), or None where it did not run."""
     return result.extras.get("floor", {}).get("mse")
+
+
+def floor_mean_norm(result: ConditionResult) -> list[float] | None:
+    """The floor analysis's irreducible mean error E||e_t|| per t (T+1,), or None where it did not run."""
+    return result.extras.get("floor", {}).get("mean_norm")
 
 
 FORECAST_STEPS = 10

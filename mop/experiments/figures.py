@@ -14,6 +14,7 @@ from mop import plots
 from mop.experiments.analyses import (
     calibration_table,
     floor_curve,
+    floor_mean_norm,
     forecast_table,
     power_ratio,
     slope_fit,
@@ -40,7 +41,9 @@ def error(exp: Experiment, results: Results, out: Path) -> list[Path]:
     for name, r in results.items():
         panel = [p or exp.reference for p in exp.panel]
         title = f"{exp.name} ({exp.title})" + ("" if len(results) == 1 else f", {name}")
-        fig = plots.error_figure(r.summary["predictors"], panel, exp.reference, title, floor_curve(r))
+        fig = plots.error_figure(
+            r.summary["predictors"], panel, exp.reference, title, floor_curve(r), floor_mean_norm(r)
+        )
         paths += plots.save(fig, out, _stem(exp, results, name, "error"))
     return paths
 

@@ -42,6 +42,7 @@ from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.experiments.validate import evaluated, validate_experiment
 from mop.io import read_trajectories
+from mop.metrics import mse_ratio_ci
 from mop.missing import drop_mask, drop_outputs
 from mop.outputs import staged_output
 from mop.predictors import PREDICTORS, first_learned, is_learned, make_predictor
@@ -65,8 +66,12 @@ class Session:
     choices: dict[str, bool]  # predictor -> forced in (True) or out (False), over its skip_presets
     pretrained: bool = False
     wait: bool = True
+    train_seed: int = 0  # train.seed of the learned predictors; `seed` seeds the test systems
     loaded: dict[str, Any] = dataclasses.field(default_factory=dict)
     runs: dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+LATE_WINDOW = (20, None)  # t in [20, T]: where the paper compares MOP with the optimal filter
 
 
 def config_hash(config: RunConfig) -> str:
@@ -123,7 +128,7 @@ def learned_predictor(session: Session, name: str, condition: Condition, trained
 
 def condition_config(session: Session, condition: Condition, arch: str = "gpt") -> RunConfig:
     """The RunConfig trained for `condition` (preset < experiment < condition < command-line overrides)."""
-    return run_config(session.exp, session.preset, session.seed, arch, condition, session.overrides)
+    return run_config(session.exp, session.preset, session.train_seed, arch, condition, session.overrides)
 
 
 def test_system(trained: RunConfig, condition: Condition) -> SystemConfig:
@@ -186,10 +191,41 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
         traj = with_missing(traj, condition.missing, session.seed)
     raw = evaluate(predictors, traj, session.progress)
     summary = summarize(raw, reference=exp.reference, seed=session.seed)
+    summary["to_best"] = distance_to_best(raw, exp.best_predictor, session.seed)
     result = ConditionResult(condition, traj, {k: v["e"] for k, v in raw.items()}, summary)
     for analysis in exp.analyses:
         result.extras.update(ANALYSES.get(analysis)(result, predictors, exp.reference))
     return result
+
+
+def distance_to_best(raw: dict, best: str, seed: int, model: str = "") -> dict | None:
+    """MOP's MSE ratio to the best predictor over t in [20, T] with its bootstrap CI (None if either is
+    missing from the condition): {"predictor", "window", "ratio", "low", "high"}."""
+    model = model or next((n for n in raw if n in PREDICTORS and is_learned(n)), "")  # "": the first learned
+    if model not in raw or best not in raw:
+        return None
+    e_mop, e_best = raw[model]["e"], raw[best]["e"]
+    start, stop = LATE_WINDOW[0], e_mop.shape[1]
+    if stop <= start:
+        return None
+    ratio, low, high = mse_ratio_ci(e_mop, e_best, start, stop, seed=seed)
+    return {"predictor": best, "window": [start, stop], "ratio": ratio, "low": low, "high": high}
+
+
+def best_table(exp: Experiment, results: Results) -> str:
+    """The report's lead: MOP's ratio to the best predictor per condition, beside the authors' number."""
+    lines = [
+        "## Distance to the best predictor",
+        "",
+        "| condition | best predictor | MOP / best MSE ratio, t in [20,T] (95% CI) | the authors |",
+        "|---|---|---|---|",
+    ]
+    for name, r in results.items():
+        d = r.summary.get("to_best")
+        if d:
+            cell = f"{d['ratio']:.3f} [{d['low']:.3f}, {d['high']:.3f}]"
+            lines.append(f"| {name} | {d['predictor']} | {cell} | {exp.authors or '-'} |")
+    return "\n".join(lines) + "\n" if len(lines) > 4 else ""
 
 
 def check_claim(claim: Claim, results: Results, reference: str, seed: int) -> dict:
@@ -262,11 +298,13 @@ def run_experiment(
     choices: dict[str, bool] | None = None,
     pretrained: bool = False,
     wait: bool = True,
+    train_seed: int | None = None,
 ) -> Path:
     """Run `exp` under `preset` into `out` (eval.json, figures, report.md); returns report.md's path.
 
     choices: predictor -> True to evaluate it where its skip_presets would leave it out (--with NAME),
     False to leave it out (--without NAME).
+    seed: the test systems' seed (seed + TEST_SEED_OFFSET) and, unless train_seed is given, train.seed.
     The experiment is validated first (mop.experiments.validate), so a mistake costs seconds, not a
     training run. The files are written all or nothing (mop.outputs): a stopped run leaves the previous
     output whole; `complete.json`, written last, lists them. wait: see mop.train.train.
@@ -279,6 +317,7 @@ def run_experiment(
     session = Session(
         exp, preset, seed, runs_dir, list(overrides), progress, dict(choices or {}), pretrained, wait
     )
+    session.train_seed = seed if train_seed is None else train_seed
     for condition in exp.conditions_for(preset):  # resolve given / shipped runs before any work
         trained = condition_config(session, condition)
         for name in wanted(session, condition):
@@ -302,6 +341,7 @@ def _write_outputs(session: Session, results: dict, claims: list[dict], out: Pat
         "title": exp.title,
         "preset": preset,
         "seed": seed,
+        "train_seed": session.train_seed,
         **first.summary,
         "conditions": {name: eval_entry(r) for name, r in results.items()},
         **entries,
@@ -312,11 +352,20 @@ def _write_outputs(session: Session, results: dict, claims: list[dict], out: Pat
     write_json(out / "eval.json", data)
     sections = _sections(exp, results, figures)
     sections += experiment_sections(exp.analyses, entries)
-    settings = {"seed": seed, "test seed": seed + TEST_SEED_OFFSET, **data["settings"]}
+    settings = {
+        "seed": session.train_seed,
+        "test seed": seed + TEST_SEED_OFFSET,
+        **data["settings"],
+    }
     title = f"mop reproduce {exp.name} ({exp.title}), preset {preset}"
     title += ", shipped pretrained weights" if session.pretrained else ""
     text = build_report(
-        title, sections, settings, [claim_text(c) for c in claims], time.perf_counter() - start
+        title,
+        sections,
+        settings,
+        [claim_text(c) for c in claims],
+        time.perf_counter() - start,
+        lead=best_table(exp, results),
     )
     write_text(out / "report.md", text)
 
@@ -324,7 +373,7 @@ def _write_outputs(session: Session, results: dict, claims: list[dict], out: Pat
 def _settings(session: Session) -> dict:
     exp = session.exp
     return {
-        "train": to_dict(run_config(exp, session.preset, session.seed, overrides=session.overrides)),
+        "train": to_dict(run_config(exp, session.preset, session.train_seed, overrides=session.overrides)),
         "overrides": session.overrides,
         "conditions": [dataclasses.asdict(c) for c in exp.conditions_for(session.preset)],
         "num_test_systems": get_preset(session.preset).num_test_systems,

@@ -215,6 +215,10 @@ class Experiment:
     panel: predictors of the paper-style panel (error with +-1 std bands); "" stands for the reference.
     runs: learned predictor -> a run directory or `pretrained:NAME` it is loaded from instead of trained,
         e.g. {"mop": "pretrained:linear"} (a condition's `runs` wins over the experiment's).
+    best: the best predictor there is for the test systems, which the report measures MOP's distance to:
+        the exact optimum where one exists (KF, kalman-colored), else the best filter that knows the system
+        (the particle filter on the quadrotor); "" = the reference.
+    authors: the authors' number to show beside it (text), e.g. "1.025 (their 12 x 256 model, H100)".
     """
 
     name: str
@@ -231,6 +235,13 @@ class Experiment:
     preset_conditions: dict[str, tuple[Condition, ...]] = dataclasses.field(default_factory=dict)
     description: str = ""
     runs: dict[str, str] = dataclasses.field(default_factory=dict)
+    best: str = ""
+    authors: str = ""
+
+    @property
+    def best_predictor(self) -> str:
+        """`best`, or the reference when none is named."""
+        return self.best or self.reference
 
     def conditions_for(self, preset: str) -> tuple[Condition, ...]:
         """The test conditions under `preset` (a sweep may use a smaller grid on a small preset)."""

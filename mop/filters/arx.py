@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
-from mop.filters.rls import _best_order, regressors, rls_update
+from mop.filters.rls import _best_order, _rls_run_gaps, regressors, rls_update
 from mop.predictors import PREDICTORS, nan_beyond_horizon
 from mop.systems.base import Trajectories
 
@@ -31,9 +31,15 @@ def arx_regressors(y: Tensor, u: Tensor | None, p: int, q: int) -> Tensor:
 
 
 def _arx_run(y: Tensor, u: Tensor | None, p: int, q: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
-    """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1})."""
+    """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1}).
+
+    y with NaN (missing outputs): mop.filters.rls._rls_run_gaps with the input lags as complete extra
+    regressors, so pairs with a missing target or output regressor are skipped and missing regressors are
+    filled with the model's own one-step predictions (phi then holds the filled outputs)."""
     B, T, m = y.shape
     r = p if u is None else max(p, q)
+    if torch.isnan(y).any():
+        return _rls_run_gaps(y, p, extra=None if u is None else regressors(u, q), start=r)
     phi = arx_regressors(y, u, p, q)  # (B, T, d)
     d = phi.shape[-1]
     theta = y.new_zeros(B, d, m)

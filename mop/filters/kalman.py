@@ -187,6 +187,15 @@ def optimal_mse_curve(
     Shapes as kalman_filter; its values do not depend on the outputs. trace(S_t) -> innovation_floor as t
     grows; sqrt(trace S_t) is (by Jensen) an upper bound near the floor of the paper's mean ||e_t||_2 curve.
     """
+    S = optimal_covariances(A, C, Q, R, horizon, P0)  # (B, T+1, m, m)
+    return S.diagonal(dim1=-2, dim2=-1).sum(-1)
+
+
+def optimal_covariances(
+    A: Array, C: Array, Q: Array, R: Array, horizon: int, P0: Array | None = None
+) -> Tensor:
+    """(B, horizon + 1, m, m) innovation covariances S_t = C P_t C^T + R of the Kalman filter started at
+    P_0 = P0 (default I): the optimal one-step error y_t - yhat_t is N(0, S_t) for t = 0..horizon."""
     (A, C, Q, R, P0), _ = _to_torch(A, C, Q, R, P0)
     B, n = A.shape[0], A.shape[-1]
     P = torch.eye(n, dtype=A.dtype).expand(B, n, n) if P0 is None else P0
@@ -194,6 +203,26 @@ def optimal_mse_curve(
     out = []
     for _ in range(horizon + 1):
         _, P, S = condition_on(m, P, zero_y, C, R)
-        out.append(S.diagonal(dim1=-2, dim2=-1).sum(-1))
+        out.append(S)
         P = A @ P @ A.mT + Q
     return torch.stack(out, dim=1)
+
+
+def expected_norm(S: Tensor, num_samples: int = 1000, seed: int = 0) -> Tensor:
+    """E||e||_2 for e ~ N(0, S) by Monte Carlo (seeded): S (..., m, m) -> (...,), float64.
+
+    The metric of the paper's error curves (mean ||yhat_t - y_t||), so the optimum drawn beside them is in
+    their own units: sqrt(trace S), the RMS, is larger by Jensen's inequality. Common random numbers: every
+    S uses the same standard normal draws z, e = L z with S = L L^T.
+    """
+    S = torch.as_tensor(S, dtype=torch.float64)
+    m = S.shape[-1]
+    L = torch.linalg.cholesky(S).reshape(-1, m, m)  # (N, m, m), N = prod(...)
+    g = torch.Generator().manual_seed(seed)
+    z = torch.randn(num_samples, m, generator=g, dtype=torch.float64)  # (K, m)
+    chunk = max(1, 2**22 // (num_samples * m))  # ~32 MB of draws at a time
+    out = [
+        torch.linalg.vector_norm(torch.einsum("nij,kj->nki", L[i : i + chunk], z), dim=-1).mean(-1)
+        for i in range(0, L.shape[0], chunk)
+    ]  # each (n,)
+    return torch.cat(out).reshape(S.shape[:-2])

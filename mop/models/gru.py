@@ -12,6 +12,7 @@ import torch
 from torch import Tensor, nn
 
 from mop.config import ModelConfig
+from mop.errors import MopError
 from mop.models.heads import check_dims, prediction_loss, readout_dim, require_gaussian, split_readout
 from mop.models.registry import register_model
 
@@ -31,6 +32,8 @@ class GRUModel(nn.Module):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
         check_dims(cfg)
+        if cfg.input_scale != "none" or cfg.rls_order > 0:
+            raise MopError("model.input_scale and model.rls_order are options of arch 'gpt', not of the GRU")
         self.cfg = cfg
         self.read_in = nn.Linear(cfg.input_dim, cfg.width)
         self.gru = nn.GRU(

@@ -11,6 +11,8 @@ LayerNorm and a linear read-out give the prediction. Output position t predicts 
                        loss = mean_{t,i} 0.5 [log(2 pi var) + (y - mu)^2 / var]     (mop.models.heads)
 
 `predict_distribution` raises MopError for the mean readout (it has no variance). Registered as arch "gpt".
+Options model.input_scale = "running" and model.rls_order = p add causal input features (a running output
+scale, the RLS-AR(p) one-step prediction) and map the read-out back (mop.models.features); off by default.
 
 Streaming (`init_cache` / `step`): one new input per call, keys and values of past inputs kept in a
 circular cache of `context` slots per layer, so every step costs O(context) however long the stream runs.
@@ -35,6 +37,7 @@ from torch import Tensor, nn
 
 from mop.config import ModelConfig
 from mop.errors import MopError
+from mop.models.features import FeatureState, augment, extra_input_dim, restore
 from mop.models.heads import check_dims, prediction_loss, readout_dim, require_gaussian, split_readout
 from mop.models.registry import register_model
 
@@ -231,6 +234,7 @@ class KVCache:
         self.v = torch.zeros(shape, device=device, dtype=dtype)
         self.context = cfg.context
         self.t = 0  # inputs consumed
+        self.features = FeatureState(cfg, batch_size, device, dtype)  # running scale / RLS fit
 
 
 @register_model("gpt", predictor="mop")
@@ -243,13 +247,15 @@ class Transformer(nn.Module):
         super().__init__()
         check_dims(cfg)
         self.cfg = cfg
-        self.read_in = nn.Linear(cfg.input_dim, cfg.width)
+        self.read_in = nn.Linear(cfg.input_dim + extra_input_dim(cfg), cfg.width)
         self.wpe = nn.Embedding(cfg.context, cfg.width) if cfg.position == "learned" else None
         self.drop = nn.Dropout(cfg.dropout)
         self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.num_layers))
         self.ln_f = nn.LayerNorm(cfg.width)
         self.read_out = nn.Linear(cfg.width, readout_dim(cfg))
         self.apply(self._init_weights)
+        if cfg.rls_order > 0:  # the read-out predicts the residual on RLS: start as the RLS predictor
+            nn.init.zeros_(self.read_out.weight)
 
     def _init_weights(self, module: nn.Module) -> None:
         """GPT-2 init: N(0, 0.02), residual projections N(0, 0.02 / sqrt(2 L)), zero biases."""
@@ -266,7 +272,7 @@ class Transformer(nn.Module):
         return rope_angles(positions, self.cfg.width // self.cfg.num_heads)
 
     def hidden(self, inputs: Tensor) -> Tensor:
-        """inputs (B, T, d_in) -> final hidden states (B, T, d)."""
+        """Network inputs (B, T, d_in + extra; mop.models.features.augment) -> final hidden (B, T, d)."""
         B, T, _ = inputs.shape
         if T > self.cfg.context:
             raise MopError(
@@ -291,18 +297,24 @@ class Transformer(nn.Module):
         """Final hidden states (B, T, d) -> mean (B, T, m), var (B, T, m) or None."""
         return split_readout(self.read_out(h), self.cfg.readout)
 
+    def _distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor | None]:
+        """inputs (B, T, d_in) -> mean (B, T, m), var (B, T, m)|None in the inputs' units."""
+        z, scale, base = augment(inputs, self.cfg)  # (B, T, d_in + extra), (B, T, 1)|None, (B, T, m)|None
+        mu, var = self._read_out(self.hidden(z))
+        return restore(mu, var, scale, base)
+
     def forward(self, inputs: Tensor) -> Tensor:
         """inputs (B, T, d_in) -> mean predictions (B, T, m); position t predicts y_{t+1}."""
-        return self._read_out(self.hidden(inputs))[0]
+        return self._distribution(inputs)[0]
 
     def predict_distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor]:
         """Gaussian readout only: (mean, var) each (B, T, m). MopError for readout 'mean'."""
         require_gaussian(self.cfg)
-        return self._read_out(self.hidden(inputs))
+        return self._distribution(inputs)
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m)."""
-        mu, var = self._read_out(self.hidden(inputs))
+        mu, var = self._distribution(inputs)
         return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
 
     # ---- branching (k-step forecasts from many origins at once: mop.models.rollout) ----
@@ -352,7 +364,8 @@ class Transformer(nn.Module):
         """One input z_t (B, d_in) -> (mean, var|None) of y_{t+1}, each (B, m); updates `cache` in place."""
         t, C = cache.t, self.cfg.context
         slot, filled = t % C, min(t + 1, C)
-        h = self.read_in(z[:, None, :])  # (B, 1, d)
+        z_net, scale, base = cache.features.step(z)  # (B, 1, d_in + extra), (B, 1, 1)|None, (B, 1, m)|None
+        h = self.read_in(z_net)  # (B, 1, d)
         position = torch.tensor([t], device=z.device)
         if self.wpe is not None:
             h = h + self.wpe(position.clamp_max(C - 1))  # (1, d)
@@ -360,7 +373,7 @@ class Transformer(nn.Module):
         for layer, block in enumerate(self.blocks):
             h = block.step(h, cache.k[layer], cache.v[layer], slot, filled, rope)
         cache.t = t + 1
-        mu, var = self._read_out(self.ln_f(h))  # (B, 1, m)
+        mu, var = restore(*self._read_out(self.ln_f(h)), scale, base)  # (B, 1, m)
         return mu[:, 0], None if var is None else var[:, 0]
 
     def step(self, z: Tensor, cache: KVCache) -> Tensor:
