@@ -70,6 +70,28 @@ def save_tensors(
             if code is None:
                 raise
             raise OSError(int(code.group(1)), os.strerror(int(code.group(1))), str(path)) from None
+        _sort_metadata(tmp)
+
+
+def _sort_metadata(path: Path) -> None:
+    """Rewrite the header of the safetensors file at `path` with its metadata keys sorted, in place.
+
+    The Rust writer keeps the metadata in a hash map whose order changes from process to process, so a file
+    with two or more metadata keys (the weights' "format" and "sha256") would differ in its bytes between two
+    writes of the same tensors. Sorting makes the bytes a function of the tensors and metadata alone
+    (pretrained builds compare digests of the files). Same keys and values: the header keeps its length."""
+    with open(path, "r+b") as f:
+        size = int.from_bytes(f.read(8), "little")
+        header = json.loads(f.read(size))
+        meta = header.get("__metadata__") or {}
+        if len(meta) < 2:
+            return
+        header["__metadata__"] = dict(sorted(meta.items()))
+        text = json.dumps(header, separators=(",", ":")).encode()
+        if len(text) > size:  # another escaping than the writer's: leave the file as written
+            return
+        f.seek(8)
+        f.write(text.ljust(size, b" "))  # the format pads its header with spaces
 
 
 def load_tensors(

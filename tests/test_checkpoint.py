@@ -1,6 +1,8 @@
 """Checkpoints and weights: safetensors round trip, pickles and damaged files refused (never unpickled)."""
 
 import pickle
+import subprocess
+import sys
 
 import pytest
 import torch
@@ -201,3 +203,23 @@ def test_a_header_length_starting_with_0x80_is_not_a_pickle(tmp_path):
         pytest.fail("no header length with low byte 0x80")
     tensors, metadata = load_tensors(path)
     assert torch.equal(tensors["a"], torch.ones(2)) and metadata["pad"] == "x" * pad
+
+
+WRITE_ONCE = """
+import sys, torch
+from mop.checkpoint import save_tensors
+tensors = {"a": torch.arange(6.0).reshape(2, 3), "b": torch.ones(4, dtype=torch.float64)}
+save_tensors(sys.argv[1], tensors, {"format": "pt", "mop": "{}", "zz": "1"})
+"""
+
+
+def test_the_same_tensors_give_the_same_bytes_in_every_process(tmp_path):
+    """The Rust writer orders metadata keys by a per-process hash; save_tensors sorts them, so pretrained
+    builds (which record the files' sha256) are reproducible. Without the sort, four processes writing three
+    keys agree with probability (1/6)^3."""
+    paths = [tmp_path / f"w{i}.safetensors" for i in range(4)]
+    for path in paths:
+        subprocess.run([sys.executable, "-c", WRITE_ONCE, str(path)], check=True)
+    assert len({p.read_bytes() for p in paths}) == 1
+    tensors, meta = load_tensors(paths[0])
+    assert meta["zz"] == "1" and torch.equal(tensors["a"], torch.arange(6.0).reshape(2, 3))
