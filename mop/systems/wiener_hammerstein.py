@@ -23,15 +23,14 @@ Where we differ: nothing in the generator; the normalization uses the whole kept
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from mop.errors import check
-from mop.systems.base import StateSpace, SystemConfig, SystemFamily, Trajectories, normal, register_family
-from mop.systems.lti_siso import JITTER, lsim, normalize, sample_drss
+from mop.systems.base import StateSpace, SystemFamily, Trajectories, normal, register_family
+from mop.systems.lti_siso import JITTER, LtiSisoConfig, lsim, normalize, sample_drss
 
 HIDDEN, SKIP, PRIOR_STEPS = 32, 200, 300
 
@@ -43,28 +42,18 @@ def static_nonlinearity(z: Tensor, p: dict[str, Tensor]) -> Tensor:
 
 
 @dataclass(frozen=True)
-class WienerHammersteinConfig(SystemConfig):
-    """max_order: orders of G1 and G2, each U{1..max_order}; skip: warm-up steps dropped; noise_std: white
-    noise on the normalized outputs (theirs: 0)."""
+class WienerHammersteinConfig(LtiSisoConfig):
+    """The LTI class's pole law, noise and bound (LtiSisoConfig, with its checks) for G1 and G2; max_order:
+    orders of G1 and G2, each U{1..max_order}; skip: warm-up steps dropped; noise_std: white noise on the
+    normalized outputs (theirs: 0)."""
 
     family: str = "wiener-hammerstein"
     max_order: int = 5
-    mag_low: float = 0.5
-    mag_high: float = 0.97
-    phase_high: float = math.pi / 2
     skip: int = SKIP
-    noise_std: float = 0.0
-    max_abs: float = 1e6
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check(
-            isinstance(self.max_order, int) and self.max_order >= 1,
-            f"system.max_order must be >= 1, got {self.max_order!r}",
-        )
-        check(0 < self.mag_low <= self.mag_high < 1, "system.mag_low/high must satisfy 0 < low <= high < 1")
         check(isinstance(self.skip, int) and self.skip >= 1, f"system.skip must be >= 1, got {self.skip!r}")
-        check(self.noise_std >= 0, f"system.noise_std must be >= 0, got {self.noise_std}")
 
 
 @register_family("wiener-hammerstein", WienerHammersteinConfig)
