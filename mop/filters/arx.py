@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
-from mop.filters.rls import _best_order, _rls_run_gaps, regressors, rls_update
+from mop.filters.rls import _best_order, _rls_run_gaps, regressors, rls_loop
 from mop.predictors import PREDICTORS, nan_beyond_horizon
 from mop.systems.base import Trajectories
 
@@ -36,21 +36,10 @@ def _arx_run(y: Tensor, u: Tensor | None, p: int, q: int) -> tuple[Tensor, Tenso
     y with NaN (missing outputs): mop.filters.rls._rls_run_gaps with the input lags as complete extra
     regressors, so pairs with a missing target or output regressor are skipped and missing regressors are
     filled with the model's own one-step predictions (phi then holds the filled outputs)."""
-    B, T, m = y.shape
     r = p if u is None else max(p, q)
     if torch.isnan(y).any():
         return _rls_run_gaps(y, p, extra=None if u is None else regressors(u, q), start=r)
-    phi = arx_regressors(y, u, p, q)  # (B, T, d)
-    d = phi.shape[-1]
-    theta = y.new_zeros(B, d, m)
-    P = torch.eye(d, dtype=y.dtype, device=y.device).repeat(B, 1, 1)  # (B, d, d)
-    preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(r + 1, T))]
-    thetas = {}
-    for t in range(r + 1, T):
-        theta, P = rls_update(theta, P, phi[:, t - 2], y[:, t - 1])  # the newest pair (phi_{t-2}, y_{t-1})
-        thetas[t] = theta
-        preds.append((theta.mT @ phi[:, t - 1, :, None])[..., 0])
-    return torch.stack(preds, dim=1), phi, thetas
+    return rls_loop(y, arx_regressors(y, u, p, q), r)
 
 
 def arx_predict(y: Tensor, u: Tensor | None, p: int = 2, q: int = 2) -> Tensor:

@@ -48,14 +48,20 @@ def _rls_run(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     y with NaN (missing outputs): _rls_run_gaps, phi then built from the filled outputs."""
     if torch.isnan(y).any():
         return _rls_run_gaps(y, order)
+    return rls_loop(y, regressors(y, order), order)
+
+
+def rls_loop(y: Tensor, phi: Tensor, start: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
+    """The complete-data recursion shared by RLS and ARX: y (B, T, m), regressors phi (B, T, d) with
+    phi[:, t] predicting y_{t+1}; yhat_0 = 0, yhat_t = y_{t-1} for 1 <= t <= start, then theta (B, d, m)
+    from theta_0 = 0, P_0 = I and the pairs (phi_{s-1}, y_s), s < t. Returns (yhat, phi, {t: theta})."""
     B, T, m = y.shape
-    phi = regressors(y, order)  # (B, T, p*m)
-    d = order * m
+    d = phi.shape[-1]
     theta = y.new_zeros(B, d, m)
     P = torch.eye(d, dtype=y.dtype, device=y.device).repeat(B, 1, 1)  # (B, d, d)
-    preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(order + 1, T))]
+    preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(start + 1, T))]
     thetas = {}
-    for t in range(order + 1, T):
+    for t in range(start + 1, T):
         theta, P = rls_update(theta, P, phi[:, t - 2], y[:, t - 1])  # the newest pair (phi_{t-2}, y_{t-1})
         thetas[t] = theta
         preds.append((theta.mT @ phi[:, t - 1, :, None])[..., 0])
