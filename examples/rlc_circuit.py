@@ -50,18 +50,23 @@ OUTPUTS = {"both": 2, "capacitor": 1}
 
 @dataclass(frozen=True)
 class RLCConfig(SystemConfig):
-    """Ranges [low, high] of R (Ohm), L (H), C (F), each drawn log-uniform; dt (s); the source's std (V);
+    """Ranges [*_min, *_max] of R (Ohm), L (H), C (F), each drawn log-uniform; dt (s); the source's std (V);
     the disturbance voltage's per-sample std (V); the voltmeters' std (V); the initial v_C's std (V);
     output ("both" or "capacitor").
 
     No knob shares a name with the built-in "linear" family's (x0_std, noise_var_w, ...): switching a
     config from "linear" to this family keeps the values of shared knobs (mop.config.apply_settings), so
-    a shared name would silently take linear's value instead of this default."""
+    a shared name would silently take linear's value instead of this default. The ranges are pairs of
+    floats, not tuples: a tuple is saved as a JSON list and a rerun then refuses to reuse the trained run
+    (the saved list differs from the tuple)."""
 
     family: str = "rlc-circuit"
-    resistance: tuple[float, float] = (10.0, 100.0)
-    inductance: tuple[float, float] = (20e-3, 200e-3)
-    capacitance: tuple[float, float] = (20e-6, 200e-6)
+    resistance_min: float = 10.0
+    resistance_max: float = 100.0
+    inductance_min: float = 20e-3
+    inductance_max: float = 200e-3
+    capacitance_min: float = 20e-6
+    capacitance_max: float = 200e-6
     dt: float = 1e-3
     input_std: float = 1.0
     disturbance_std: float = 0.3
@@ -69,10 +74,14 @@ class RLCConfig(SystemConfig):
     initial_voltage_std: float = 0.5
     output: str = "both"
 
+    def bounds(self, name: str) -> tuple[float, float]:
+        """(low, high) of "resistance", "inductance" or "capacitance"."""
+        return getattr(self, f"{name}_min"), getattr(self, f"{name}_max")
+
     def __post_init__(self) -> None:
         super().__post_init__()
         for name in ("resistance", "inductance", "capacitance"):
-            low, high = getattr(self, name)
+            low, high = self.bounds(name)
             check(0 < low <= high, f"rlc-circuit: {name} must be a range 0 < low <= high, got {[low, high]}")
         check(self.dt > 0, f"rlc-circuit: dt must be > 0 seconds, got {self.dt}")
         for name in ("input_std", "disturbance_std", "output_std", "initial_voltage_std"):
@@ -133,9 +142,9 @@ class RLCFamily(SystemFamily):
 
     def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
         cfg, B, m = self.config, num_systems, self.output_dim
-        R = log_uniform((B,), cfg.resistance, generator)
-        L = log_uniform((B,), cfg.inductance, generator)
-        C = log_uniform((B,), cfg.capacitance, generator)
+        R = log_uniform((B,), cfg.bounds("resistance"), generator)
+        L = log_uniform((B,), cfg.bounds("inductance"), generator)
+        C = log_uniform((B,), cfg.bounds("capacitance"), generator)
         A_c, b = continuous_model(R, L, C)
         A, Bd = zoh(A_c, b, cfg.dt)
         Q = van_loan(A_c, b, cfg.dt) * (cfg.disturbance_std**2 * cfg.dt)

@@ -60,11 +60,8 @@ def test_zero_order_hold_matches_scipy(rlc, output):
 def test_parameters_lie_in_their_ranges(rlc):
     family = rlc()
     p = family.sample(2000, generator=generator(6))
-    for key, (low, high) in [
-        ("resistance", family.config.resistance),
-        ("inductance", family.config.inductance),
-        ("capacitance", family.config.capacitance),
-    ]:
+    for key in ("resistance", "inductance", "capacitance"):
+        low, high = family.config.bounds(key)
         assert low <= p[key].min() and p[key].max() <= high
         log = (p[key].log() - np.log(low)) / (np.log(high) - np.log(low))  # log-uniform: U[0, 1]
         assert abs(float(log.mean()) - 0.5) < 0.02 and abs(float(log.var()) - 1 / 12) < 0.01
@@ -147,3 +144,13 @@ def test_rlc_experiment_file_end_to_end(tmp_path, tiny_smoke):
     assert all(np.isfinite(v) for v in kf.values())
     assert all(kf[w] < last[w] for w in kf)  # the optimal filter beats repeating the last output
     assert (out / "rlc-circuit_error.png").exists() and "| kalman |" in (out / "report.md").read_text()
+    again = [
+        "reproduce",
+        str(EXAMPLES / "rlc_circuit.toml"),
+        "--preset",
+        "smoke",
+        "--out",
+        str(tmp_path / "again"),
+    ]
+    assert cli.main([*again, "--runs", str(tmp_path / "runs"), "--quiet"]) == 0  # reuses the trained run
+    assert len(list((tmp_path / "runs").iterdir())) == 1
