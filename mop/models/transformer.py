@@ -37,7 +37,7 @@ from torch import Tensor, nn
 
 from mop.config import ModelConfig
 from mop.errors import MopError
-from mop.models.features import FeatureState, augment, extra_input_dim, restore
+from mop.models.features import FeatureState, augment, check_features, extra_input_dim, restore
 from mop.models.heads import check_dims, prediction_loss, readout_dim, require_gaussian, split_readout
 from mop.models.registry import register_model
 
@@ -272,6 +272,7 @@ class Transformer(nn.Module):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
         check_dims(cfg)
+        check_features(cfg)
         self.cfg = cfg
         self.read_in = nn.Linear(cfg.input_dim + extra_input_dim(cfg), cfg.width)
         self.wpe = nn.Embedding(cfg.context, cfg.width) if cfg.position == "learned" else None
