@@ -49,7 +49,13 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
 # Keys left out of a RunConfig's dict while they hold these defaults, so configs (and their hashes, which name
 # run directories) written before the keys existed are unchanged.
 OMITTED_AT_DEFAULT = {
-    "model": {"observation_mask": False, "input_scale": "none", "rls_order": 0, "forecast_mode": "rollout"},
+    "model": {
+        "observation_mask": False,
+        "input_scale": "none",
+        "rls_order": 0,
+        "arx_order": 0,
+        "forecast_mode": "rollout",
+    },
     "train": {
         "missing_rate": 0.0,
         "missing_burst_rate": 0.0,
@@ -209,6 +215,7 @@ class ModelConfig:
     )
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
+    arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
     # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
     observation_mask: bool = False
@@ -246,6 +253,14 @@ class ModelConfig:
         check(
             isinstance(self.rls_order, int) and 0 <= self.rls_order <= 10,
             f"model.rls_order must be an integer in 0..10 (0 = off), got {self.rls_order!r}",
+        )
+        check(
+            isinstance(self.arx_order, int) and 0 <= self.arx_order <= 10,
+            f"model.arx_order must be an integer in 0..10 (0 = output-only RLS), got {self.arx_order!r}",
+        )
+        check(
+            self.arx_order == 0 or self.rls_order > 0,
+            "model.arx_order adds input lags to the RLS feature: set model.rls_order > 0 too",
         )
         check(
             isinstance(self.observation_mask, bool),

@@ -7,6 +7,7 @@ import torch
 
 from mop.config import ModelConfig
 from mop.errors import MopError
+from mop.filters.arx import arx_predict
 from mop.filters.rls import rls_predict
 from mop.models import build_model
 from mop.models.features import SCALE_EPS, rls_next, running_scale
@@ -122,3 +123,34 @@ def test_save_load_round_trip(tmp_path):
     z = inputs().float()
     with torch.no_grad():
         assert torch.equal(again(z), model(z))
+
+
+def test_arx_feature_is_the_arx_baseline_one_step_ahead():
+    """model.arx_order = q: r[:, t] predicts y_{t+1} from y_0..y_t and u_0..u_t, the arx baseline's
+    yhat_{t+1} on the full trajectory; an untrained model (zero read-out) is that ARX predictor."""
+    z = inputs(T=21, d=4)  # y (2 outputs), u (2 inputs)
+    y, u = z[..., :2], z[..., 2:]
+    r = rls_next(y[:, :-1], 2, u[:, :-1], 3)
+    torch.testing.assert_close(r, arx_predict(y, u, 2, 3)[:, 1:], rtol=0, atol=0)
+    model = build_model(tiny(rls_order=2, arx_order=3, input_dim=4)).double().eval()
+    with torch.no_grad():
+        torch.testing.assert_close(model(z[:, :-1]), r, rtol=1e-12, atol=1e-12)
+    assert not torch.allclose(r, rls_next(y[:, :-1], 2))  # the inputs matter
+
+
+@pytest.mark.parametrize("options", [{"rls_order": 2, "arx_order": 1}, {"rls_order": 1, "arx_order": 3}])
+def test_arx_feature_streams_equal_to_the_forward(options):
+    model = build_model(tiny(**options, input_dim=4, input_scale="running")).double().eval()
+    with torch.no_grad():
+        for p in model.parameters():
+            p.normal_(0.0, 0.3)
+    z = inputs(d=4)
+    with torch.no_grad():
+        torch.testing.assert_close(stream(model, z)[0], model(z), rtol=1e-9, atol=1e-9)
+
+
+def test_arx_order_needs_the_rls_feature_and_inputs():
+    with pytest.raises(MopError, match="rls_order"):
+        tiny(arx_order=2)
+    with pytest.raises(MopError, match="no inputs"):
+        build_model(tiny(rls_order=2, arx_order=2, input_dim=2))

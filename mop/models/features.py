@@ -11,8 +11,10 @@ model.input_scale = "running" (causal per-trajectory normalisation):
     (upper-triangular A: the per-system RMS of y spans a factor of 44) then look alike to the network.
 model.rls_order = p > 0 (the RLS feature):
     r_{t+1} = the matrix RLS-AR(p) prediction of y_{t+1} from y_0..y_t (mop.filters.rls, the paper's baseline
-    for p = 2), fed in as m extra channels (divided by s_t with the running scale), and the read-out predicts
-    the residual: yhat_{t+1} = r_{t+1} + s_t out_t. At initialisation (small read-out weights) the model is
+    for p = 2); with model.arx_order = q > 0 the ARX(p, q) prediction from y_0..y_t and u_0..u_t
+    (mop.filters.arx: the regressors also hold u_t..u_{t-q+1}, for systems driven by inputs); fed in as m
+    extra channels (divided by s_t with the running scale), and the read-out predicts the residual:
+    yhat_{t+1} = r_{t+1} + s_t out_t. At initialisation (small read-out weights) the model is
     the RLS predictor, so training starts from it rather than from zero.
 
 In a sliding window (trajectories longer than model.context, LearnedPredictor mode "window") both features
@@ -27,6 +29,8 @@ import torch
 from torch import Tensor
 
 from mop.config import ModelConfig
+from mop.errors import MopError
+from mop.filters.arx import arx_predict
 from mop.filters.rls import regressors, rls_predict, rls_update
 
 SCALE_EPS = 1e-4  # floor of s_t^2: a trajectory of zeros gets s = 0.01, not a division by zero
@@ -44,10 +48,24 @@ def running_scale(y: Tensor) -> Tensor:
     return (mean_sq + SCALE_EPS).sqrt()
 
 
-def rls_next(y: Tensor, order: int) -> Tensor:
-    """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m)."""
-    padded = torch.cat([y, y.new_zeros(y.shape[0], 1, y.shape[2])], dim=1).double()  # the pad is never read
-    return rls_predict(padded, order)[:, 1:].to(y.dtype)  # (B, T, m)
+def input_count(cfg: ModelConfig) -> int:
+    """k, the number of inputs u in the model's input layout [y, u] (+ the mask's m channels)."""
+    return cfg.input_dim - cfg.output_dim * (2 if cfg.observation_mask else 1)
+
+
+def check_features(cfg: ModelConfig) -> None:
+    """One-line errors for feature options the model's inputs cannot serve."""
+    if cfg.arx_order > 0 and input_count(cfg) <= 0:
+        raise MopError("model.arx_order reads input lags, but the model has no inputs u; use rls_order alone")
+
+
+def rls_next(y: Tensor, order: int, u: Tensor | None = None, input_order: int = 0) -> Tensor:
+    """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
+    u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t."""
+    pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
+    if input_order > 0:  # the pad rows are never read
+        return arx_predict(pad(y), pad(u), order, input_order)[:, 1:].to(y.dtype)
+    return rls_predict(pad(y), order)[:, 1:].to(y.dtype)  # (B, T, m)
 
 
 def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Tensor | None]:
@@ -55,7 +73,9 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
     m = cfg.output_dim
     y = inputs[..., :m]  # (B, T, m)
     scale = running_scale(y) if cfg.input_scale == "running" else None
-    base = rls_next(y, cfg.rls_order) if cfg.rls_order > 0 else None
+    k = input_count(cfg)
+    u = inputs[..., m : m + k] if cfg.arx_order > 0 else None
+    base = rls_next(y, cfg.rls_order, u, cfg.arx_order) if cfg.rls_order > 0 else None
     return _assemble(inputs, scale, base, m), scale, base
 
 
@@ -87,11 +107,14 @@ class FeatureState:
     def __init__(self, cfg: ModelConfig, batch_size: int, device: torch.device, dtype: torch.dtype) -> None:
         self.cfg, self.m, self.t = cfg, cfg.output_dim, 0
         self.sum_sq = torch.zeros(batch_size, 1, device=device, dtype=dtype)
-        p, d = cfg.rls_order, cfg.rls_order * cfg.output_dim
+        p, q, self.k = cfg.rls_order, cfg.arx_order, input_count(cfg)
+        d = p * cfg.output_dim + q * self.k
         if p > 0:
-            self.theta = torch.zeros(batch_size, d, self.m, device=device, dtype=torch.float64)
-            self.P = torch.eye(d, device=device, dtype=torch.float64).repeat(batch_size, 1, 1)
-            self.recent = torch.zeros(batch_size, p + 1, self.m, device=device, dtype=torch.float64)
+            f64 = dict(device=device, dtype=torch.float64)
+            self.theta = torch.zeros(batch_size, d, self.m, **f64)
+            self.P = torch.eye(d, **f64).repeat(batch_size, 1, 1)
+            self.recent = torch.zeros(batch_size, p + 1, self.m, **f64)
+            self.recent_u = torch.zeros(batch_size, q + 1, self.k if q > 0 else 0, **f64)
 
     def step(self, z: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """z_t (B, d_in) -> network input (B, 1, d_in + extra), s_t (B, 1, 1)|None, r_{t+1} (B, 1, m)|None."""
@@ -101,18 +124,27 @@ class FeatureState:
             self.sum_sq = self.sum_sq + (y**2).mean(-1, keepdim=True)
             scale = (self.sum_sq / (self.t + 1) + SCALE_EPS).sqrt()[:, None]  # (B, 1, 1)
         if self.cfg.rls_order > 0:
-            base = self._rls_step(y.double()).to(z.dtype)[:, None]  # (B, 1, m)
+            u = z[:, self.m : self.m + self.k] if self.cfg.arx_order > 0 else z[:, :0]
+            base = self._rls_step(y.double(), u.double()).to(z.dtype)[:, None]  # (B, 1, m)
         self.t += 1
         return _assemble(z[:, None], scale, base, self.m), scale, base
 
-    def _rls_step(self, y: Tensor) -> Tensor:
-        """As rls_predict: fit the pair (phi_{t-1}, y_t) once t >= p, then predict y_{t+1} (y_t for t < p)."""
-        p, t = self.cfg.rls_order, self.t
+    def _rls_step(self, y: Tensor, u: Tensor) -> Tensor:
+        """As rls_predict (arx_predict with q = arx_order > 0): fit the pair (phi_{t-1}, y_t) once t >= r =
+        max(p, q), then predict y_{t+1} (y_t for t < r); u (B, k) is u_t (B, 0 without input lags)."""
+        p, q, t = self.cfg.rls_order, self.cfg.arx_order, self.t
+        r = max(p, q)
         self.recent = torch.cat([self.recent[:, 1:], y[:, None]], dim=1)  # (B, p+1, m): y_{t-p}..y_t
-        if t >= p:
-            phi_prev = regressors(self.recent[:, :-1], p)[:, -1]  # (B, p*m): [y_{t-1}; ...; y_{t-p}]
-            self.theta, self.P = rls_update(self.theta, self.P, phi_prev, y)
-        if t < p:
+        self.recent_u = torch.cat([self.recent_u[:, 1:], u[:, None]], dim=1)  # (B, q+1, k): u_{t-q}..u_t
+        if t >= r:
+            self.theta, self.P = rls_update(self.theta, self.P, self._phi(p, q, 0), y)
+        if t < r:
             return y
-        phi = regressors(self.recent[:, 1:], p)[:, -1]  # (B, p*m): [y_t; ...; y_{t-p+1}]
-        return (self.theta.mT @ phi[..., None])[..., 0]
+        return (self.theta.mT @ self._phi(p, q, 1)[..., None])[..., 0]
+
+    def _phi(self, p: int, q: int, last: int) -> Tensor:
+        """(B, p m + q k): [y_s; ...; y_{s-p+1}; u_s; ...; u_{s-q+1}] for s = t - 1 (last = 0) or t (1)."""
+        phi = regressors(self.recent[:, last : p + last], p)[:, -1]
+        if q == 0:
+            return phi
+        return torch.cat([phi, regressors(self.recent_u[:, last : q + last], q)[:, -1]], dim=-1)
