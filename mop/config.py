@@ -122,11 +122,19 @@ def apply_settings(config: T, settings: dict[str, Any]) -> T:
 
 
 def _change_family(node: dict[str, Any], family: Any) -> None:
-    """Make `node` a config of `family`: keep the knobs both families have, add the new ones' defaults."""
+    """Make `node` a config of `family`: drop the knobs it lacks, add its new ones, and give the knobs both
+    families have the new family's default unless they were changed from the old family's default (so
+    system.family=pendulum runs the pendulum's own noise, while a noise level set before stays)."""
     defaults = dataclasses.asdict(config_class(str(family))())
+    try:
+        before = dataclasses.asdict(config_class(str(node.get("family")))())
+    except MopError:  # the old family is unknown: keep what is there
+        before = {}
     for key in [k for k in node if k not in defaults]:
         del node[key]
-    node.update({k: v for k, v in defaults.items() if k not in node})
+    for key, value in defaults.items():
+        if key not in node or (key in before and node[key] == before[key]):
+            node[key] = value
 
 
 def _parse_value(raw: str) -> Any:

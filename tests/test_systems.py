@@ -160,3 +160,17 @@ def test_unstable_request_is_mop_error():
         LinearFamily(cfg)
     with pytest.raises(MopError):
         sample_dense_A(3, 4, 1.0, generator(0))
+
+
+def test_changing_the_family_takes_its_own_defaults_but_keeps_what_was_set():
+    """system.family=X gives X's own defaults for the knobs X shares with the family before (lti-siso's
+    max_abs is 1e6, linear's 50), while a knob set away from the old family's default is kept."""
+    from mop.config import RunConfig, apply_overrides, apply_settings
+    from mop.systems.base import config_class
+
+    for family in ("lti-siso", "quadrotor", "colored-noise"):
+        got = apply_overrides(RunConfig(), [f"system.family={family}"]).system
+        assert got == config_class(family)(family=family)
+    noisy = apply_overrides(RunConfig(), ["system.noise_var_w=0.1"])
+    moved = apply_settings(noisy, {"system.family": "colored-noise"}).system
+    assert moved.noise_var_w == 0.1 and moved.family == "colored-noise"

@@ -206,3 +206,22 @@ def test_handed_over_model_predicts_what_the_reloaded_run_does(tmp_path, monkeyp
         assert torch.equal(a, b)
     again = mt.train_model(config, run_dir, progress=False)  # a finished run: loaded from disk
     assert all(torch.equal(a, b) for a, b in zip(again.parameters(), handed.model.parameters(), strict=True))
+
+
+def test_a_saved_config_with_tuple_knobs_is_the_same_config(tmp_path):
+    """config.json holds a tuple knob (a family's range) as a list: the run is still reused, not refused."""
+    from mop.systems.linear import LinearConfig
+    from mop.train.rundir import check_run_dir
+
+    @dataclasses.dataclass(frozen=True)
+    class BandConfig(LinearConfig):
+        band: tuple[float, float] = (0.1, 0.2)
+
+    config = dataclasses.replace(tiny_config(), system=BandConfig(family="linear"))
+    (tmp_path / "config.json").write_text(json.dumps(to_dict(config)))
+    (tmp_path / "done.json").write_text("{}")
+    assert check_run_dir(tmp_path, config)
+    with pytest.raises(MopError, match="different config"):
+        check_run_dir(
+            tmp_path, dataclasses.replace(config, system=BandConfig(family="linear", band=(0.1, 0.3)))
+        )

@@ -97,8 +97,9 @@ def check_run_dir(out_dir: Path, config: RunConfig) -> bool:
             f"{path} is damaged (a {type(saved).__name__}, not a config table); delete the run directory "
             f"{out_dir} and train it again"
         )
-    if saved != to_dict(config):
-        diff = _diff(saved, to_dict(config))
+    now = json.loads(json.dumps(to_dict(config)))  # as config.json holds it: tuples are lists there
+    if saved != now:
+        diff = _diff(saved, now)
         raise MopError(
             f"{out_dir} holds a run with a different config ({diff}); train into another --out, or delete "
             f"{out_dir} to train this config there"
