@@ -144,12 +144,17 @@ def test_tampered_or_truncated_weights_are_refused(copied_root, damage, tmp_path
     assert err.count("\n") == 1 and "reinstall mop" in err
 
 
-def test_a_flipped_weight_is_not_caught_without_the_checksum(copied_root):
-    """Why the card's SHA-256 is needed: safetensors itself reads a file with one flipped weight byte."""
+def test_a_flipped_weight_is_refused_by_the_weights_own_digest_too(copied_root):
+    """safetensors itself reads a file with one flipped weight byte; the shipped weights carry the SHA-256 of
+    their tensors in their metadata (as every run's do), so the load refuses it even without the card."""
+    from safetensors.torch import load_file
+
     from mop.checkpoint import load_tensors
 
     flip_byte(copied_root / "model.safetensors")
-    load_tensors(copied_root / "model.safetensors")  # no error: only the digest refuses it
+    load_file(copied_root / "model.safetensors")  # the format alone does not notice
+    with pytest.raises(MopError, match="sha256 differs"):
+        load_tensors(copied_root / "model.safetensors")
 
 
 def test_unknown_name_lists_the_shipped_ones(capsys, tmp_path):

@@ -103,8 +103,10 @@ def render_card(card: dict[str, Any]) -> str:
         "## Measured",
         "",
         f"{ev['num_systems']} fresh test systems (test seed {ev['test_seed']}, horizon {ev['horizon']}); "
-        f"reference `{ev['reference']}`, best other predictor over t >= 20 `{ev['best']}`; errors are "
-        "means of ||yhat_t - y_t||, ratios are MSE ratios with paired bootstrap 95% intervals over systems.",
+        f"reference `{ev['reference']}`, best predictor `{ev['best']}` (the experiment's: the optimum where "
+        "one exists, else the best filter that knows the system; otherwise the lowest MSE over t >= 20); "
+        "errors are means of ||yhat_t - y_t||, ratios are MSE ratios with paired bootstrap 95% intervals "
+        "over systems.",
         "",
         *_ratio_table(ev),
         "",
