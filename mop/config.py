@@ -49,7 +49,13 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
 # Keys left out of a RunConfig's dict while they hold these defaults, so configs (and their hashes, which name
 # run directories) written before the keys existed are unchanged.
 OMITTED_AT_DEFAULT = {
-    "model": {"observation_mask": False, "input_scale": "none", "rls_order": 0},
+    "model": {
+        "observation_mask": False,
+        "input_scale": "none",
+        "rls_order": 0,
+        "rls_inputs": False,
+        "rls_offset": False,
+    },
     "train": {"missing_rate": 0.0, "missing_burst_rate": 0.0, "missing_burst_length": 5},
 }
 
@@ -204,6 +210,8 @@ class ModelConfig:
     )
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
+    rls_inputs: bool = False  # the RLS feature also regresses on p input lags: ARX(p, p) (features)
+    rls_offset: bool = False  # the RLS feature has a constant regressor (an intercept; features)
     # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
     # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
     observation_mask: bool = False
@@ -239,6 +247,15 @@ class ModelConfig:
             isinstance(self.rls_order, int) and 0 <= self.rls_order <= 10,
             f"model.rls_order must be an integer in 0..10 (0 = off), got {self.rls_order!r}",
         )
+        for name in ("rls_inputs", "rls_offset"):
+            check(
+                isinstance(getattr(self, name), bool),
+                f"model.{name} must be true or false, got {getattr(self, name)!r}",
+            )
+            check(
+                not getattr(self, name) or self.rls_order > 0,
+                f"model.{name} is an option of the RLS feature: set model.rls_order > 0 too",
+            )
         check(
             isinstance(self.observation_mask, bool),
             f"model.observation_mask must be true or false, got {self.observation_mask!r}",

@@ -7,6 +7,7 @@ import torch
 
 from mop.config import ModelConfig
 from mop.errors import MopError
+from mop.filters.arx import arx_predict
 from mop.filters.rls import rls_predict
 from mop.models import build_model
 from mop.models.features import SCALE_EPS, rls_next, running_scale
@@ -16,6 +17,9 @@ OPTIONS = [
     {"input_scale": "running"},
     {"rls_order": 2},
     {"input_scale": "running", "rls_order": 3},
+    {"rls_order": 2, "rls_inputs": True},
+    {"input_scale": "running", "rls_order": 3, "rls_inputs": True, "rls_offset": True},
+    {"rls_order": 2, "rls_offset": True},
 ]
 
 
@@ -77,6 +81,33 @@ def test_rls_model_starts_as_the_rls_predictor(scale):
     torch.testing.assert_close(out, rls_predict(z[..., :2], 2)[:, 1:], rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("offset", [False, True])
+def test_arx_model_starts_as_the_arx_predictor(offset):
+    """rls_inputs: the feature (and so the untrained model) is ARX(p, p) on y and the input channels after
+    it, with a constant regressor under rls_offset."""
+    model = build_model(tiny(rls_order=2, rls_inputs=True, rls_offset=offset)).double().eval()
+    z = inputs(T=21)
+    with torch.no_grad():
+        out = model(z[:, :-1])
+    expect = arx_predict(z[..., :2], z[..., 2:], 2, 2, offset=offset)[:, 1:]
+    torch.testing.assert_close(out, expect, rtol=1e-12, atol=1e-12)
+    assert (out - rls_predict(z[..., :2], 2)[:, 1:]).abs().max() > 1e-3  # the inputs do enter
+
+
+def test_arx_feature_leaves_the_observation_mask_out():
+    """With the observation mask the model reads [y, u, mask]: the ARX feature regresses on u only, and
+    streaming agrees."""
+    cfg = tiny(rls_order=2, rls_inputs=True, observation_mask=True, input_dim=5)  # m = 2, k = 1, mask 2
+    model = build_model(cfg).double().eval()
+    z = inputs(T=21, d=5)
+    z[..., 3:] = 1.0  # everything measured
+    with torch.no_grad():
+        out = model(z[:, :-1])
+        streamed, _ = stream(model, z[:, :-1])
+    torch.testing.assert_close(out, arx_predict(z[..., :2], z[..., 2:3], 2, 2)[:, 1:], rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(streamed, out, rtol=1e-9, atol=1e-9)
+
+
 def test_running_scale_is_nearly_scale_equivariant():
     """With the scale divided out, 100 x the inputs give 100 x the outputs, up to the log s channel (which the
     model reads; its read-in weights are zeroed here) and the eps floor (inputs well above it)."""
@@ -103,6 +134,10 @@ def test_config_errors_and_gru_refuses():
         tiny(input_scale="bogus")
     with pytest.raises(MopError, match="rls_order"):
         tiny(rls_order=-1)
+    with pytest.raises(MopError, match="rls_order > 0"):
+        tiny(rls_inputs=True)
+    with pytest.raises(MopError, match="rls_offset"):
+        tiny(rls_order=2, rls_offset="yes")
     with pytest.raises(MopError, match="arch 'gpt'"):
         build_model(tiny(arch="gru", rls_order=2))
 
