@@ -244,8 +244,8 @@ class ModelConfig:
             f"model.input_scale must be 'none' or 'running', got {self.input_scale!r}",
         )
         check(
-            isinstance(self.rls_order, int) and 0 <= self.rls_order <= 10,
-            f"model.rls_order must be an integer in 0..10 (0 = off), got {self.rls_order!r}",
+            isinstance(self.rls_order, int) and 0 <= self.rls_order <= 20,
+            f"model.rls_order must be an integer in 0..20 (0 = off), got {self.rls_order!r}",
         )
         for name in ("rls_inputs", "rls_offset"):
             check(
