@@ -55,8 +55,14 @@ OMITTED_AT_DEFAULT = {
         "rls_order": 0,
         "rls_inputs": False,
         "rls_offset": False,
+        "forecast_mode": "rollout",
     },
-    "train": {"missing_rate": 0.0, "missing_burst_rate": 0.0, "missing_burst_length": 5},
+    "train": {
+        "missing_rate": 0.0,
+        "missing_burst_rate": 0.0,
+        "missing_burst_length": 5,
+        "score_dropped": False,
+    },
 }
 
 
@@ -215,6 +221,9 @@ class ModelConfig:
     # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
     # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
     observation_mask: bool = False
+    # k-step forecasts (mop.models.predictor.LearnedPredictor.forecast): "rollout" feeds the model its own
+    # predictions; "gap" (needs observation_mask) reads the future outputs as missing, with the given inputs
+    forecast_mode: str = "rollout"
 
     def __post_init__(self) -> None:
         check(
@@ -260,6 +269,15 @@ class ModelConfig:
             isinstance(self.observation_mask, bool),
             f"model.observation_mask must be true or false, got {self.observation_mask!r}",
         )
+        check(
+            self.forecast_mode in ("rollout", "gap"),
+            f"model.forecast_mode must be 'rollout' or 'gap', got {self.forecast_mode!r}",
+        )
+        check(
+            self.forecast_mode == "rollout" or self.observation_mask,
+            "model.forecast_mode='gap' reads future outputs as missing: it needs model.observation_mask=true "
+            "(train with train.missing_burst_rate > 0, and train.score_dropped=true to learn the gaps)",
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -272,6 +290,9 @@ class TrainConfig:
         (mop.missing.drop_outputs); with missing_burst_rate (the chance per step that a burst of
         missing_burst_length steps with every channel missing starts there) > 0 too, the model gets an
         observation mask channel (model.observation_mask) and the loss counts only the measured targets.
+    score_dropped: the loss also scores the outputs training dropped (it knows them), so the model learns to
+        predict across a gap of missing outputs: with bursts, a multi-step forecast loss (for
+        model.forecast_mode = "gap"). Outputs missing in recorded data stay unscored.
     """
 
     steps: int = 10000
@@ -293,6 +314,7 @@ class TrainConfig:
     missing_rate: float = 0.0
     missing_burst_rate: float = 0.0
     missing_burst_length: int = 5
+    score_dropped: bool = False
 
     @property
     def drops_outputs(self) -> bool:
@@ -306,6 +328,11 @@ class TrainConfig:
                 isinstance(value, (int, float)) and 0 <= value < 1,
                 f"train.{name} must be in [0, 1), got {value!r}",
             )
+        check(
+            isinstance(self.score_dropped, bool) and (self.drops_outputs or not self.score_dropped),
+            "train.score_dropped=true scores the outputs training drops: it needs train.missing_rate or "
+            f"train.missing_burst_rate > 0 (got score_dropped={self.score_dropped!r})",
+        )
         check(
             isinstance(self.missing_burst_length, int) and self.missing_burst_length > 0,
             f"train.missing_burst_length must be a positive integer, got {self.missing_burst_length!r}",

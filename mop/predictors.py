@@ -82,7 +82,8 @@ def forecast(predictor: Predictor, traj: Trajectories, steps: int) -> Tensor:
     forecast[:, t, j] predicts y_{t+j} from y_0..y_{t-1} (and the inputs u_0..u_{t+j-1}, given where the
     family has inputs); j = 0 is the one-step predict(traj)[:, t]. Entries whose target index t + j exceeds T
     are NaN. Each predictor documents how it rolls out (filters: their time update with no measurement;
-    RLS / subspace: iterating the fitted model; learned: autoregressively on their own predictions).
+    RLS / subspace: iterating the fitted model; learned: autoregressively on their own predictions, or with
+    model.forecast_mode = "gap" by reading the future outputs as missing).
     """
     if not isinstance(steps, int) or steps < 1:
         raise MopError(f"forecast steps must be an integer >= 1, got {steps!r}")

@@ -4,10 +4,12 @@ import json
 import math
 
 import pytest
+import torch
 
-from mop.bench.recipe import BUILTIN, parse_recipe
+from mop.bench.recipe import BUILTIN, TestSet, parse_recipe
 from mop.cli import main
 from mop.errors import MopError
+from mop.predictors import make_predictor
 
 TINY = ["tiny", "model.num_layers=1", "model.width=16", "model.num_heads=2", "train.batch_size=8"]
 
@@ -70,3 +72,22 @@ def test_family_reference_and_seeds(tmp_path, capsys):
     assert (row["ratio_min"], row["ratio_max"]) == (min(ratios), max(ratios))
     assert main(["bench", "recipe", "--family", "nope", "--steps", "1"]) == 2
     assert "unknown --family 'nope'" in capsys.readouterr().err
+
+
+def test_forecast_reports_k_step_errors_whose_first_is_the_one_step_error(tmp_path, capsys):
+    """--forecast K: each recipe's and the reference's k-step errors; k = 1 is the mean one-step error norm
+    over t >= 20, computed here from predict alone."""
+    argv = ["bench", "recipe", "--steps", "2", "--systems", "8", "--seeds", "2", "--recipe", *TINY]
+    assert main([*argv, "--forecast", "3", "--compare", "rls", "--out", str(tmp_path), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    (row,) = result["results"]
+    per_seed = [s["k_step"] for s in row["seeds"]]
+    assert len(row["k_step"]) == 3 and row["k_step"] == pytest.approx(
+        [sum(c) / 2 for c in zip(*per_seed, strict=True)]
+    )
+    test = TestSet(8, 0)
+    one_step = (make_predictor("kalman").predict(test.traj) - test.traj.y)[:, 20:].norm(dim=-1).mean()
+    assert result["k_step"]["kalman"][0] == pytest.approx(float(one_step), rel=1e-9)
+    kf = result["k_step"]["kalman"]
+    assert kf[0] < kf[1] < kf[2] and set(result["k_step"]) == {"kalman", "rls"}
+    assert torch.isfinite(torch.tensor(per_seed)).all()

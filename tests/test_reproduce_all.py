@@ -52,6 +52,7 @@ def _check_schema(data: dict, names: set[str]) -> None:
         ("switching", {"mop", "kalman", "kalman-system1", "rls"}),
         ("quadrotor", {"mop", "ekf", "ukf", "pf"}),
         ("upper-triangular", {"mop", "kalman", "rls"}),
+        ("linear-inputs", {"mop", "kalman", "arx", "n4sid-kf", "last"}),
     ],
 )
 def test_standard_experiments(tmp_path, tiny_smoke, name, predictors):
@@ -71,6 +72,10 @@ def test_standard_experiments(tmp_path, tiny_smoke, name, predictors):
             tmp_path / name / "fig4b_powers.pdf"
         ).exists()
         assert set(data["conditions"]["dense"]["predictors"]) == {"mop", "kalman"}
+    if name == "linear-inputs":  # the KF that uses B u is the best predictor; the report shows simulation
+        curves = data["predictors"]
+        late = {n: sum(c["squared_error"][20:]) for n, c in curves.items()}
+        assert min(late, key=late.get) == "kalman" and "Free-run simulation" in report
 
 
 def test_noise_shift_has_one_condition_per_level(tmp_path, tiny_smoke):

@@ -37,11 +37,12 @@ from mop import train as mt
 from mop.config import RunConfig, SystemConfig, apply_overrides
 from mop.errors import MopError
 from mop.experiments import TEST_SEED_OFFSET, get_preset
+from mop.experiments.analyses import FORECAST_START, horizon_errors
 from mop.metrics import errors, mse_ratio_ci
 from mop.models import build_model
 from mop.models.predictor import LearnedPredictor
 from mop.plots import save
-from mop.predictors import PREDICTORS, make_predictor
+from mop.predictors import PREDICTORS, forecast, make_predictor
 from mop.progress import progress as progress_bar
 from mop.systems import generator, make_family
 from mop.systems.base import FAMILIES, config_class
@@ -159,22 +160,32 @@ class TestSet:
         reference: str = "kalman",
         compare: tuple[str, ...] = (),
         horizon: int = 50,
+        forecast_steps: int = 0,
     ) -> None:
         fam = make_family(config_class(family)(family=family), dtype=torch.float64)
         self.traj = fam.generate(num_systems, horizon, generator=generator(seed + TEST_SEED_OFFSET))
         self.family, self.reference, self.seed = family, reference, seed
         self.window = (WINDOW[0], horizon + 1)
+        self.forecast_steps = forecast_steps
         self.e_ref = errors(make_predictor(reference).predict(self.traj), self.traj.y)
-        self.others = {}
+        self.others, self.k_step = {}, {}
         for name in compare:
             e = errors(make_predictor(name).predict(self.traj), self.traj.y)
             self.others[name] = self._ratio(e)[0]
+        for name in (reference, *compare) if forecast_steps else ():
+            self.k_step[name] = self.k_step_errors(make_predictor(name))
 
     def _ratio(self, e) -> tuple[float, float, float]:
         return mse_ratio_ci(e, self.e_ref, *self.window, seed=self.seed)
 
     def ratio(self, model) -> tuple[float, float, float]:
         return self._ratio(errors(LearnedPredictor(model).predict(self.traj), self.traj.y))
+
+    def k_step_errors(self, predictor) -> list[float]:
+        """Mean ||y_{t+k-1} - forecast|| over systems and origins t >= FORECAST_START, k = 1..forecast_steps
+        (the forecast analysis's numbers)."""
+        f = forecast(predictor, self.traj, self.forecast_steps)
+        return horizon_errors(self.traj.y, f, FORECAST_START)
 
 
 def measure(
@@ -195,6 +206,8 @@ def measure(
                 model, info = train_for(recipe, **limit, family=test.family, seed=seed)
                 ratio, low, high = test.ratio(model)
                 per_seed.append({"seed": seed, **info, "ratio": ratio, "ci_low": low, "ci_high": high})
+                if test.forecast_steps:
+                    per_seed[-1]["k_step"] = test.k_step_errors(LearnedPredictor(model))
             rows.append(_aggregate(recipe.name, budget, unit, per_seed))
             log(_line(rows[-1]))
     return rows
@@ -218,16 +231,26 @@ def _aggregate(name: str, budget: float, unit: str, per_seed: list[dict]) -> dic
         "ci_low": min(r["ci_low"] for r in per_seed),
         "ci_high": max(r["ci_high"] for r in per_seed),
         "seeds": per_seed,
+        **_k_step_mean(per_seed),
     }
+
+
+def _k_step_mean(per_seed: list[dict]) -> dict:
+    """{"k_step": mean over seeds of each k's error} where the seeds have k-step errors (--forecast)."""
+    if "k_step" not in per_seed[0]:
+        return {}
+    columns = zip(*(r["k_step"] for r in per_seed), strict=True)
+    return {"k_step": [sum(col) / len(col) for col in columns]}
 
 
 def _line(r: dict) -> str:
     budget = f"{r['budget']:g} {'s' if r['unit'] == 'seconds' else 'steps'}"
     each = ", ".join(f"{s['ratio']:.4f}" for s in r["seeds"])
+    k_step = "" if "k_step" not in r else "  k-step: " + " ".join(f"{e:.4f}" for e in r["k_step"])
     return (
         f"{r['recipe']:<12} {budget:>10} {r['steps']:>7d} {r['seconds']:>7.1f} {r['steps_per_s']:>8.2f}   "
         f"{r['ratio']:.4f} [{r['ratio_min']:.4f}, {r['ratio_max']:.4f}]  CI [{r['ci_low']:.4f}, "
-        f"{r['ci_high']:.4f}]  seeds: {each}"
+        f"{r['ci_high']:.4f}]  seeds: {each}{k_step}"
     )
 
 
@@ -270,6 +293,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--compare", nargs="*", default=[], help="more predictors whose ratio to the reference is reported"
     )
+    parser.add_argument(
+        "--forecast",
+        type=int,
+        default=0,
+        metavar="K",
+        help="also report the k-step forecast errors (k = 1..K) of each recipe, the reference and --compare",
+    )
     parser.add_argument("--seed", type=int, default=0, help="test systems use seed + 7000001 (0)")
     parser.add_argument("--out", default="runs/bench/recipe", help="plot directory (runs/bench/recipe)")
 
@@ -277,11 +307,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     recipes = [parse_recipe(words) for words in args.recipe] if args.recipe else list(BUILTIN.values())
     unit, budgets = ("steps", args.steps) if args.steps else ("seconds", args.budgets)
-    if min(budgets) <= 0 or args.systems <= 0 or args.seeds <= 0:
-        raise MopError("budgets, --systems and --seeds must be positive")
+    if min(budgets) <= 0 or args.systems <= 0 or args.seeds <= 0 or args.forecast < 0:
+        raise MopError("budgets, --systems and --seeds must be positive, --forecast K at least 0")
     _check_names(args)
     horizon = recipes[0].config(args.family).train.horizon
-    test = TestSet(args.systems, args.seed, args.family, args.reference, tuple(args.compare), horizon)
+    test = TestSet(
+        args.systems, args.seed, args.family, args.reference, tuple(args.compare), horizon, args.forecast
+    )
     if not args.json:
         print(f"{'recipe':<12} {'budget':>10} {'steps':>7} {'wall s':>7} {'steps/s':>8}   ratio [95% CI]")
     rows = measure(recipes, budgets, test, unit, (lambda _: None) if args.json else print, args.seeds)
@@ -293,6 +325,7 @@ def run(args: argparse.Namespace) -> int:
         "reference": args.reference,
         "seeds": args.seeds,
         "compare": test.others,
+        "k_step": test.k_step,
         "num_test_systems": args.systems,
         "window": list(test.window),
         "unit": unit,
@@ -305,6 +338,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         for name, ratio in test.others.items():
             print(f"{name:<12} ratio to {args.reference}: {ratio:.4f}")
+        for name, errs in test.k_step.items():
+            print(f"{name:<12} k-step: " + " ".join(f"{e:.4f}" for e in errs))
         print(f"plot: {', '.join(result['plot'])}")
     return 0
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 from mop.config import DataConfig, RunConfig, apply_settings, parse_overrides
+from mop.experiments.inputs import LINEAR_INPUTS
 from mop.experiments.missing_data import MISSING_DATA
 from mop.experiments.paper import PAPER_EXPERIMENTS
 from mop.experiments.presets import PRESETS, Preset, get_preset
@@ -26,6 +27,7 @@ EXPERIMENTS: Registry = Registry("experiment", group="mop.experiments")
 for _exp in (
     *PAPER_EXPERIMENTS,
     MISSING_DATA,
+    LINEAR_INPUTS,
 ):  # the built-in ones (plugins: entry points of mop.experiments)
     EXPERIMENTS.add(_exp.name, _exp)
 

@@ -42,6 +42,7 @@ from mop.models.registry import predictor_names
 from mop.models.rollout import can_branch, forecast_batch, transformer_chunk_size
 from mop.systems.base import Trajectories
 
+GAP_ORIGINS = 8  # forecast origins per batched predict in gap_forecast
 OOD_RMS = 5.0  # warn when an input channel's RMS z-score against the training inputs exceeds this
 
 
@@ -216,6 +217,8 @@ class LearnedPredictor:
         t + j > T are NaN. All origins advance together at the cost of the new inputs (mop.models.rollout);
         equal to reference_forecast to float rounding.
         """
+        if self.cfg.forecast_mode == "gap":
+            return self.gap_forecast(traj, steps)
         if not can_branch(self.model):
             return self.reference_forecast(traj, steps)
         z = self._inputs(traj)  # (B, T, d_in) normalised, model dtype
@@ -238,6 +241,31 @@ class LearnedPredictor:
         if self.normalization is not None:
             f = self.normalization.outputs(f, None)[0]
         return f.to(device=traj.y.device, dtype=traj.y.dtype)
+
+    def gap_forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m) k-step forecasts of a model with an observation mask (model.forecast_mode =
+        "gap"): the future outputs are read as missing, the future inputs as given.
+
+        f[:, t, j] = predict(traj with y_t..y_{t+j-1} missing)[:, t + j], i.e. the model's prediction of
+        y_{t+j} from y_0..y_{t-1} (and their gaps) and u_0..u_{t+j-1}, with the window semantics of predict.
+        Nothing predicted is fed back, so errors do not compound through the inputs; a model trained with
+        bursts of dropped outputs that are still scored (train.score_dropped) learns exactly this (a
+        multi-step loss). Origins are batched in groups of GAP_ORIGINS, each cut to the rows it reads.
+        """
+        B, T1, m = traj.y.shape
+        out = traj.y.new_full((B, T1, steps, m), float("nan"))
+        for first in range(0, T1, GAP_ORIGINS):
+            origins = range(first, min(first + GAP_ORIGINS, T1))
+            rows = min(origins[-1] + steps, T1)  # the last origin reads up to row origins[-1] + K - 1
+            y = traj.y[:, :rows].repeat(len(origins), 1, 1)  # (G*B, rows, m), origin-major
+            for i, t in enumerate(origins):
+                y[i * B : (i + 1) * B, t : t + steps - 1] = float("nan")
+            u = None if traj.u is None else traj.u[:, :rows].repeat(len(origins), 1, 1)
+            yhat = self.predict(Trajectories(y, u)).view(len(origins), B, rows, m)
+            for i, t in enumerate(origins):
+                j = min(steps, rows - t)
+                out[:, t, :j] = yhat[i, :, t : t + j]
+        return out
 
     @contextlib.contextmanager
     def _eval(self):
@@ -270,7 +298,12 @@ class LearnedPredictor:
 
     def simulate(self, traj: Trajectories, context: int) -> Tensor:
         """(B, T+1-c, m) free-run simulation: forecast[:, c] alone (the model reads z_0..z_{c-1}, then its own
-        predicted outputs with the given inputs), one forward per simulated step."""
+        predicted outputs with the given inputs), one forward per simulated step; model.forecast_mode = "gap":
+        one predict with y_c..y_T read as missing)."""
+        if self.cfg.forecast_mode == "gap":
+            y = traj.y.clone()
+            y[:, context:] = float("nan")
+            return self.predict(Trajectories(y, traj.u))[:, context:]
         z = traj.model_inputs().double()  # (B, T+1, d_in)
         u = None if traj.u is None else traj.u.double()
         limit = self.cfg.context if self.model.context_limited else None

@@ -81,15 +81,18 @@ def with_drop_outs(
 ) -> tuple[Tensor, Tensor]:
     """Drop outputs (mop.missing.drop_mask with train.missing_rate / missing_burst_*; y_0 kept) from a batch
     inputs (B, T, m + k) = [y_0..y_{T-1}, u], targets (B, T, m) = y_1..y_T: a dropped y_t is missing both as
-    the input at t and as the target at t - 1. Returns (masked inputs (B, T, m + k + m), targets with NaN)."""
+    the input at t and as the target at t - 1 (train.score_dropped: missing as the input only, the target
+    keeps its value, so the loss scores predictions across gaps). Returns (masked inputs (B, T, m + k + m),
+    targets with NaN where missing)."""
     m = targets.shape[-1]
-    y = torch.cat([inputs[:, :1, :m], targets], dim=1)  # (B, T+1, m): y_0..y_T
+    clean = torch.cat([inputs[:, :1, :m], targets], dim=1)  # (B, T+1, m): y_0..y_T (NaN where recorded so)
     drop = drop_mask(
-        tuple(y.shape), cfg.missing_rate, generator, cfg.missing_burst_rate, cfg.missing_burst_length
+        tuple(clean.shape), cfg.missing_rate, generator, cfg.missing_burst_rate, cfg.missing_burst_length
     )
-    y = drop_outputs(y, drop)
+    y = drop_outputs(clean, drop)
     z = torch.cat([y[:, :-1], inputs[..., m:]], dim=-1)
-    return masked_inputs(z, m), y[:, 1:].contiguous()
+    scored = clean if cfg.score_dropped else y
+    return masked_inputs(z, m), scored[:, 1:].contiguous()
 
 
 def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, Tensor]:
