@@ -28,6 +28,7 @@ PACKAGE = Path(mop.__file__).resolve().parent
 DATA_MODULES = {
     "mop.experiments.paper": "the paper's experiments",
     "mop.experiments.missing_data": "the missing-data experiment",
+    "mop.experiments.inputs": "the linear-inputs experiment",
     "mop.pretrained.catalog": "the shipped models: the experiment and family each was trained on",
 }
 
