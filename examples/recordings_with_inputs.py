@@ -11,7 +11,7 @@ simulation.
    that knows each system (`kalman`) gives the optimum beside the others.
 2. Train. `mop train --data DIR/train.npz --out DIR/run key=value ...`: per-channel normalisation of y and u
    fitted on the training split, a seeded 10% held out for the validation loss. The full budget turns on the
-   ARX feature (model.rls_order=2 model.rls_inputs=true: the network reads the online ARX(2, 2) prediction and
+   ARX feature (model.rls_order=2 model.arx_order=2: the network reads the online ARX(2, 2) prediction and
    predicts its residual, so it starts as ARX and learns what ARX gets wrong).
 3. Compare. For each predictor (the run, `arx`, `n4sid-kf`, `last`, `kalman`):
    `mop predict P DIR/heldout.npz --out DIR/onestep/P.npz` (yhat_t from y_<t, u_<t) and
@@ -66,7 +66,7 @@ BUDGETS = {
             "model.width=64",
             "model.num_heads=4",
             "model.rls_order=2",
-            "model.rls_inputs=true",
+            "model.arx_order=2",
             "train.batch_size=64",
             "train.steps=1500",
             "train.lr=3e-3",

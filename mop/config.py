@@ -53,7 +53,7 @@ OMITTED_AT_DEFAULT = {
         "observation_mask": False,
         "input_scale": "none",
         "rls_order": 0,
-        "rls_inputs": False,
+        "arx_order": 0,
         "rls_offset": False,
         "forecast_mode": "rollout",
     },
@@ -216,8 +216,8 @@ class ModelConfig:
     )
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
-    rls_inputs: bool = False  # the RLS feature also regresses on p input lags: ARX(p, p) (features)
-    rls_offset: bool = False  # the RLS feature has a constant regressor (an intercept; features)
+    arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
+    rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
     # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
     # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
     observation_mask: bool = False
@@ -256,15 +256,22 @@ class ModelConfig:
             isinstance(self.rls_order, int) and 0 <= self.rls_order <= 20,
             f"model.rls_order must be an integer in 0..20 (0 = off), got {self.rls_order!r}",
         )
-        for name in ("rls_inputs", "rls_offset"):
-            check(
-                isinstance(getattr(self, name), bool),
-                f"model.{name} must be true or false, got {getattr(self, name)!r}",
-            )
-            check(
-                not getattr(self, name) or self.rls_order > 0,
-                f"model.{name} is an option of the RLS feature: set model.rls_order > 0 too",
-            )
+        check(
+            isinstance(self.arx_order, int) and 0 <= self.arx_order <= 20,
+            f"model.arx_order must be an integer in 0..20 (0 = output-only RLS), got {self.arx_order!r}",
+        )
+        check(
+            self.arx_order == 0 or self.rls_order > 0,
+            "model.arx_order adds input lags to the RLS feature: set model.rls_order > 0 too",
+        )
+        check(
+            isinstance(self.rls_offset, bool),
+            f"model.rls_offset must be true or false, got {self.rls_offset!r}",
+        )
+        check(
+            not self.rls_offset or self.rls_order > 0,
+            "model.rls_offset adds a constant to the RLS feature: set model.rls_order > 0 too",
+        )
         check(
             isinstance(self.observation_mask, bool),
             f"model.observation_mask must be true or false, got {self.observation_mask!r}",

@@ -17,9 +17,6 @@ OPTIONS = [
     {"input_scale": "running"},
     {"rls_order": 2},
     {"input_scale": "running", "rls_order": 3},
-    {"rls_order": 2, "rls_inputs": True},
-    {"input_scale": "running", "rls_order": 3, "rls_inputs": True, "rls_offset": True},
-    {"rls_order": 2, "rls_offset": True},
 ]
 
 
@@ -81,33 +78,6 @@ def test_rls_model_starts_as_the_rls_predictor(scale):
     torch.testing.assert_close(out, rls_predict(z[..., :2], 2)[:, 1:], rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("offset", [False, True])
-def test_arx_model_starts_as_the_arx_predictor(offset):
-    """rls_inputs: the feature (and so the untrained model) is ARX(p, p) on y and the input channels after
-    it, with a constant regressor under rls_offset."""
-    model = build_model(tiny(rls_order=2, rls_inputs=True, rls_offset=offset)).double().eval()
-    z = inputs(T=21)
-    with torch.no_grad():
-        out = model(z[:, :-1])
-    expect = arx_predict(z[..., :2], z[..., 2:], 2, 2, offset=offset)[:, 1:]
-    torch.testing.assert_close(out, expect, rtol=1e-12, atol=1e-12)
-    assert (out - rls_predict(z[..., :2], 2)[:, 1:]).abs().max() > 1e-3  # the inputs do enter
-
-
-def test_arx_feature_leaves_the_observation_mask_out():
-    """With the observation mask the model reads [y, u, mask]: the ARX feature regresses on u only, and
-    streaming agrees."""
-    cfg = tiny(rls_order=2, rls_inputs=True, observation_mask=True, input_dim=5)  # m = 2, k = 1, mask 2
-    model = build_model(cfg).double().eval()
-    z = inputs(T=21, d=5)
-    z[..., 3:] = 1.0  # everything measured
-    with torch.no_grad():
-        out = model(z[:, :-1])
-        streamed, _ = stream(model, z[:, :-1])
-    torch.testing.assert_close(out, arx_predict(z[..., :2], z[..., 2:3], 2, 2)[:, 1:], rtol=1e-12, atol=1e-12)
-    torch.testing.assert_close(streamed, out, rtol=1e-9, atol=1e-9)
-
-
 def test_running_scale_is_nearly_scale_equivariant():
     """With the scale divided out, 100 x the inputs give 100 x the outputs, up to the log s channel (which the
     model reads; its read-in weights are zeroed here) and the eps floor (inputs well above it)."""
@@ -134,10 +104,6 @@ def test_config_errors_and_gru_refuses():
         tiny(input_scale="bogus")
     with pytest.raises(MopError, match="rls_order"):
         tiny(rls_order=-1)
-    with pytest.raises(MopError, match="rls_order > 0"):
-        tiny(rls_inputs=True)
-    with pytest.raises(MopError, match="rls_offset"):
-        tiny(rls_order=2, rls_offset="yes")
     with pytest.raises(MopError, match="arch 'gpt'"):
         build_model(tiny(arch="gru", rls_order=2))
 
@@ -157,3 +123,66 @@ def test_save_load_round_trip(tmp_path):
     z = inputs().float()
     with torch.no_grad():
         assert torch.equal(again(z), model(z))
+
+
+def test_arx_feature_is_the_arx_baseline_one_step_ahead():
+    """model.arx_order = q: r[:, t] predicts y_{t+1} from y_0..y_t and u_0..u_t, the arx baseline's
+    yhat_{t+1} on the full trajectory; an untrained model (zero read-out) is that ARX predictor."""
+    z = inputs(T=21, d=4)  # y (2 outputs), u (2 inputs)
+    y, u = z[..., :2], z[..., 2:]
+    r = rls_next(y[:, :-1], 2, u[:, :-1], 3)
+    torch.testing.assert_close(r, arx_predict(y, u, 2, 3)[:, 1:], rtol=0, atol=0)
+    model = build_model(tiny(rls_order=2, arx_order=3, input_dim=4)).double().eval()
+    with torch.no_grad():
+        torch.testing.assert_close(model(z[:, :-1]), r, rtol=1e-12, atol=1e-12)
+    assert not torch.allclose(r, rls_next(y[:, :-1], 2))  # the inputs matter
+
+
+@pytest.mark.parametrize("options", [{"rls_order": 2, "arx_order": 1}, {"rls_order": 1, "arx_order": 3}])
+def test_arx_feature_streams_equal_to_the_forward(options):
+    model = build_model(tiny(**options, input_dim=4, input_scale="running")).double().eval()
+    with torch.no_grad():
+        for p in model.parameters():
+            p.normal_(0.0, 0.3)
+    z = inputs(d=4)
+    with torch.no_grad():
+        torch.testing.assert_close(stream(model, z)[0], model(z), rtol=1e-9, atol=1e-9)
+
+
+def test_arx_order_needs_the_rls_feature_and_inputs():
+    with pytest.raises(MopError, match="rls_order"):
+        tiny(arx_order=2)
+    with pytest.raises(MopError, match="no inputs"):
+        build_model(tiny(rls_order=2, arx_order=2, input_dim=2))
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"rls_order": 2, "rls_offset": True},
+        {"rls_order": 2, "arx_order": 2, "rls_offset": True},
+        {"rls_order": 3, "arx_order": 1, "rls_offset": True, "input_scale": "running"},
+    ],
+)
+def test_offset_feature_is_arx_with_an_intercept_and_streams_equal(options):
+    """model.rls_offset: the untrained model is arx_predict with offset=True (with or without input lags),
+    on outputs with an offset (where the constant matters); streaming equals the forward."""
+    model = build_model(tiny(**options)).double().eval()
+    z = inputs(T=21) + 2.0
+    q = options.get("arx_order", 0)
+    u = z[..., 2:] if q else None
+    expect = arx_predict(z[..., :2], u, options["rls_order"], max(q, 1), offset=True)[:, 1:]
+    with torch.no_grad():
+        out = model(z[:, :-1])
+        streamed, _ = stream(model, z[:, :-1])
+    torch.testing.assert_close(out, expect, rtol=1e-10, atol=1e-10)
+    torch.testing.assert_close(streamed, out, rtol=1e-9, atol=1e-9)
+    without = rls_next(z[:, :-1, :2], options["rls_order"], None if u is None else u[:, :-1], q)
+    assert (out - without).abs().max() > 1e-3  # the constant does enter
+
+
+def test_offset_needs_the_rls_feature():
+    with pytest.raises(MopError, match="rls_order > 0"):
+        tiny(rls_offset=True)
+    with pytest.raises(MopError, match="rls_offset"):
+        tiny(rls_order=2, rls_offset="yes")

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from mop.config import ModelConfig
-from mop.models import build_model
+from mop.models import build_model, rollout
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.models.rollout import can_branch
 from mop.systems.base import Trajectories
@@ -108,3 +108,67 @@ def test_float32_model_matches_to_float_rounding():
         atol=1e-5,
         equal_nan=True,
     )
+
+
+@pytest.mark.parametrize("features", [{}, {"input_scale": "running", "rls_order": 2}])
+@pytest.mark.parametrize(("position", "readout"), [("learned", "mean"), ("rope", "gaussian")])
+def test_last_only_forward_is_the_full_forwards_last_output(position, readout, features):
+    """forward / predict_distribution with last=True (the sliding window's later windows) skip the last
+    block's other positions and equal the full forward at the last position."""
+    torch.manual_seed(0)
+    cfg = ModelConfig(
+        num_layers=3, num_heads=2, width=16, context=CONTEXT, position=position, readout=readout,
+        input_dim=5, output_dim=3, **features,
+    )  # fmt: skip
+    model = build_model(cfg).double().eval()
+    with torch.no_grad():
+        for p in model.parameters():  # not the RLS start's zero read-out
+            p.normal_(0.0, 0.3)
+    z = torch.randn(4, CONTEXT, 5, dtype=torch.float64)
+    with torch.no_grad():
+        torch.testing.assert_close(model(z, last=True), model(z)[:, -1:], rtol=0, atol=1e-12)
+        if readout == "gaussian":
+            for a, b in zip(model.predict_distribution(z, True), model.predict_distribution(z), strict=True):
+                torch.testing.assert_close(a, b[:, -1:], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("position", ["learned", "rope"])
+def test_prefill_continued_from_a_cache_equals_the_whole_windows_prefill(position):
+    """A window prefilled, then its last n positions replaced by new inputs through the cache (written in
+    place, twice with a shorter prefix the second time, as the forecast does), equals a prefill of the
+    whole new window: the last output, and every position's output with last=False."""
+    model = random_model("gpt", position, "mean", 2)
+    g = torch.Generator().manual_seed(3)
+    z = torch.randn(4, CONTEXT, 5, generator=g, dtype=torch.float64)
+    with torch.no_grad():
+        _, kv = model.prefill(z, last=True)
+        cache = [(k.contiguous(), v.contiguous()) for k, v in kv]
+        for n, last in ((2, True), (3, False)):
+            new = torch.randn(4, n, 5, generator=g, dtype=torch.float64)
+            mu, _ = model.prefill(new, last=last, cache=cache, start=CONTEXT - n)
+            whole, _ = model.prefill(torch.cat([z[:, : CONTEXT - n], new], dim=1))
+            expected = whole[:, -1:] if last else whole[:, CONTEXT - n :]
+            torch.testing.assert_close(mu, expected, rtol=0, atol=1e-10)
+
+
+def test_a_model_with_input_features_forecasts_by_the_reference():
+    """Input features (running scale, RLS) are functions of the whole window, fed-back inputs included:
+    no fast path, and forecast is reference_forecast."""
+    torch.manual_seed(0)
+    cfg = ModelConfig(num_layers=1, num_heads=2, width=8, context=CONTEXT, input_dim=3, output_dim=3,
+                      input_scale="running", rls_order=1)  # fmt: skip
+    model = build_model(cfg).double()
+    assert not can_branch(model)
+    traj = random_trajectories(2, 9, 0)
+    predictor = LearnedPredictor(model)
+    assert_equal_forecasts(predictor.forecast(traj, 3), predictor.reference_forecast(traj, 3))
+
+
+def test_windows_batched_across_prefill_batches(monkeypatch):
+    """Beyond the context the windows are prefilled a few starts at a time (here one per batch) and each
+    batch's steps read forecasts made in earlier batches: still the reference."""
+    monkeypatch.setattr(rollout, "WINDOWS_PER_BATCH", 1)
+    model = random_model("gpt", "rope", "mean", 2)
+    traj = random_trajectories(2, 15, 2)
+    predictor = LearnedPredictor(model)
+    assert_equal_forecasts(predictor.forecast(traj, 9), predictor.reference_forecast(traj, 9))

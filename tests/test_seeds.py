@@ -34,6 +34,11 @@ def test_seed_summary_mean_range_and_each_ci():
     assert [v["seed"] for v in best["per_seed"]] == [0, 1, 2]
     table = seeds_table("x", s)
     assert "MOP / pf | 1.100 [0.900, 1.300]" in table and "1.300 [0.800, 1.400]" in table
+    assert table.count("| test |") == 2  # MOP / pf and MOP / kalman
+    # where the best predictor is the reference, the condition has one row
+    same = _eval(1.0, 1.0)
+    same["conditions"]["test"]["to_best"]["predictor"] = "kalman"
+    assert seeds_table("x", seed_summary({0: same})).count("| test |") == 1
     lead = lead_table(
         [
             {"experiment": "x", "best": best, "authors": "0.07"},

@@ -22,7 +22,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 def test_experiment_files_list_the_identifiers_that_use_inputs(name):
     exp = load_experiment(EXAMPLES / name)
     assert {"mop", "arx", "arx-10-offset", "n4sid-kf", "last"} <= set(exp.predictors)
-    assert exp.presets["small"]["model.rls_inputs"] is True  # MOP starts from ARX with the inputs
+    assert exp.presets["small"]["model.arx_order"] > 0  # MOP starts from ARX with the inputs
     assert "simulation" in exp.analyses and exp.conditions[0].context == 400
 
 

@@ -72,8 +72,10 @@ def seeds_table(experiment: str, summary: dict[str, Any]) -> str:
         "|---|---|---|---|",
     ]
     for condition, entry in summary.items():
+        shown = set()  # where the best predictor is the reference, one row
         for kind in ("best", "reference"):
-            if kind in entry:
+            if kind in entry and entry[kind]["predictor"] not in shown:
+                shown.add(entry[kind]["predictor"])
                 label = f"MOP / {entry[kind]['predictor']}"
                 lines.append(f"| {condition} | {label} | {_cell(entry[kind])} |")
     return "\n".join(lines) + "\n"

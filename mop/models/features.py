@@ -11,14 +11,13 @@ model.input_scale = "running" (causal per-trajectory normalisation):
     (upper-triangular A: the per-system RMS of y spans a factor of 44) then look alike to the network.
 model.rls_order = p > 0 (the RLS feature):
     r_{t+1} = the matrix RLS-AR(p) prediction of y_{t+1} from y_0..y_t (mop.filters.rls, the paper's baseline
-    for p = 2), fed in as m extra channels (divided by s_t with the running scale), and the read-out predicts
-    the residual: yhat_{t+1} = r_{t+1} + s_t out_t. At initialisation (small read-out weights) the model is
+    for p = 2); with model.arx_order = q > 0 the ARX(p, q) prediction from y_0..y_t and u_0..u_t
+    (mop.filters.arx: the regressors also hold u_t..u_{t-q+1}, for systems driven by inputs); fed in as m
+    extra channels (divided by s_t with the running scale), and the read-out predicts the residual:
+    yhat_{t+1} = r_{t+1} + s_t out_t. At initialisation (small read-out weights) the model is
     the RLS predictor, so training starts from it rather than from zero.
-model.rls_inputs = true (with rls_order = p): the feature is ARX(p, p) instead (mop.filters.arx), regressing
-    y_{t+1} on [y_t..y_{t-p+1}, u_t..u_{t-p+1}] where u_t are the model's input channels after y_t (the
-    observation mask, if any, excluded); for systems driven by inputs, where output-only RLS is no better than
-    the last value. model.rls_offset = true adds a constant regressor (arx's offset), for outputs with an
-    offset such as the sysid benchmarks' per-sequence mean removal.
+    model.rls_offset = true adds a constant regressor (mop.filters.arx's offset, an intercept), for outputs
+    with an offset such as the sysid benchmarks' per-sequence mean removal.
 
 In a sliding window (trajectories longer than model.context, LearnedPredictor mode "window") both features
 restart with each window, exactly as the network's attention does. Streaming (FeatureState) keeps them over
@@ -32,8 +31,9 @@ import torch
 from torch import Tensor
 
 from mop.config import ModelConfig
-from mop.filters.arx import arx_predict, arx_regressors
-from mop.filters.rls import rls_update
+from mop.errors import MopError
+from mop.filters.arx import arx_predict
+from mop.filters.rls import regressors, rls_predict, rls_update
 
 SCALE_EPS = 1e-4  # floor of s_t^2: a trajectory of zeros gets s = 0.01, not a division by zero
 
@@ -50,25 +50,28 @@ def running_scale(y: Tensor) -> Tensor:
     return (mean_sq + SCALE_EPS).sqrt()
 
 
-def _pad(x: Tensor) -> Tensor:
-    return torch.cat([x, x.new_zeros(x.shape[0], 1, x.shape[2])], dim=1).double()  # the pad is never read
+def input_count(cfg: ModelConfig) -> int:
+    """k, the number of inputs u in the model's input layout [y, u] (+ the mask's m channels)."""
+    return cfg.input_dim - cfg.output_dim * (2 if cfg.observation_mask else 1)
 
 
-def rls_next(y: Tensor, order: int, u: Tensor | None = None, offset: bool = False) -> Tensor:
+def check_features(cfg: ModelConfig) -> None:
+    """One-line errors for feature options the model's inputs cannot serve."""
+    if cfg.arx_order > 0 and input_count(cfg) <= 0:
+        raise MopError("model.arx_order reads input lags, but the model has no inputs u; use rls_order alone")
+
+
+def rls_next(
+    y: Tensor, order: int, u: Tensor | None = None, input_order: int = 0, offset: bool = False
+) -> Tensor:
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
-    inputs u (B, T, k) and/or offset, the ARX(order, order) prediction from y_0..y_t and u_0..u_t."""
-    padded_u = None if u is None else _pad(u)
-    return arx_predict(_pad(y), padded_u, order, order, offset)[:, 1:].to(y.dtype)  # (B, T, m)
-
-
-def feature_inputs(inputs: Tensor, cfg: ModelConfig) -> Tensor | None:
-    """The input channels u (B, T, k) the ARX feature regresses on (rls_inputs), else None: the channels
-    after the m outputs, less the observation mask's m channels where the model has them."""
-    if not cfg.rls_inputs:
-        return None
-    m = cfg.output_dim
-    stop = inputs.shape[-1] - (m if cfg.observation_mask else 0)
-    return inputs[..., m:stop] if stop > m else None
+    u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
+    a constant regressor."""
+    pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
+    if input_order > 0 or offset:  # the pad rows are never read
+        u_lags = pad(u) if input_order > 0 else None
+        return arx_predict(pad(y), u_lags, order, max(input_order, 1), offset)[:, 1:].to(y.dtype)
+    return rls_predict(pad(y), order)[:, 1:].to(y.dtype)  # (B, T, m)
 
 
 def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Tensor | None]:
@@ -76,9 +79,9 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
     m = cfg.output_dim
     y = inputs[..., :m]  # (B, T, m)
     scale = running_scale(y) if cfg.input_scale == "running" else None
-    base = None
-    if cfg.rls_order > 0:
-        base = rls_next(y, cfg.rls_order, feature_inputs(inputs, cfg), cfg.rls_offset)
+    k = input_count(cfg)
+    u = inputs[..., m : m + k] if cfg.arx_order > 0 else None
+    base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset) if cfg.rls_order > 0 else None
     return _assemble(inputs, scale, base, m), scale, base
 
 
@@ -110,14 +113,14 @@ class FeatureState:
     def __init__(self, cfg: ModelConfig, batch_size: int, device: torch.device, dtype: torch.dtype) -> None:
         self.cfg, self.m, self.t = cfg, cfg.output_dim, 0
         self.sum_sq = torch.zeros(batch_size, 1, device=device, dtype=dtype)
-        p = cfg.rls_order
+        p, q, self.k = cfg.rls_order, cfg.arx_order, input_count(cfg)
+        d = p * cfg.output_dim + q * self.k + (1 if cfg.rls_offset else 0)
         if p > 0:
-            k = cfg.input_dim - self.m - (self.m if cfg.observation_mask else 0) if cfg.rls_inputs else 0
-            self.k = k
-            d = p * (self.m + k) + (1 if cfg.rls_offset else 0)
-            self.theta = torch.zeros(batch_size, d, self.m, device=device, dtype=torch.float64)
-            self.P = torch.eye(d, device=device, dtype=torch.float64).repeat(batch_size, 1, 1)
-            self.recent = torch.zeros(batch_size, p + 1, self.m + k, device=device, dtype=torch.float64)
+            f64 = dict(device=device, dtype=torch.float64)
+            self.theta = torch.zeros(batch_size, d, self.m, **f64)
+            self.P = torch.eye(d, **f64).repeat(batch_size, 1, 1)
+            self.recent = torch.zeros(batch_size, p + 1, self.m, **f64)
+            self.recent_u = torch.zeros(batch_size, q + 1, self.k if q > 0 else 0, **f64)
 
     def step(self, z: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """z_t (B, d_in) -> network input (B, 1, d_in + extra), s_t (B, 1, 1)|None, r_{t+1} (B, 1, m)|None."""
@@ -127,23 +130,30 @@ class FeatureState:
             self.sum_sq = self.sum_sq + (y**2).mean(-1, keepdim=True)
             scale = (self.sum_sq / (self.t + 1) + SCALE_EPS).sqrt()[:, None]  # (B, 1, 1)
         if self.cfg.rls_order > 0:
-            yu = z[:, : self.m + self.k].double()  # (B, m + k): y_t and the regressed inputs u_t
-            base = self._rls_step(yu).to(z.dtype)[:, None]  # (B, 1, m)
+            u = z[:, self.m : self.m + self.k] if self.cfg.arx_order > 0 else z[:, :0]
+            base = self._rls_step(y.double(), u.double()).to(z.dtype)[:, None]  # (B, 1, m)
         self.t += 1
         return _assemble(z[:, None], scale, base, self.m), scale, base
 
-    def _phi(self, recent: Tensor) -> Tensor:
-        """phi (B, d) of the newest row of recent (B, p, m + k): arx_regressors' [y lags, u lags(, 1)]."""
-        p, u = self.cfg.rls_order, recent[..., self.m :] if self.k else None
-        return arx_regressors(recent[..., : self.m], u, p, p, self.cfg.rls_offset)[:, -1]
-
-    def _rls_step(self, yu: Tensor) -> Tensor:
-        """As rls_next: fit the pair (phi_{t-1}, y_t) once t >= p, then predict y_{t+1} (y_t for t < p).
-        yu (B, m + k): y_t and the regressed inputs u_t."""
-        p, t, y = self.cfg.rls_order, self.t, yu[:, : self.m]
-        self.recent = torch.cat([self.recent[:, 1:], yu[:, None]], dim=1)  # (B, p+1, m+k): rows t-p..t
-        if t >= p:
-            self.theta, self.P = rls_update(self.theta, self.P, self._phi(self.recent[:, :-1]), y)
-        if t < p:
+    def _rls_step(self, y: Tensor, u: Tensor) -> Tensor:
+        """As rls_predict (arx_predict with q = arx_order > 0): fit the pair (phi_{t-1}, y_t) once t >= r =
+        max(p, q), then predict y_{t+1} (y_t for t < r); u (B, k) is u_t (B, 0 without input lags)."""
+        p, q, t = self.cfg.rls_order, self.cfg.arx_order, self.t
+        r = max(p, q)
+        self.recent = torch.cat([self.recent[:, 1:], y[:, None]], dim=1)  # (B, p+1, m): y_{t-p}..y_t
+        self.recent_u = torch.cat([self.recent_u[:, 1:], u[:, None]], dim=1)  # (B, q+1, k): u_{t-q}..u_t
+        if t >= r:
+            self.theta, self.P = rls_update(self.theta, self.P, self._phi(p, q, 0), y)
+        if t < r:
             return y
-        return (self.theta.mT @ self._phi(self.recent[:, 1:])[..., None])[..., 0]
+        return (self.theta.mT @ self._phi(p, q, 1)[..., None])[..., 0]
+
+    def _phi(self, p: int, q: int, last: int) -> Tensor:
+        """(B, p m + q k [+ 1]): [y_s; ...; y_{s-p+1}; u_s; ...; u_{s-q+1} (; 1 with rls_offset)] for
+        s = t - 1 (last = 0) or t (1)."""
+        parts = [regressors(self.recent[:, last : p + last], p)[:, -1]]
+        if q > 0:
+            parts.append(regressors(self.recent_u[:, last : q + last], q)[:, -1])
+        if self.cfg.rls_offset:
+            parts.append(parts[0].new_ones(parts[0].shape[0], 1))
+        return torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]

@@ -32,7 +32,7 @@ class GRUModel(nn.Module):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
         check_dims(cfg)
-        if cfg.input_scale != "none" or cfg.rls_order > 0:
+        if cfg.input_scale != "none" or cfg.rls_order > 0 or cfg.arx_order > 0:
             raise MopError("model.input_scale and model.rls_order are options of arch 'gpt', not of the GRU")
         self.cfg = cfg
         self.read_in = nn.Linear(cfg.input_dim, cfg.width)

@@ -338,15 +338,17 @@ def sliding_window(
     """The paper's sliding window: output t (t >= C) is the last output of a forward on z_{t-C+1}..z_t.
 
     Outputs 0..C-1 come from one forward on z_0..z_{C-1}. z (B, T, d_in) -> mean, var|None each (B, T, m).
+    The later windows run with last=True (the model computes their last output only; a context-limited
+    model's forward and predict_distribution take it), equal to the full forward's last output.
     """
     B, T, d_in = z.shape
-    run = (lambda x: model.predict_distribution(x)) if gaussian else (lambda x: (model(x), None))
+    run = model.predict_distribution if gaussian else (lambda x, last=False: (model(x, last), None))
     mu0, var0 = run(z[:, :context])  # (B, C, m)
     windows = z.unfold(1, context, 1)[:, 1:]  # (B, T-C+1, d_in, C) -> drop first: (B, T-C, d_in, C)
     windows = windows.permute(0, 1, 3, 2).reshape(-1, context, d_in)  # (B*(T-C), C, d_in)
     mus, vars_ = [], []
     for i in range(0, windows.shape[0], windows_per_batch):
-        mu, var = run(windows[i : i + windows_per_batch])  # (b, C, m)
+        mu, var = run(windows[i : i + windows_per_batch], last=True)  # (b, 1, m)
         mus.append(mu[:, -1])
         vars_.append(None if var is None else var[:, -1])
     mu = torch.cat([mu0, torch.cat(mus).view(B, T - context, -1)], dim=1)  # (B, T, m)

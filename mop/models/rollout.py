@@ -10,15 +10,20 @@ reads the last C inputs of S(t, j), re-positioned from 0: the paper's sliding wi
 s = t + j - C. A recurrent model (the GRU) reads all of them. All in the model's units (normalised inputs).
 
 Transformer (transformer_forecast):
-- one forward ("prefill") per sliding window z_s..z_{s+T0-1} (T0 = min(T, C), s = 0..T-T0) gives the
-  one-step predictions (as LearnedPredictor.predict) and every layer's keys and values;
+- window 0 (z_0..z_{T0-1}, T0 = min(T, C)) is prefilled once: the one-step predictions y_1..y_T0 and
+  every layer's keys and values;
 - inside the context (t + j <= C, window start 0): attention is causal, so the keys and values of
-  z_0..z_{t-1} are those of the first window; each origin is a branch that keeps the keys and values of its
+  z_0..z_{t-1} are those of window 0; each origin is a branch that keeps the keys and values of its
   own new inputs, and step j costs one new input per origin;
-- beyond it (t + j > C): the window z_s..z_{t-1}, n_1..n_j moved with j, so its prefix z_s..z_{t-1} has the
-  keys and values of prefill window s (the first C - j positions), but the new inputs must be recomputed
-  (what they attend to changed): step j costs min(j, C) new inputs per origin. This is what the paper's
-  window semantics cost; a rolling KV cache (mode "stream") would be cheaper and not equal.
+- beyond it (t + j > C): the windows s = 1..T-C are prefilled in batches, in order of s (the last output
+  only: the one-step prediction y_{s+C}; the last block skips the other positions' attention output and
+  MLP), and right after its prefill window s serves step j = 1..K-1 of origin t = s + C - j. Its prefix
+  z_s..z_{t-1} keeps the prefill's keys and values (positions 0..C-n-1), but the n = min(j, C) new inputs
+  must be recomputed (what they attend to changed; only the last one's output is read): step j costs n
+  new inputs per origin, K(K-1)/2 over a K-step forecast against C for the window's one-step prediction.
+  This is what the paper's window semantics cost; a rolling KV cache (mode "stream") would be cheaper
+  and not equal. The new inputs' keys and values are written into the window's buffers in place:
+  step j writes positions C-n..C-1 and later steps read only positions below C-n-1.
 GRU (recurrent_forecast): the hidden state after z_0..z_{t-1} is kept for every origin t (one step per
 input), and all origins advance together, one GRU step per forecast step.
 
@@ -31,15 +36,20 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from mop.models.features import extra_input_dim
+
 CACHE_BUDGET_BYTES = 256 * 2**20  # keys/values kept per chunk of systems (transformer_chunk_size)
-WINDOWS_PER_CHUNK = 2048  # sliding windows per chunk of systems
-PREFILL_BATCH = 256  # windows per prefill forward (as mop.models.predictor.sliding_window)
+WINDOWS_PER_BATCH = 256  # sliding windows per prefill forward and its branches (activations in cache)
 
 
 def can_branch(model: nn.Module) -> bool:
-    """Whether forecast_batch has a fast path for `model` (transformer prefill/branch, or a GRU cache)."""
+    """Whether forecast_batch has a fast path for `model` (transformer prefill/branch, or a GRU cache).
+
+    Not for a transformer with input features (model.input_scale / rls_order): they are functions of the
+    whole window, fed-back inputs included, so its forecasts take the reference path."""
     if model.context_limited:
-        return callable(getattr(model, "prefill", None)) and callable(getattr(model, "branch", None))
+        has = callable(getattr(model, "prefill", None)) and callable(getattr(model, "branch", None))
+        return has and extra_input_dim(model.cfg) == 0
     return callable(getattr(model, "init_cache", None)) and hasattr(model.init_cache(1), "h")
 
 
@@ -55,15 +65,19 @@ def forecast_batch(model: nn.Module, z: Tensor, steps: int, first: Tensor | None
 
 
 def transformer_chunk_size(cfg, horizon: int, steps: int) -> int:
-    """Systems per forecast_batch call: the kept keys/values within CACHE_BUDGET_BYTES and at most
-    WINDOWS_PER_CHUNK sliding windows (activations that stay in cache)."""
-    T0, windows = min(horizon, cfg.context), max(horizon - cfg.context, 0) + 1
-    floats = 2 * cfg.num_layers * cfg.width * (windows * T0 + T0 * max(steps - 1, 0))
-    return max(1, min(CACHE_BUDGET_BYTES // (4 * floats), WINDOWS_PER_CHUNK // windows))
+    """Systems per forecast_batch call: the first window's keys/values and each origin's own new ones
+    (kept across all steps) within CACHE_BUDGET_BYTES; the later windows are batched by WINDOWS_PER_BATCH."""
+    T0 = min(horizon, cfg.context)
+    floats = 2 * cfg.num_layers * cfg.width * (T0 + T0 * max(steps - 1, 0))
+    return max(1, CACHE_BUDGET_BYTES // (4 * floats))
 
 
 def transformer_forecast(model: nn.Module, z: Tensor, steps: int, first: Tensor | None = None) -> Tensor:
-    """forecast_batch for a context-limited model with prefill / branch (mop.models.transformer)."""
+    """forecast_batch for a context-limited model with prefill / branch (mop.models.transformer).
+
+    Window 0 and the origins inside the context first; then the later windows s in batches, in order of s:
+    a batch's prefill, then for j = 1..K-1 the origins t = s + C - j of its windows (their inputs
+    f_{t, <j} come from windows < s, or from the same batch at step j - 1, so they are ready)."""
     B, T, _ = z.shape
     C, m = model.cfg.context, model.cfg.output_dim
     T0 = min(T, C)
@@ -71,36 +85,17 @@ def transformer_forecast(model: nn.Module, z: Tensor, steps: int, first: Tensor 
     mu, base = model.prefill(z[:, :T0])  # window 0: (B, T0, m), L x (B, H, T0, hd)
     f[:, 0, 0] = 0.0  # no data: the model's units (LearnedPredictor maps 0 to y_mean)
     f[:, 1 : T0 + 1, 0] = mu  # y_1..y_T0
-    mu, windows = _prefill_windows(model, z)  # windows s = 1..T-C: (B, T-C, m), L x (B, T-C, H, C, hd)
-    f[:, T0 + 1 :, 0] = mu  # window s's last output is y_{s+C}
     if first is not None:
         f[:, :, 0] = first
     inputs = z[..., m:]  # (B, T, k) the given inputs u_t (k = 0 without inputs)
     shape = (B, T0, base[0][0].shape[1], max(steps - 1, 1), base[0][0].shape[-1])  # (B, T0, H, K-1, hd)
-    own = [(k.new_zeros(shape), v.new_zeros(shape)) for k, v in base]  # each origin's n_1.. per layer
+    own = [(k.new_empty(shape), v.new_empty(shape)) for k, v in base]  # origins' n_1.., read once written
     for j in range(1, min(steps, T + 1)):
         _inside(model, f, inputs, base, own, j, T0)
-        _beyond(model, f, inputs, windows, j, T)
+    per_batch = max(1, WINDOWS_PER_BATCH // B)  # window starts per batch
+    for a in range(1, T - C + 1, per_batch):
+        _beyond(model, f, z, range(a, min(a + per_batch, T - C + 1)), steps, first is None)
     return f
-
-
-def _prefill_windows(model: nn.Module, z: Tensor) -> tuple[Tensor, list[tuple[Tensor, Tensor]]]:
-    """The sliding windows z_s..z_{s+C-1}, s = 1..T-C, prefilled PREFILL_BATCH at a time: their last output
-    (B, T-C, m) and every layer's keys, values (B, T-C, H, C, hd)."""
-    B, T, d_in = z.shape
-    C, L, H = model.cfg.context, model.cfg.num_layers, model.cfg.num_heads
-    S = max(T - C, 0)
-    windows = z.unfold(1, C, 1)[:, 1:].transpose(-1, -2).reshape(B * S, C, d_in) if S else z[:0, :C]
-    mu = z.new_empty(B * S, model.cfg.output_dim)
-    kv = [tuple(z.new_empty(B * S, H, C, model.cfg.width // H) for _ in range(2)) for _ in range(L)]
-    for i in range(0, B * S, PREFILL_BATCH):
-        out, layers = model.prefill(windows[i : i + PREFILL_BATCH])  # (b, C, m), L x (b, H, C, hd)
-        mu[i : i + PREFILL_BATCH] = out[:, -1]
-        for (k, v), (k_new, v_new) in zip(kv, layers, strict=True):
-            k[i : i + PREFILL_BATCH], v[i : i + PREFILL_BATCH] = k_new, v_new
-    return mu.view(B, S, model.cfg.output_dim), [
-        (k.view(B, S, *k.shape[1:]), v.view(B, S, *v.shape[1:])) for k, v in kv
-    ]
 
 
 def _inside(model, f: Tensor, inputs: Tensor, base: list, own: list, j: int, T0: int) -> None:
@@ -119,22 +114,33 @@ def _inside(model, f: Tensor, inputs: Tensor, base: list, own: list, j: int, T0:
         k[:, :O, :, j - 1], v[:, :O, :, j - 1] = k_new[..., 0, :], v_new[..., 0, :]
 
 
-def _beyond(model, f: Tensor, inputs: Tensor, windows: list, j: int, T: int) -> None:
-    """Step j of the origins t with C < t + j <= T: window s = t + j - C holds z_s..z_{t-1} (prefill window
-    s, positions 0..C-n-1) and the last n = min(j, C) new inputs (recomputed, positions C-n..C-1)."""
-    C = model.cfg.context
-    lo, hi = max(0, C - j + 1), T - j  # origins
-    if hi < lo:
-        return
-    n = min(j, C)
-    P = C - n  # prefix length; when P > 0 the origins lo..hi use windows s = 1..T-C, all of them
-    y_fed = f[:, lo : hi + 1, j - n : j]  # (B, O, n, m): f_{t, j-n..j-1}
-    u_fed = inputs.unfold(1, n, 1)[:, lo + j - n : hi + j - n + 1].transpose(-1, -2)  # (B, O, n, k)
-    x = _token(y_fed, u_fed)  # (B, O, n, d_in): one branch per origin, its prefix its own
-    positions = torch.arange(P, C, device=f.device)[None]  # (1, n)
-    prefix = None if P == 0 else [(k[..., :P, :], v[..., :P, :]) for k, v in windows]  # (B, O, H, P, hd)
-    mu, _ = model.branch(x, positions, None, None, prefix)  # (B, O, n, m)
-    f[:, lo : hi + 1, j] = mu[:, :, -1]
+def _beyond(model, f: Tensor, z: Tensor, starts: range, steps: int, one_step: bool) -> None:
+    """The windows s in `starts` (1 <= s <= T-C, consecutive): prefill z_s..z_{s+C-1} (one_step: its last
+    output is y_{s+C}), then step j = 1..K-1 of the origins t = s + C - j: window s holds z_s..z_{t-1}
+    (the prefill's positions 0..C-n-1) and the last n = min(j, C) new inputs (recomputed, positions
+    C-n..C-1; only the last one's output is read)."""
+    B, T, d_in = z.shape
+    C, m = model.cfg.context, model.cfg.output_dim
+    a, S = starts.start, len(starts)
+    windows = z.unfold(1, C, 1)[:, a : a + S].transpose(-1, -2).reshape(B * S, C, d_in)
+    mu, kv = model.prefill(windows, last=True)  # (B S, 1, m), L x (B S, H, C, hd)
+    if one_step:
+        f[:, a + C : a + C + S, 0] = mu.view(B, S, m)  # window s's last output is y_{s+C}
+    cache = [(k.contiguous(), v.contiguous()) for k, v in kv]  # (B S, H, C, hd), rewritten from the end
+    inputs = z[..., m:]
+    for j in range(1, min(steps, T + 1)):
+        lo = max(a, j - C)  # t = s + C - j >= 0
+        if lo >= a + S:
+            continue
+        n, O, t0 = min(j, C), a + S - lo, lo + C - j  # new inputs, origins t0..t0+O-1
+        y_fed = f[:, t0 : t0 + O, j - n : j]  # (B, O, n, m): f_{t, j-n..j-1}
+        u_fed = inputs.unfold(1, n, 1)[:, t0 + j - n : t0 + j - n + O].transpose(-1, -2)  # (B, O, n, k)
+        x = _token(y_fed, u_fed)  # (B, O, n, d_in): one window per origin, its prefix its own
+        if O < S:  # j > C: the first windows have no origin t = s + C - j >= 0 (zero inputs, not read)
+            x = torch.cat([x.new_zeros(B, S - O, n, d_in), x], dim=1)
+        # window s at step j: positions 0..C-n-1 still hold its prefill (steps < j wrote positions > C-j)
+        mu, _ = model.prefill(x.reshape(B * S, n, d_in), last=True, cache=cache, start=C - n)  # (B S, 1, m)
+        f[:, t0 : t0 + O, j] = mu.view(B, S, m)[:, S - O :]
 
 
 def _token(y: Tensor, u: Tensor) -> Tensor:

@@ -37,7 +37,7 @@ from torch import Tensor, nn
 
 from mop.config import ModelConfig
 from mop.errors import MopError
-from mop.models.features import FeatureState, augment, extra_input_dim, restore
+from mop.models.features import FeatureState, augment, check_features, extra_input_dim, restore
 from mop.models.heads import check_dims, prediction_loss, readout_dim, require_gaussian, split_readout
 from mop.models.registry import register_model
 
@@ -77,21 +77,40 @@ class CausalSelfAttention(nn.Module):
         B, H, T, hd = y.shape
         return self.proj(y.transpose(1, 2).reshape(B, T, H * hd))  # (B, H, T, hd) -> (B, T, d)
 
-    def forward(self, x: Tensor, rope: tuple[Tensor, Tensor] | None = None) -> Tensor:
-        """x (B, T, d) -> (B, T, d), position t attends to 0..t."""
-        q, k, v = self._heads(x)  # (B, H, T, hd)
-        if rope is not None:
-            q, k = apply_rope(q, *rope), apply_rope(k, *rope)
-        drop = self.dropout if self.training else 0.0
-        y = F.scaled_dot_product_attention(q, k, v, dropout_p=drop, is_causal=True)  # (B, H, T, hd)
-        return self._merge(y)
+    def forward(self, x: Tensor, rope: tuple[Tensor, Tensor] | None = None, last: bool = False) -> Tensor:
+        """x (B, T, d) -> (B, T, d), position t attends to 0..t; last: the last position only (B, 1, d)."""
+        return self.prefill(x, rope, last)[0]
 
-    def prefill(self, x: Tensor, rope: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
-        """forward, also returning the keys (rotated) and values: x (B, T, d) -> y, k, v ((B, H, T, hd))."""
+    def prefill(
+        self,
+        x: Tensor,
+        rope: tuple[Tensor, Tensor] | None = None,
+        last: bool = False,
+        cache: tuple[Tensor, Tensor] | None = None,
+        start: int = 0,
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """forward, also returning the keys (rotated) and values: x (B, T, d) -> y, k, v ((B, H, T, hd)).
+
+        last: only the last query (it attends to every key, no mask): y (B, 1, d), k and v of all T.
+        cache: key, value buffers (B, H, >= start + T, hd) whose positions 0..start-1 hold earlier keys and
+        values: x is positions start..start+T-1 (rope must be theirs), its keys and values are written
+        into the buffers there (in place) and each new position i attends to 0..start+i."""
         q, k, v = self._heads(x)  # (B, H, T, hd)
         if rope is not None:
             q, k = apply_rope(q, *rope), apply_rope(k, *rope)
-        y = F.scaled_dot_product_attention(q, k, v, is_causal=True)  # (B, H, T, hd)
+        keys, values, mask, T = k, v, None, x.shape[1]
+        if cache is not None:
+            cache[0][:, :, start : start + T], cache[1][:, :, start : start + T] = k, v
+            keys, values = cache[0][:, :, : start + T], cache[1][:, :, : start + T]  # (B, H, start+T, hd)
+            if not last and T > 1:  # new i sees 0..start+i
+                mask = torch.ones(T, start + T, dtype=torch.bool, device=x.device).tril(diagonal=start)
+        drop = self.dropout if self.training else 0.0
+        if last:
+            y = F.scaled_dot_product_attention(q[:, :, -1:], keys, values, dropout_p=drop)  # (B, H, 1, hd)
+        elif cache is not None:
+            y = F.scaled_dot_product_attention(q, keys, values, attn_mask=mask, dropout_p=drop)
+        else:
+            y = F.scaled_dot_product_attention(q, k, v, dropout_p=drop, is_causal=True)  # (B, H, T, hd)
         return self._merge(y), k, v
 
     def branch(
@@ -189,14 +208,21 @@ class Block(nn.Module):
         self.ln_1, self.attn = nn.LayerNorm(cfg.width), CausalSelfAttention(cfg)
         self.ln_2, self.mlp = nn.LayerNorm(cfg.width), MLP(cfg)
 
-    def forward(self, x: Tensor, rope: tuple[Tensor, Tensor] | None = None) -> Tensor:
-        x = x + self.attn(self.ln_1(x), rope)
-        return x + self.mlp(self.ln_2(x))
+    def forward(self, x: Tensor, rope: tuple[Tensor, Tensor] | None = None, last: bool = False) -> Tensor:
+        """x (B, T, d) -> (B, T, d); last: the last position only (B, 1, d)."""
+        return self.prefill(x, rope, last)[0]
 
-    def prefill(self, x: Tensor, rope: tuple[Tensor, Tensor] | None) -> tuple[Tensor, Tensor, Tensor]:
-        """forward, also returning this layer's keys and values (B, H, T, hd)."""
-        a, k, v = self.attn.prefill(self.ln_1(x), rope)
-        x = x + a
+    def prefill(
+        self,
+        x: Tensor,
+        rope: tuple[Tensor, Tensor] | None,
+        last: bool = False,
+        cache: tuple[Tensor, Tensor] | None = None,
+        start: int = 0,
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """forward, also returning this layer's keys and values (B, H, T, hd); see CausalSelfAttention."""
+        a, k, v = self.attn.prefill(self.ln_1(x), rope, last, cache, start)
+        x = (x[:, -1:] if last else x) + a
         return x + self.mlp(self.ln_2(x)), k, v
 
     def branch(
@@ -246,6 +272,7 @@ class Transformer(nn.Module):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
         check_dims(cfg)
+        check_features(cfg)
         self.cfg = cfg
         self.read_in = nn.Linear(cfg.input_dim + extra_input_dim(cfg), cfg.width)
         self.wpe = nn.Embedding(cfg.context, cfg.width) if cfg.position == "learned" else None
@@ -271,8 +298,11 @@ class Transformer(nn.Module):
             return None
         return rope_angles(positions, self.cfg.width // self.cfg.num_heads)
 
-    def hidden(self, inputs: Tensor) -> Tensor:
-        """Network inputs (B, T, d_in + extra; mop.models.features.augment) -> final hidden (B, T, d)."""
+    def hidden(self, inputs: Tensor, last: bool = False) -> Tensor:
+        """Network inputs (B, T, d_in + extra; mop.models.features.augment) -> final hidden (B, T, d).
+
+        last: the last position's only (B, 1, d); the last block then skips the others' attention output
+        and MLP, which nothing reads (a sliding window keeps only its last output)."""
         B, T, _ = inputs.shape
         if T > self.cfg.context:
             raise MopError(
@@ -282,9 +312,9 @@ class Transformer(nn.Module):
         positions = torch.arange(T, device=inputs.device)
         h = self._embed(inputs, positions)  # (B, T, d)
         rope = self._rope(positions)
-        for block in self.blocks:
-            h = block(h, rope)
-        return self.ln_f(h)  # (B, T, d)
+        for i, block in enumerate(self.blocks):
+            h = block(h, rope, last and i == len(self.blocks) - 1)
+        return self.ln_f(h)  # (B, T, d), or (B, 1, d)
 
     def _embed(self, inputs: Tensor, positions: Tensor) -> Tensor:
         """Read-in plus learned position embeddings: inputs (..., T, d_in), positions (T,) or (O, n)."""
@@ -297,20 +327,23 @@ class Transformer(nn.Module):
         """Final hidden states (B, T, d) -> mean (B, T, m), var (B, T, m) or None."""
         return split_readout(self.read_out(h), self.cfg.readout)
 
-    def _distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor | None]:
-        """inputs (B, T, d_in) -> mean (B, T, m), var (B, T, m)|None in the inputs' units."""
+    def _distribution(self, inputs: Tensor, last: bool = False) -> tuple[Tensor, Tensor | None]:
+        """inputs (B, T, d_in) -> mean (B, T, m), var (B, T, m)|None in the inputs' units (T = 1: last)."""
         z, scale, base = augment(inputs, self.cfg)  # (B, T, d_in + extra), (B, T, 1)|None, (B, T, m)|None
-        mu, var = self._read_out(self.hidden(z))
+        if last:
+            scale, base = (None if a is None else a[:, -1:] for a in (scale, base))
+        mu, var = self._read_out(self.hidden(z, last))
         return restore(mu, var, scale, base)
 
-    def forward(self, inputs: Tensor) -> Tensor:
-        """inputs (B, T, d_in) -> mean predictions (B, T, m); position t predicts y_{t+1}."""
-        return self._distribution(inputs)[0]
+    def forward(self, inputs: Tensor, last: bool = False) -> Tensor:
+        """inputs (B, T, d_in) -> mean predictions (B, T, m); position t predicts y_{t+1}.
+        last: the last position's only (B, 1, m)."""
+        return self._distribution(inputs, last)[0]
 
-    def predict_distribution(self, inputs: Tensor) -> tuple[Tensor, Tensor]:
-        """Gaussian readout only: (mean, var) each (B, T, m). MopError for readout 'mean'."""
+    def predict_distribution(self, inputs: Tensor, last: bool = False) -> tuple[Tensor, Tensor]:
+        """Gaussian readout: (mean, var) each (B, T, m), (B, 1, m) if last. MopError for readout 'mean'."""
         require_gaussian(self.cfg)
-        return self._distribution(inputs)
+        return self._distribution(inputs, last)
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m)."""
@@ -318,13 +351,27 @@ class Transformer(nn.Module):
         return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
 
     # ---- branching (k-step forecasts from many origins at once: mop.models.rollout) ----
-    def prefill(self, inputs: Tensor) -> tuple[Tensor, list[tuple[Tensor, Tensor]]]:
-        """inputs (B, T, d_in) -> (mean (B, T, m) as forward, every layer's keys, values (B, H, T, hd))."""
-        positions = torch.arange(inputs.shape[-2], device=inputs.device)
+    def prefill(
+        self,
+        inputs: Tensor,
+        last: bool = False,
+        cache: list[tuple[Tensor, Tensor]] | None = None,
+        start: int = 0,
+    ) -> tuple[Tensor, list[tuple[Tensor, Tensor]]]:
+        """inputs (B, T, d_in) -> (mean (B, T, m) as forward, every layer's keys, values (B, H, T, hd)).
+
+        last: the mean at the last position only (B, 1, m); the keys and values are still every position's.
+        cache: per layer key, value buffers (B, H, C, hd) holding a window's positions 0..start-1 (from an
+        earlier prefill): the inputs continue that window at positions start..start+T-1 (start + T <= C),
+        their keys and values are written into the buffers there (in place, so positions < start stay
+        valid for a later call with a smaller start), and the result equals a prefill of the whole window
+        at those positions."""
+        positions = torch.arange(start, start + inputs.shape[-2], device=inputs.device)
         h, rope = self._embed(inputs, positions), self._rope(positions)
         kv = []
-        for block in self.blocks:
-            h, k, v = block.prefill(h, rope)
+        for i, block in enumerate(self.blocks):
+            layer_cache = None if cache is None else cache[i]
+            h, k, v = block.prefill(h, rope, last and i == len(self.blocks) - 1, layer_cache, start)
             kv.append((k, v))
         return self._read_out(self.ln_f(h))[0], kv
 
