@@ -14,7 +14,9 @@ Registering a predictor is one decorator in its own module:
 
 Metadata: needs_system (reads traj.params: it knows the system), gaussian (has predict_distribution),
 learned (resolves a trained run directory; the entry's `arch` names the model architecture;
-mop.runs.register_learned adds one).
+mop.runs.register_learned adds one); default_reference (the one predictor an experiment's MSE ratios
+divide by when it names no reference: the optimal filter of the default family, the KF); default_panel
+(drawn in the error panel of an experiment that names no panel, beside its model and reference: RLS).
 """
 
 from __future__ import annotations

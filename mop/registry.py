@@ -6,6 +6,7 @@
     class Pendulum: ...
 
     FAMILIES.get("pendulum")      # the class; MopError naming the known entries for an unknown name
+    FAMILIES.default()            # the one entry registered with default=True (metadata, not a name)
 
 A registry is filled by importing the modules that define its entries. `loader` (called once, on first
 lookup) imports the built-in modules, so `import mop` stays light, and then every installed package's entry
@@ -80,6 +81,20 @@ class Registry(Generic[T]):
     def names(self) -> list[str]:
         self._load()
         return list(self._entries)
+
+    def flagged(self, key: str) -> list[str]:
+        """The names whose metadata sets `key` true, in registration order (e.g. the figures an experiment
+        draws when it names none)."""
+        return [name for name in self.names() if self._meta[name].get(key)]
+
+    def default(self, key: str = "default") -> str:
+        """The one entry registered with `key`=True (e.g. the family a SystemConfig() without a family is),
+        so that no other module has to name it; MopError when no entry or several are."""
+        found = self.flagged(key)
+        if len(found) != 1:
+            which = f"{', '.join(repr(n) for n in found)} are" if found else "none is"
+            raise MopError(f"one {self.kind} must be registered with {key}=True; {which}")
+        return found[0]
 
     def __contains__(self, name: object) -> bool:
         self._load()

@@ -9,6 +9,7 @@ import pytest
 from mop.config import RunConfig
 from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment, get_preset, run_config
+from mop.experiments.figures import figure_names
 from mop.experiments.files import experiment_from_dict, load_experiment
 from mop.experiments.results import ConditionResult
 from mop.experiments.runner import check_claim, config_hash
@@ -26,6 +27,22 @@ def test_every_experiment_builds_its_run_configs(name, preset):
         cfg = run_config(exp, preset, seed=3, condition=condition)
         assert isinstance(cfg, RunConfig) and cfg.train.seed == 3
         assert cfg.model.context == cfg.train.horizon
+
+
+def test_an_experiment_naming_no_reference_panel_or_figures_gets_the_registered_defaults():
+    """The defaults come from the entries' metadata: the KF as reference, the experiment's first learned
+    predictor, the reference and RLS in the panel, the error figure; as the literal defaults were before."""
+    exp = Experiment("x", "x", {}, predictors=("zero", "gru", "mop", "kalman"))
+    assert (exp.reference, exp.panel, figure_names(exp)) == ("kalman", ("gru", "", "rls"), ("error",))
+    switching = get_experiment("switching")  # names none of the three
+    assert (switching.reference, switching.panel, figure_names(switching)) == (
+        "kalman",
+        ("mop", "", "rls"),
+        ("error",),
+    )
+    given = Experiment("y", "y", {}, predictors=("ekf",), reference="ekf", panel=("ekf",), figures=())
+    assert (given.reference, given.panel, figure_names(given)) == ("ekf", ("ekf",), ())
+    assert Experiment("z", "z", {}, predictors=("kalman", "rls")).panel == ("", "rls")  # nothing learned
 
 
 def test_paper_preset_is_the_papers_setting():

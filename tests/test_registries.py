@@ -6,8 +6,9 @@ import dataclasses
 import pytest
 import torch
 
-from mop.config import SystemConfig, apply_overrides, from_dict, to_dict
+from mop.config import RunConfig, SystemConfig, apply_overrides, from_dict, to_dict
 from mop.errors import MopError
+from mop.experiments.runner import config_hash
 from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
 from mop.registry import Registry
 from mop.systems import FAMILIES, generator, make_family, state_space_of
@@ -22,6 +23,30 @@ def test_duplicate_names_are_refused():
         reg.add("a", object())
     with pytest.raises(MopError, match="unknown thing 'b'; choose one of a"):
         reg.get("b")
+
+
+def test_the_default_entry_is_the_one_registered_as_default():
+    reg = Registry("thing")
+    reg.add("a", object())
+    with pytest.raises(MopError, match="one thing must be registered with default=True; none is"):
+        reg.default()
+    reg.add("b", object(), default=True, panel=True)
+    reg.add("c", object(), panel=True)
+    assert reg.default() == "b" and reg.flagged("panel") == ["b", "c"] and reg.flagged("nothing") == []
+    reg.add("d", object(), default=True)
+    with pytest.raises(MopError, match="'b', 'd' are"):
+        reg.default()
+
+
+def test_a_config_without_a_family_is_the_default_familys():
+    """SystemConfig() and a RunConfig's system are the paper's linear systems (the family registered as
+    default); a default RunConfig keeps its hash, so run directories trained before are reused."""
+    assert FAMILIES.default() == "linear" and type(SystemConfig()) is FAMILIES.get("linear").Config
+    assert from_dict(SystemConfig, {"max_abs": 3.0}) == SystemConfig(family="linear", max_abs=3.0)
+    assert to_dict(RunConfig().system) == to_dict(SystemConfig(family="linear"))
+    assert config_hash(RunConfig()) == "3cb1a1576f0f"  # the hash of a default RunConfig before the change
+    with pytest.raises(MopError, match="unknown system family ''"):
+        SystemConfig(family="")
 
 
 @pytest.mark.parametrize("name", FAMILY_NAMES)

@@ -34,7 +34,12 @@ def _stem(exp: Experiment, results: Results, condition: str, suffix: str) -> str
     )
 
 
-@FIGURES.register("error")
+def figure_names(exp: Experiment) -> tuple[str, ...]:
+    """The figures `exp` draws: its own list, or (None) the figures registered with default=True."""
+    return tuple(FIGURES.flagged("default")) if exp.figures is None else tuple(exp.figures)
+
+
+@FIGURES.register("error", default=True)
 def error(exp: Experiment, results: Results, out: Path) -> list[Path]:
     """Per condition: the paper's panel (error with +-1 std bands) beside every predictor's MSE ratio."""
     paths = []

@@ -36,7 +36,7 @@ from mop.experiments.analyses import (
     experiment_entries,
     experiment_sections,
 )
-from mop.experiments.figures import FIGURES
+from mop.experiments.figures import FIGURES, figure_names
 from mop.experiments.measures import describe, measure_value
 from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
@@ -333,7 +333,7 @@ def run_experiment(
 def _write_outputs(session: Session, results: dict, claims: list[dict], out: Path, start: float) -> None:
     """Figures, eval.json and report.md of the finished experiment into `out` (the staging folder)."""
     exp, preset, seed = session.exp, session.preset, session.seed
-    figures = [p for name in exp.figures for p in FIGURES.get(name)(exp, results, out)]
+    figures = [p for name in figure_names(exp) for p in FIGURES.get(name)(exp, results, out)]
     first = next(iter(results.values()))
     entries = experiment_entries(exp.analyses, results)  # e.g. the sweeps' fits
     data = {

@@ -19,6 +19,7 @@ import dataclasses
 from typing import Any
 
 from mop.config import check
+from mop.predictors import PREDICTORS, is_learned
 
 MISSING_KEYS = ("rate", "burst_rate", "burst_length")
 OPERATORS = ("<", "<=", ">", ">=", "between", "contains", "info")
@@ -201,6 +202,13 @@ class Condition:
         )
 
 
+def default_panel(predictors: tuple[str, ...]) -> tuple[str, ...]:
+    """The error panel of an experiment that names none: its first learned predictor (the model it is about),
+    "" (its reference) and the predictors registered with default_panel=True, e.g. ("mop", "", "rls")."""
+    learned = [name for name in predictors if name in PREDICTORS and is_learned(name)][:1]
+    return (*learned, "", *PREDICTORS.flagged("default_panel"))
+
+
 @dataclasses.dataclass(frozen=True)
 class Experiment:
     """Everything `mop reproduce NAME` does, as data.
@@ -208,11 +216,15 @@ class Experiment:
     train: dotted RunConfig overrides applied on top of the preset (e.g. {"system.family": "quadrotor"}).
     presets: per-preset extra training overrides (e.g. a smaller model for a many-run sweep on the CPU).
     predictors: PREDICTORS names; learned ones ("mop", "gru") are trained (or reused) per distinct config.
-    reference: the predictor every MSE ratio divides by (the optimal filter where one exists).
+    reference: the predictor every MSE ratio divides by (the optimal filter where one exists); "" (the
+        default) is the predictor registered with default_reference=True (the KF), filled in on construction.
     analyses: names in mop.experiments.analyses.ANALYSES (extra per-condition results, e.g. "floor"); each
         renders its own report table and eval.json entries.
-    figures: figure names (mop.experiments.figures).
+    figures: figure names (mop.experiments.figures); None (the default) draws the figures registered with
+        default=True (the error panel; mop.experiments.figures.figure_names), () none.
     panel: predictors of the paper-style panel (error with +-1 std bands); "" stands for the reference.
+        None (the default) is filled in on construction: the experiment's first learned predictor, the
+        reference and the predictors registered with default_panel=True (RLS).
     runs: learned predictor -> a run directory or `pretrained:NAME` it is loaded from instead of trained,
         e.g. {"mop": "pretrained:linear"} (a condition's `runs` wins over the experiment's).
     best: the best predictor there is for the test systems, which the report measures MOP's distance to:
@@ -225,12 +237,12 @@ class Experiment:
     title: str
     train: dict[str, Any]
     predictors: tuple[str, ...]
-    reference: str = "kalman"
+    reference: str = ""
     conditions: tuple[Condition, ...] = (Condition(),)
     claims: tuple[Claim, ...] = ()
     analyses: tuple[str, ...] = ()
-    figures: tuple[str, ...] = ("error",)
-    panel: tuple[str, ...] = ("mop", "", "rls")
+    figures: tuple[str, ...] | None = None
+    panel: tuple[str, ...] | None = None
     presets: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     preset_conditions: dict[str, tuple[Condition, ...]] = dataclasses.field(default_factory=dict)
     description: str = ""
@@ -252,9 +264,15 @@ class Experiment:
         for name in ("predictors", "analyses", "figures", "panel"):
             value = getattr(self, name)
             check(
-                isinstance(value, (tuple, list)) and all(isinstance(v, str) for v in value),
+                (value is None and name in ("figures", "panel"))
+                or (isinstance(value, (tuple, list)) and all(isinstance(v, str) for v in value)),
                 f"experiment {self.name}: {name} must be a list of names, got {value!r}",
             )
+        check(isinstance(self.reference, str), f"experiment {self.name}: reference must be a predictor name")
+        if not self.reference:  # the defaults are the registered entries' metadata, not names written here
+            object.__setattr__(self, "reference", PREDICTORS.default("default_reference"))
+        if self.panel is None:
+            object.__setattr__(self, "panel", default_panel(self.predictors))
         check(
             all(isinstance(c, Condition) for c in self.conditions),
             f"experiment {self.name}: conditions must be a list of condition tables",

@@ -19,7 +19,7 @@ from mop.config import RunConfig, apply_settings
 from mop.errors import MopError
 from mop.experiments import get_preset, run_config
 from mop.experiments.analyses import ANALYSES
-from mop.experiments.figures import FIGURES
+from mop.experiments.figures import FIGURES, figure_names
 from mop.experiments.measures import MEASURES
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.models import check_arch
@@ -67,7 +67,7 @@ def _validate(exp: Experiment, preset: str, seed: int, overrides: list[str], cho
         _predictor(name, "")
     for name in exp.analyses:
         ANALYSES.get(name)
-    for name in exp.figures:
+    for name in figure_names(exp):
         FIGURES.get(name)
     conditions = exp.conditions_for(preset)
     horizons, names = {}, {}

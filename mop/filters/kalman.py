@@ -147,7 +147,7 @@ def steady_state_predict(A: Tensor, C: Tensor, K: Tensor, y: Tensor, x0: Tensor 
     return torch.stack(preds, dim=1)
 
 
-@PREDICTORS.register("kalman", needs_system=True, gaussian=True, linear_model=True)
+@PREDICTORS.register("kalman", needs_system=True, gaussian=True, linear_model=True, default_reference=True)
 class KalmanPredictor(GaussianFilterPredictor):
     """The Kalman filter that knows each system: its family's (linear) StateSpace, x_0 ~ N(0, P0), or for
     data without a family a known linear model (mop.systems.base.linear_model_from_params).

@@ -173,7 +173,7 @@ def adaptive_order_rls_forecast(y: Tensor, max_order: int = 5, steps: int = 1) -
     return torch.gather(fc, 1, idx)[:, 0]
 
 
-@PREDICTORS.register("rls")
+@PREDICTORS.register("rls", default_panel=True)
 class RLSPredictor:
     """Matrix RLS autoregression of a fixed order (the paper's baseline: order 2, 2m regressors)."""
 

@@ -126,8 +126,7 @@ def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[s
     """
     exp, condition, preset = get_experiment(entry.experiment), condition_of(entry), get_preset(entry.preset)
     config = load_config(run_dir)
-    model = load_predictor(run_dir)
-    model.name = "mop"
+    model = load_predictor(run_dir)  # named by its architecture's registry entry (the paper's model: mop)
     names = [n for n in (condition.predictors or exp.predictors) if not is_learned(n)]
     per_preset = {n: PREDICTORS.meta(n).get("preset_options", {}).get(entry.preset, {}) for n in names}
     others = [make_predictor(n, **{"seed": entry.seed, **per_preset[n]}) for n in names]
@@ -137,7 +136,7 @@ def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[s
     raw = evaluate([model, *others], traj, progress)
     summary = summarize(raw, reference=exp.reference, seed=entry.seed)
     late = _late(horizon)
-    sq = {n: p["window_squared_error"][late] for n, p in summary["predictors"].items() if n != "mop"}
+    sq = {n: p["window_squared_error"][late] for n, p in summary["predictors"].items() if n != model.name}
     best = min(sq, key=sq.get)
     evaluation = {
         "num_systems": int(traj.y.shape[0]),
@@ -146,10 +145,10 @@ def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[s
         "reference": exp.reference,
         "best": best,
         "errors": {n: p["window_error"] for n, p in summary["predictors"].items()},
-        "ratio_to_reference": summary["ratios_to_reference"]["ratios"]["mop"],
-        "ratio_to_best": _ratios(raw["mop"]["e"], raw[best]["e"], entry.seed),
+        "ratio_to_reference": summary["ratios_to_reference"]["ratios"][model.name],
+        "ratio_to_best": _ratios(raw[model.name]["e"], raw[best]["e"], entry.seed),
     }
-    shown = [p for p in [model, *others] if p.name in dict.fromkeys(("mop", exp.reference, best))]
+    shown = [p for p in [model, *others] if p.name in dict.fromkeys((model.name, exp.reference, best))]
     table = {
         p.name: horizon_errors(traj.y, forecast(p, traj, FORECAST_STEPS), FORECAST_START)
         for p in shown
@@ -176,7 +175,7 @@ def noise_shift(model, reference, system, horizon: int, seed: int) -> dict[str, 
         traj = test_trajectories(shifted, NOISE_SHIFT_SYSTEMS, horizon, seed)
         raw = evaluate([model, reference], traj, progress=False)
         span = windows(horizon)[_late(horizon)]
-        ratio = mse_ratio_ci(raw["mop"]["e"], raw[reference.name]["e"], *span, seed=seed)
+        ratio = mse_ratio_ci(raw[model.name]["e"], raw[reference.name]["e"], *span, seed=seed)
         ci = dict(zip(("ratio", "low", "high"), ratio, strict=True))
         rows.append({"factor": factor, "noise_var_w": w, "noise_var_v": v, **ci})
     trained = {"noise_var_w": system.noise_var_w, "noise_var_v": system.noise_var_v}
@@ -185,10 +184,8 @@ def noise_shift(model, reference, system, horizon: int, seed: int) -> dict[str, 
 
 def rebuild_command(entry: ShippedModel, threads: int, overrides: list[str]) -> str:
     """The command that rebuilds `entry` as built (the catalog's preset unless another was given)."""
-    words = ["mop", "pretrained", "build", entry.name, "--threads", str(threads)]
-    if entry.preset != catalog_entry(entry.name).preset:
-        words += ["--preset", entry.preset]
-    return " ".join([*words, *overrides])
+    preset = f" --preset {entry.preset}" if entry.preset != catalog_entry(entry.name).preset else ""
+    return " ".join([f"mop pretrained build {entry.name} --threads {threads}{preset}", *overrides])
 
 
 def make_card(

@@ -116,24 +116,27 @@ class Trajectories:
 
 @dataclass(frozen=True)
 class SystemConfig:
-    """A family's settings. Each family subclasses this with its own knobs; constructing the base class
-    builds the registered family's config: SystemConfig(family="quadrotor") is a QuadrotorConfig.
+    """A family's settings. Each family subclasses this with its own knobs and its name as the default of
+    `family`; constructing the base class builds the registered family's config: SystemConfig(family=
+    "quadrotor") is a QuadrotorConfig, and SystemConfig() is the config of the family registered with
+    default=True (FAMILIES.default(): the paper's linear systems).
 
     max_abs: trajectories with any |x| or |y| above it are redrawn (DESIGN.md: 50).
     """
 
-    family: str = "linear"
+    family: str = ""  # every family's config sets its own name here
     max_abs: float = 50.0
 
     def __new__(cls, *args: Any, **kwargs: Any) -> SystemConfig:
-        if cls is SystemConfig:
-            return object.__new__(config_class(kwargs.get("family", "linear")))
-        return object.__new__(cls)
+        return object.__new__(cls.resolve_class(kwargs))
 
     @classmethod
     def resolve_class(cls, data: dict[str, Any]) -> type:
-        """The dataclass that `data` (a dict with "family") builds: used by mop.config.from_dict."""
-        return config_class(data.get("family", "linear")) if cls is SystemConfig else cls
+        """The dataclass that `data` (a dict with "family", or none: the default family) builds: used by
+        mop.config.from_dict."""
+        if cls is not SystemConfig:
+            return cls
+        return config_class(data["family"] if "family" in data else FAMILIES.default())
 
     def __post_init__(self) -> None:
         expected = config_class(self.family)
@@ -308,12 +311,16 @@ class SystemFamily:
 FAMILIES: Registry = Registry("system family", group="mop.families")
 
 
-def register_family(name: str, config: type[SystemConfig]) -> Callable[[type], type]:
-    """Class decorator: register a SystemFamily subclass under `name` with its config dataclass."""
+def register_family(name: str, config: type[SystemConfig], default: bool = False) -> Callable[[type], type]:
+    """Class decorator: register a SystemFamily subclass under `name` with its config dataclass.
+
+    default: the family a config without a family is (SystemConfig(), a RunConfig's default system); one
+    family is (mop.systems.linear).
+    """
 
     def decorate(cls: type) -> type:
         cls.name, cls.Config = name, config
-        FAMILIES.add(name, cls)
+        FAMILIES.add(name, cls, default=default)
         return cls
 
     return decorate

@@ -188,7 +188,7 @@ class LinearConfig(SystemConfig):
         check(self.x0_std >= 0, f"system.x0_std must be >= 0, got {self.x0_std}")
 
 
-@register_family("linear", LinearConfig)
+@register_family("linear", LinearConfig, default=True)
 class LinearFamily(SystemFamily):
     """Dense linear Gaussian systems (the paper's Fig. 2a); the base of the other linear families.
 
