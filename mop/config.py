@@ -54,6 +54,7 @@ OMITTED_AT_DEFAULT = {
         "input_scale": "none",
         "rls_order": 0,
         "arx_order": 0,
+        "rls_offset": False,
         "forecast_mode": "rollout",
     },
     "train": {
@@ -224,6 +225,7 @@ class ModelConfig:
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
+    rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
     # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
     # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
     observation_mask: bool = False
@@ -259,16 +261,24 @@ class ModelConfig:
             f"model.input_scale must be 'none' or 'running', got {self.input_scale!r}",
         )
         check(
-            isinstance(self.rls_order, int) and 0 <= self.rls_order <= 10,
-            f"model.rls_order must be an integer in 0..10 (0 = off), got {self.rls_order!r}",
+            isinstance(self.rls_order, int) and 0 <= self.rls_order <= 20,
+            f"model.rls_order must be an integer in 0..20 (0 = off), got {self.rls_order!r}",
         )
         check(
-            isinstance(self.arx_order, int) and 0 <= self.arx_order <= 10,
-            f"model.arx_order must be an integer in 0..10 (0 = output-only RLS), got {self.arx_order!r}",
+            isinstance(self.arx_order, int) and 0 <= self.arx_order <= 20,
+            f"model.arx_order must be an integer in 0..20 (0 = output-only RLS), got {self.arx_order!r}",
         )
         check(
             self.arx_order == 0 or self.rls_order > 0,
             "model.arx_order adds input lags to the RLS feature: set model.rls_order > 0 too",
+        )
+        check(
+            isinstance(self.rls_offset, bool),
+            f"model.rls_offset must be true or false, got {self.rls_offset!r}",
+        )
+        check(
+            not self.rls_offset or self.rls_order > 0,
+            "model.rls_offset adds a constant to the RLS feature: set model.rls_order > 0 too",
         )
         check(
             isinstance(self.observation_mask, bool),

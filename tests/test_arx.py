@@ -12,17 +12,18 @@ from mop.filters.arx import (
     arx_predict,
 )
 from mop.filters.rls import rls_forecast, rls_predict
-from mop.predictors import forecast, make_predictor
+from mop.predictors import forecast, make_predictor, simulate
 from mop.systems import generator, make_family
 
 
-def numpy_phi(y, u, p, q, s):
-    """[y_s..y_{s-p+1}, u_s..u_{s-q+1}] for one system, zero before index 0."""
+def numpy_phi(y, u, p, q, s, offset=False):
+    """[y_s..y_{s-p+1}, u_s..u_{s-q+1}] (and 1 with offset) for one system, zero before index 0."""
     lag = lambda a, j: a[s - j] if s - j >= 0 else np.zeros(a.shape[1])  # noqa: E731
-    return np.concatenate([lag(y, j) for j in range(p)] + [lag(u, j) for j in range(q)])
+    const = [np.ones(1)] if offset else []
+    return np.concatenate([lag(y, j) for j in range(p)] + [lag(u, j) for j in range(q)] + const)
 
 
-def numpy_arx(y, u, p, q):
+def numpy_arx(y, u, p, q, offset=False):
     """Per-system loop: yhat_t = theta_t^T phi_{t-1}, theta_t the ridge solution (lambda = 1) on the pairs
     (phi_{s-1}, y_s), s = r..t-1; start-up yhat_0 = 0, yhat_t = y_{t-1} (t <= r). Returns the thetas too."""
     T, m = y.shape
@@ -32,10 +33,10 @@ def numpy_arx(y, u, p, q):
         if t <= r:
             out[t] = y[t - 1]
             continue
-        Phi = np.stack([numpy_phi(y, u, p, q, s - 1) for s in range(r, t)])  # (N, d)
+        Phi = np.stack([numpy_phi(y, u, p, q, s - 1, offset) for s in range(r, t)])  # (N, d)
         theta = np.linalg.solve(np.eye(Phi.shape[1]) + Phi.T @ Phi, Phi.T @ y[r:t])  # (d, m)
         thetas[t] = theta
-        out[t] = theta.T @ numpy_phi(y, u, p, q, t - 1)
+        out[t] = theta.T @ numpy_phi(y, u, p, q, t - 1, offset)
     return out, thetas
 
 
@@ -51,6 +52,52 @@ def test_arx_matches_the_ridge_closed_form(traj, p, q):
     for b in range(traj.num_systems):
         ref, _ = numpy_arx(traj.y[b].numpy(), traj.u[b].numpy(), p, q)
         np.testing.assert_allclose(yhat[b], ref, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("p,q", [(1, 1), (2, 3)])
+def test_arx_offset_matches_the_ridge_closed_form_with_a_constant_regressor(traj, p, q):
+    """offset: the closed form with a column of ones (penalized like the rest), on outputs shifted by 3
+    (where the intercept matters: ARX without it is off by far more)."""
+    y = traj.y + 3.0
+    yhat = arx_predict(y, traj.u, p, q, offset=True).numpy()
+    for b in range(traj.num_systems):
+        ref, _ = numpy_arx(y[b].numpy(), traj.u[b].numpy(), p, q, offset=True)
+        np.testing.assert_allclose(yhat[b], ref, rtol=1e-9, atol=1e-9)
+    late = slice(15, None)
+    err_with = ((arx_predict(y, traj.u, p, q, offset=True) - y)[:, late] ** 2).mean()
+    err_without = ((arx_predict(y, traj.u, p, q) - y)[:, late] ** 2).mean()
+    assert err_with < err_without
+
+
+@pytest.mark.parametrize("with_inputs", [True, False])
+def test_arx_offset_forecast_and_simulate_roll_out_with_the_constant(traj, with_inputs):
+    """The constant is a known regressor in the rollout, as the inputs (with or without inputs): against
+    the numpy recursion; and the registered arx-10-offset's simulate is its forecast from the context."""
+    y, p = traj.y[0].numpy() + 3.0, 2
+    u, q = (traj.u[0].numpy(), 2) if with_inputs else (np.zeros((len(y), 0)), 0)
+    fc = arx_forecast(traj.y + 3.0, traj.u if with_inputs else None, p, 2, steps=4, offset=True).numpy()
+    _, thetas = numpy_arx(y, u, p, q, offset=True)
+    t = 12
+    hist = y.copy()
+    hist[t:] = np.nan
+    for j in range(4):
+        hist[t + j] = thetas[t].T @ numpy_phi(hist, u, p, q, t + j - 1, offset=True)
+        np.testing.assert_allclose(fc[0, t, j], hist[t + j], rtol=1e-9, atol=1e-9)
+    predictor = make_predictor("arx-10-offset")
+    sim = simulate(predictor, traj, 20)
+    torch.testing.assert_close(sim, forecast(predictor, traj, 6)[:, 20], rtol=1e-9, atol=1e-9)
+
+
+def test_arx_offset_with_missing_outputs_is_the_ridge_on_complete_pairs():
+    """The gap path takes the constant as a complete regressor: with one missing output at the end (no
+    regressor filled in before it), predictions before it equal the complete-data ones."""
+    cfg = SystemConfig(family="linear-inputs", state_dim=3, output_dim=2, input_dim=1)
+    traj = make_family(cfg, torch.float64).generate(2, 20, generator=generator(1))
+    y = traj.y + 1.0
+    gappy = y.clone()
+    gappy[:, -1, 0] = float("nan")
+    full, gaps = arx_predict(y, traj.u, 2, 2, offset=True), arx_predict(gappy, traj.u, 2, 2, offset=True)
+    torch.testing.assert_close(gaps, full, rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("p,q", [(2, 2), (1, 3)])

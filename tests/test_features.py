@@ -154,3 +154,35 @@ def test_arx_order_needs_the_rls_feature_and_inputs():
         tiny(arx_order=2)
     with pytest.raises(MopError, match="no inputs"):
         build_model(tiny(rls_order=2, arx_order=2, input_dim=2))
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"rls_order": 2, "rls_offset": True},
+        {"rls_order": 2, "arx_order": 2, "rls_offset": True},
+        {"rls_order": 3, "arx_order": 1, "rls_offset": True, "input_scale": "running"},
+    ],
+)
+def test_offset_feature_is_arx_with_an_intercept_and_streams_equal(options):
+    """model.rls_offset: the untrained model is arx_predict with offset=True (with or without input lags),
+    on outputs with an offset (where the constant matters); streaming equals the forward."""
+    model = build_model(tiny(**options)).double().eval()
+    z = inputs(T=21) + 2.0
+    q = options.get("arx_order", 0)
+    u = z[..., 2:] if q else None
+    expect = arx_predict(z[..., :2], u, options["rls_order"], max(q, 1), offset=True)[:, 1:]
+    with torch.no_grad():
+        out = model(z[:, :-1])
+        streamed, _ = stream(model, z[:, :-1])
+    torch.testing.assert_close(out, expect, rtol=1e-10, atol=1e-10)
+    torch.testing.assert_close(streamed, out, rtol=1e-9, atol=1e-9)
+    without = rls_next(z[:, :-1, :2], options["rls_order"], None if u is None else u[:, :-1], q)
+    assert (out - without).abs().max() > 1e-3  # the constant does enter
+
+
+def test_offset_needs_the_rls_feature():
+    with pytest.raises(MopError, match="rls_order > 0"):
+        tiny(rls_offset=True)
+    with pytest.raises(MopError, match="rls_offset"):
+        tiny(rls_order=2, rls_offset="yes")

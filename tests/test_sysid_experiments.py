@@ -21,7 +21,8 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 @pytest.mark.parametrize("name", ["lti_siso.toml", "wiener_hammerstein.toml"])
 def test_experiment_files_list_the_identifiers_that_use_inputs(name):
     exp = load_experiment(EXAMPLES / name)
-    assert {"mop", "arx", "n4sid-kf", "last"} <= set(exp.predictors)
+    assert {"mop", "arx", "arx-10-offset", "n4sid-kf", "last"} <= set(exp.predictors)
+    assert exp.presets["small"]["model.arx_order"] > 0  # MOP starts from ARX with the inputs
     assert "simulation" in exp.analyses and exp.conditions[0].context == 400
 
 

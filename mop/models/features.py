@@ -16,6 +16,8 @@ model.rls_order = p > 0 (the RLS feature):
     extra channels (divided by s_t with the running scale), and the read-out predicts the residual:
     yhat_{t+1} = r_{t+1} + s_t out_t. At initialisation (small read-out weights) the model is
     the RLS predictor, so training starts from it rather than from zero.
+    model.rls_offset = true adds a constant regressor (mop.filters.arx's offset, an intercept), for outputs
+    with an offset such as the sysid benchmarks' per-sequence mean removal.
 
 In a sliding window (trajectories longer than model.context, LearnedPredictor mode "window") both features
 restart with each window, exactly as the network's attention does. Streaming (FeatureState) keeps them over
@@ -59,12 +61,16 @@ def check_features(cfg: ModelConfig) -> None:
         raise MopError("model.arx_order reads input lags, but the model has no inputs u; use rls_order alone")
 
 
-def rls_next(y: Tensor, order: int, u: Tensor | None = None, input_order: int = 0) -> Tensor:
+def rls_next(
+    y: Tensor, order: int, u: Tensor | None = None, input_order: int = 0, offset: bool = False
+) -> Tensor:
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
-    u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t."""
+    u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
+    a constant regressor."""
     pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
-    if input_order > 0:  # the pad rows are never read
-        return arx_predict(pad(y), pad(u), order, input_order)[:, 1:].to(y.dtype)
+    if input_order > 0 or offset:  # the pad rows are never read
+        u_lags = pad(u) if input_order > 0 else None
+        return arx_predict(pad(y), u_lags, order, max(input_order, 1), offset)[:, 1:].to(y.dtype)
     return rls_predict(pad(y), order)[:, 1:].to(y.dtype)  # (B, T, m)
 
 
@@ -75,7 +81,7 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
     scale = running_scale(y) if cfg.input_scale == "running" else None
     k = input_count(cfg)
     u = inputs[..., m : m + k] if cfg.arx_order > 0 else None
-    base = rls_next(y, cfg.rls_order, u, cfg.arx_order) if cfg.rls_order > 0 else None
+    base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset) if cfg.rls_order > 0 else None
     return _assemble(inputs, scale, base, m), scale, base
 
 
@@ -108,7 +114,7 @@ class FeatureState:
         self.cfg, self.m, self.t = cfg, cfg.output_dim, 0
         self.sum_sq = torch.zeros(batch_size, 1, device=device, dtype=dtype)
         p, q, self.k = cfg.rls_order, cfg.arx_order, input_count(cfg)
-        d = p * cfg.output_dim + q * self.k
+        d = p * cfg.output_dim + q * self.k + (1 if cfg.rls_offset else 0)
         if p > 0:
             f64 = dict(device=device, dtype=torch.float64)
             self.theta = torch.zeros(batch_size, d, self.m, **f64)
@@ -143,8 +149,11 @@ class FeatureState:
         return (self.theta.mT @ self._phi(p, q, 1)[..., None])[..., 0]
 
     def _phi(self, p: int, q: int, last: int) -> Tensor:
-        """(B, p m + q k): [y_s; ...; y_{s-p+1}; u_s; ...; u_{s-q+1}] for s = t - 1 (last = 0) or t (1)."""
-        phi = regressors(self.recent[:, last : p + last], p)[:, -1]
-        if q == 0:
-            return phi
-        return torch.cat([phi, regressors(self.recent_u[:, last : q + last], q)[:, -1]], dim=-1)
+        """(B, p m + q k [+ 1]): [y_s; ...; y_{s-p+1}; u_s; ...; u_{s-q+1} (; 1 with rls_offset)] for
+        s = t - 1 (last = 0) or t (1)."""
+        parts = [regressors(self.recent[:, last : p + last], p)[:, -1]]
+        if q > 0:
+            parts.append(regressors(self.recent_u[:, last : q + last], q)[:, -1])
+        if self.cfg.rls_offset:
+            parts.append(parts[0].new_ones(parts[0].shape[0], 1))
+        return torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
