@@ -65,6 +65,13 @@ CATALOG: tuple[ShippedModel, ...] = (
         f"family (see its ratios); {SHIFT}",
     ),
     ShippedModel(
+        "linear-inputs",
+        "linear-inputs",
+        "dense linear Gaussian systems driven by 2 known white inputs (x_{t+1} = A x_t + B u_t + w_t)",
+        f"{LINEAR_DIMS} and k = 2 inputs; inputs far from u ~ N(0, I) (mop warns when they lie outside the "
+        f"training range); {SHIFT}",
+    ),
+    ShippedModel(
         "quadrotor",
         "quadrotor",
         "planar quadrotors with random mass, arm and inertia, 2 inputs, 3 outputs (Fig. 3)",
