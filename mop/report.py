@@ -120,3 +120,18 @@ def summary_section(heading: str, summary: dict, figures: list[str]) -> str:
             "",
         ]
     )
+
+
+def forecast_markdown(forecast: dict) -> list[str]:
+    """The forecast analysis's {"k", "start", "error": predictor -> errors per k} as markdown lines (the
+    report's table, and the pretrained cards')."""
+    ks = forecast["k"]
+    lines = [
+        f"k-step forecast error: mean ||y_(t+k-1) - forecast|| over origins t >= {forecast['start']}:",
+        "",
+        "| predictor | " + " | ".join(f"k={k}" for k in ks) + " |",
+        "|---" * (len(ks) + 1) + "|",
+    ]
+    return lines + [
+        f"| {n} | " + " | ".join(f"{e:.4f}" for e in errs) + " |" for n, errs in forecast["error"].items()
+    ]

@@ -39,6 +39,7 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
     ("mop.report", "mop"): "the package whose version the report prints",
     ("mop.evaluate", "error"): "eval.json's mean-error curve",
     ("mop.metrics", "error"): "eval.json's mean-error curve",
+    ("mop.report", "error"): "the forecast table's errors",
     ("mop.plots", "error"): "eval.json's mean-error curve",
     ("mop.experiments.analyses", "error"): "the forecast table's errors",
     ("mop.experiments.figures", "coverage"): "the calibration table's coverage column",

@@ -24,6 +24,7 @@ from mop.filters.kalman import expected_norm, optimal_covariances
 from mop.metrics import coverage, gaussian_nll, loglog_slope, matrix_power_ratio, window_mean
 from mop.predictors import Predictor, first_learned, forecast, simulate
 from mop.registry import Registry
+from mop.report import forecast_markdown
 
 ANALYSES: Registry = Registry("analysis")
 COVERAGE_LEVELS = [round(q, 2) for q in np.arange(0.05, 1.0, 0.05)]
@@ -235,18 +236,7 @@ def horizon_errors(y, f, start: int = FORECAST_START) -> list[float]:
 
 
 def _forecast_table(extras: dict) -> str:
-    forecast = extras["forecast"]
-    ks = forecast["k"]
-    lines = [
-        f"k-step forecast error: mean ||y_(t+k-1) - forecast|| over origins t >= {forecast['start']}:",
-        "",
-        "| predictor | " + " | ".join(f"k={k}" for k in ks) + " |",
-        "|---" * (len(ks) + 1) + "|",
-    ]
-    lines += [
-        f"| {n} | " + " | ".join(f"{e:.4f}" for e in errs) + " |" for n, errs in forecast["error"].items()
-    ]
-    return "\n".join(lines) + "\n"
+    return "\n".join(forecast_markdown(extras["forecast"])) + "\n"
 
 
 @ANALYSES.register("forecast", markdown=_forecast_table)

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from mop.report import forecast_markdown
+
 
 def _ci(r: dict[str, float]) -> str:
     return f"{r['ratio']:.3f} [{r['low']:.3f}, {r['high']:.3f}]"
@@ -44,18 +46,6 @@ def _ratio_table(ev: dict[str, Any]) -> list[str]:
         if other:
             row += f" {errs[best][window]:.4f} | {_ci(ev['ratio_to_best'][window])} |"
         lines.append(row)
-    return lines
-
-
-def _forecast_table(fc: dict[str, Any]) -> list[str]:
-    ks = fc["k"]
-    lines = [
-        f"k-step forecast error, mean ||y_(t+k-1) - forecast|| over origins t >= {fc['start']}:",
-        "",
-        "| predictor | " + " | ".join(f"k={k}" for k in ks) + " |",
-        "|---" * (len(ks) + 1) + "|",
-    ]
-    lines += [f"| {n} | " + " | ".join(f"{e:.4f}" for e in errs) + " |" for n, errs in fc["error"].items()]
     return lines
 
 
@@ -110,7 +100,7 @@ def render_card(card: dict[str, Any]) -> str:
         "",
         *_ratio_table(ev),
         "",
-        *_forecast_table(card["forecast"]),
+        *forecast_markdown(card["forecast"]),
         "",
         "## Where not to use it",
         "",
