@@ -2,7 +2,9 @@
 Kalman filter, the authors' quadrotor step written coordinate by coordinate in numpy, and seeded batches."""
 
 import csv
+import importlib.util
 import math
+from pathlib import Path
 
 import numpy as np
 import scipy.linalg
@@ -254,3 +256,21 @@ def rls_gaps_reference(y, order=2, u=None, input_order=2):
         preds[t] = pred
         filled[t] = np.where(np.isnan(y[t]), pred, y[t])
     return preds
+
+
+def load_example(path: Path, name: str):
+    """Import an examples/ script by its path (examples are not a package) as module `name`."""
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def run_example_smoke(module, out: Path) -> list:
+    """`module.main(["--out", out, "--budget", "smoke"])` on one torch thread (restored after): its rows."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return module.main(["--out", str(out), "--budget", "smoke"])
+    finally:
+        torch.set_num_threads(threads)

@@ -8,34 +8,19 @@ import torch
 
 from mop.config import ModelConfig, TrainConfig
 from mop.errors import MopError
-from mop.models import build_model
 from mop.models.predictor import LearnedPredictor
 from mop.systems.base import Trajectories
 from mop.train.data import with_drop_outs
+from tests.test_rollout import random_model
 
-CONTEXT = 6
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def gap_model(arch: str, inputs: int, seed: int = 0) -> LearnedPredictor:
-    """A float64 model with an observation mask (input width m + k + m) and N(0, 0.3^2) weights."""
-    torch.manual_seed(seed)
-    cfg = ModelConfig(
-        arch=arch,
-        num_layers=2,
-        num_heads=2,
-        width=16,
-        context=CONTEXT,
-        input_dim=3 + inputs + 3,
-        output_dim=3,
-        observation_mask=True,
-        forecast_mode="gap",
+    """A float64 random model with an observation mask (input width m + k + m) that forecasts by gaps."""
+    return LearnedPredictor(
+        random_model(arch, "learned", "mean", inputs, seed, observation_mask=True, forecast_mode="gap")
     )
-    model = build_model(cfg).double()
-    with torch.no_grad():
-        for p in model.parameters():
-            p.normal_(0.0, 0.3)
-    return LearnedPredictor(model)
 
 
 def trajectories(horizon: int, inputs: int, gaps: bool) -> Trajectories:

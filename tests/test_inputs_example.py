@@ -2,7 +2,6 @@
 -> `mop predict` one-step and `--simulate C` (the run, arx, n4sid-kf, last, kalman) -> the held-out table."""
 
 import csv
-import importlib.util
 import json
 import math
 from pathlib import Path
@@ -13,28 +12,20 @@ import torch
 
 from mop.predictors import make_predictor, simulate
 from mop.systems.base import Trajectories
+from tests.reference import load_example, run_example_smoke
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "recordings_with_inputs.py"
 
 
 @pytest.fixture(scope="module")
 def example():
-    spec = importlib.util.spec_from_file_location("recordings_with_inputs_example", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_example(EXAMPLE, "recordings_with_inputs_example")
 
 
 @pytest.fixture(scope="module")
 def smoke(example, tmp_path_factory):
     out = tmp_path_factory.mktemp("inputs")
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        rows = example.main(["--out", str(out), "--budget", "smoke"])
-    finally:
-        torch.set_num_threads(threads)
-    return out, rows
+    return out, run_example_smoke(example, out)
 
 
 def test_table_has_every_predictor_and_the_filters_order(example, smoke):

@@ -2,7 +2,6 @@
 --data` -> `mop predict --steps 10` (the run, rls, n4sid-kf, last) -> the held-out table, in sensor units."""
 
 import csv
-import importlib.util
 import json
 import math
 from pathlib import Path
@@ -13,6 +12,7 @@ import torch
 
 import mop
 from mop.systems.base import Trajectories
+from tests.reference import load_example, run_example_smoke
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "recorded_data.py"
 NAMES = ["MOP", "rls", "n4sid-kf", "last"]
@@ -20,22 +20,13 @@ NAMES = ["MOP", "rls", "n4sid-kf", "last"]
 
 @pytest.fixture(scope="module")
 def example():
-    spec = importlib.util.spec_from_file_location("recorded_data_example", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_example(EXAMPLE, "recorded_data_example")
 
 
 @pytest.fixture(scope="module")
 def smoke(example, tmp_path_factory):
     out = tmp_path_factory.mktemp("recorded")
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        rows = example.main(["--out", str(out), "--budget", "smoke"])
-    finally:
-        torch.set_num_threads(threads)
-    return out, rows
+    return out, run_example_smoke(example, out)
 
 
 def test_table_has_every_horizon_and_predictor(smoke):

@@ -26,9 +26,11 @@ CASES = [
 ]
 
 
-def random_model(arch: str, position: str, readout: str, inputs: int, seed: int = 0):
-    """A float64 model with N(0, 0.3^2) weights (large enough that every attention weight matters)."""
+def random_model(arch: str, position: str, readout: str, inputs: int, seed: int = 0, **options):
+    """A float64 model with N(0, 0.3^2) weights (large enough that every attention weight matters);
+    options: more ModelConfig fields (observation_mask=True adds the mask's 3 input channels)."""
     torch.manual_seed(seed)
+    mask = 3 if options.get("observation_mask") else 0
     cfg = ModelConfig(
         arch=arch,
         num_layers=2,
@@ -37,8 +39,9 @@ def random_model(arch: str, position: str, readout: str, inputs: int, seed: int 
         context=CONTEXT,
         position=position,
         readout=readout,
-        input_dim=3 + inputs,
+        input_dim=3 + inputs + mask,
         output_dim=3,
+        **options,
     )
     model = build_model(cfg).double()
     with torch.no_grad():
