@@ -56,6 +56,7 @@ OMITTED_AT_DEFAULT = {
         "arx_order": 0,
         "rls_offset": False,
         "forecast_mode": "rollout",
+        "horizons": 1,
     },
     "train": {
         "missing_rate": 0.0,
@@ -230,8 +231,12 @@ class ModelConfig:
     # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
     observation_mask: bool = False
     # k-step forecasts (mop.models.predictor.LearnedPredictor.forecast): "rollout" feeds the model its own
-    # predictions; "gap" (needs observation_mask) reads the future outputs as missing, with the given inputs
+    # predictions; "gap" (needs observation_mask) reads the future outputs as missing, with the given inputs;
+    # "direct" reads the k-step heads (model.horizons = K > 1; steps <= K, systems without inputs u)
     forecast_mode: str = "rollout"
+    # K > 1: K read-out heads, head k predicting y_{t+k} from the inputs up to t, trained by the mean of their
+    # losses (mop.models.heads); 1: the paper's one-step read-out
+    horizons: int = 1
 
     def __post_init__(self) -> None:
         check(
@@ -285,11 +290,20 @@ class ModelConfig:
             f"model.observation_mask must be true or false, got {self.observation_mask!r}",
         )
         check(
-            self.forecast_mode in ("rollout", "gap"),
-            f"model.forecast_mode must be 'rollout' or 'gap', got {self.forecast_mode!r}",
+            self.forecast_mode in ("rollout", "gap", "direct"),
+            f"model.forecast_mode must be 'rollout', 'gap' or 'direct', got {self.forecast_mode!r}",
         )
         check(
-            self.forecast_mode == "rollout" or self.observation_mask,
+            isinstance(self.horizons, int) and 1 <= self.horizons <= 100,
+            f"model.horizons must be an integer in 1..100 (1 = the one-step read-out), got {self.horizons!r}",
+        )
+        check(
+            self.forecast_mode != "direct" or self.horizons > 1,
+            "model.forecast_mode='direct' reads the k-step heads: set model.horizons=K > 1 "
+            "(forecasts of up to K steps)",
+        )
+        check(
+            self.forecast_mode != "gap" or self.observation_mask,
             "model.forecast_mode='gap' reads future outputs as missing: it needs model.observation_mask=true "
             "(train with train.missing_burst_rate > 0, and train.score_dropped=true to learn the gaps)",
         )

@@ -3,8 +3,10 @@
 For each horizon T in --horizons and each K in --steps, every predictor runs predict (one-step) and
 forecast(K) on the same seeded linear systems (output_dim 5) in one process, so the columns are ratios
 measured side by side. Predictors: the learned model (random weights, 2 layers, 4 heads, width 64,
-context 50, the small preset's size; `--paper` uses 12/8/256) in the paper's window mode, and the filters
-kalman, kalman-colored (on colored-noise systems), rls. What it shows: forecast / predict stays near
+context 50, the small preset's size; `--paper` uses 12/8/256) in the paper's window mode, the same model with
+direct k-step heads (`mop-direct`: model.horizons = the largest K, model.forecast_mode = "direct"; one
+forward gives every step, so its forecast costs about its one-step predict), and the filters kalman,
+kalman-colored (on colored-noise systems), rls. What it shows: forecast / predict stays near
 constant as T grows (cost linear in T) and grows with K by the work of the new inputs only.
 Writes a table (stdout, or --json) and, with --plot FILE, forecast seconds against T (one line per
 predictor and K, predict dashed).
@@ -32,13 +34,19 @@ def _timed(fn) -> float:
     return time.perf_counter() - start
 
 
-def predictors(paper: bool) -> dict[str, tuple[object, str]]:
-    """name -> (predictor, family it runs on)."""
+NAMES = ("mop", "mop-direct", "kalman", "kalman-colored", "rls")
+
+
+def predictors(paper: bool, heads: int = 10) -> dict[str, tuple[object, str]]:
+    """name -> (predictor, family it runs on); mop-direct has `heads` k-step heads."""
     size = dict(num_layers=12, num_heads=8, width=256) if paper else dict(num_layers=2, num_heads=4, width=64)
     torch.manual_seed(0)
-    model = build_model(ModelConfig(**size, context=50, input_dim=5, output_dim=5)).eval()
+    cfg = ModelConfig(**size, context=50, input_dim=5, output_dim=5)
+    model = build_model(cfg).eval()
+    direct = ModelConfig(**{**cfg.__dict__, "horizons": max(heads, 2), "forecast_mode": "direct"})
     return {
         "mop": (LearnedPredictor(model), "linear"),
+        "mop-direct": (LearnedPredictor(build_model(direct).eval()), "linear"),
         "kalman": (make_predictor("kalman"), "linear"),
         "kalman-colored": (make_predictor("kalman-colored"), "colored-noise"),
         "rls": (make_predictor("rls"), "linear"),
@@ -47,14 +55,14 @@ def predictors(paper: bool) -> dict[str, tuple[object, str]]:
 
 def measure(num_systems: int, horizons: list[int], steps: list[int], paper: bool, names: list[str]) -> list:
     """Rows {predictor, T, K, predict_s, forecast_s, ratio}; K = 1 rows are predict alone."""
-    rows, table = [], predictors(paper)
+    rows, table = [], predictors(paper, max(steps))
     for name in names:
         predictor, family = table[name]
         for T in horizons:
             traj = make_family(SystemConfig(family=family), dtype=torch.float64).generate(
                 num_systems, T, generator=generator(0)
             )
-            if name == "mop":
+            if name.startswith("mop"):
                 traj.y = traj.y.float()
             one = _timed(lambda p=predictor, tr=traj: p.predict(tr))
             for K in steps:
@@ -91,7 +99,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--systems", type=int, default=200, help="systems per batch (200)")
     parser.add_argument("--horizons", default="50,100,200", help="comma-separated T values (50,100,200)")
     parser.add_argument("--steps", default="1,10", help="comma-separated K values (1,10)")
-    parser.add_argument("--predictors", default="mop,kalman,kalman-colored,rls", help="which to time")
+    parser.add_argument("--predictors", default=",".join(NAMES), help="which to time")
     parser.add_argument("--paper", action="store_true", help="the paper's 12-layer, 8-head, width-256 model")
     parser.add_argument("--plot", help="write the figure to this file (.png or .pdf)")
 
@@ -109,11 +117,9 @@ def _ints(text: str, flag: str) -> list[int]:
 def run(args: argparse.Namespace) -> int:
     horizons, steps = _ints(args.horizons, "--horizons"), _ints(args.steps, "--steps")
     names = [n.strip() for n in args.predictors.split(",") if n.strip()]
-    unknown = [n for n in names if n not in ("mop", "kalman", "kalman-colored", "rls")]
+    unknown = [n for n in names if n not in NAMES]
     if unknown or args.systems < 1:
-        raise MopError(
-            f"--predictors takes mop, kalman, kalman-colored, rls (got {unknown}); --systems must be >= 1"
-        )
+        raise MopError(f"--predictors takes {', '.join(NAMES)} (got {unknown}); --systems must be >= 1")
     rows = measure(args.systems, horizons, steps, args.paper, names)
     if args.plot:
         plot(rows, args.plot)

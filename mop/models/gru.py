@@ -13,7 +13,8 @@ from torch import Tensor, nn
 
 from mop.config import ModelConfig
 from mop.errors import MopError
-from mop.models.heads import check_dims, prediction_loss, readout_dim, require_gaussian, split_readout
+from mop.models.heads import check_dims, require_gaussian
+from mop.models.horizons import add_future_inputs, future_head, horizon_dim, horizon_loss, split_horizons
 from mop.models.registry import register_model
 
 
@@ -44,13 +45,32 @@ class GRUModel(nn.Module):
             dropout=cfg.dropout if cfg.num_layers > 1 else 0.0,
         )
         self.ln_f = nn.LayerNorm(cfg.width)
-        self.read_out = nn.Linear(cfg.width, readout_dim(cfg))
+        self.read_out = nn.Linear(cfg.width, horizon_dim(cfg))  # one-step read-out, then any k-step heads
+        self.future_head = future_head(cfg)  # k-step heads on a system with inputs (mop.models.horizons)
+
+    def _outputs(
+        self, inputs: Tensor, h0: Tensor | None = None, future: Tensor | None = None
+    ) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
+        """inputs (B, T, d_in) -> mean (B, T, m), var|None, k-step heads (B, T, K-1, m)|None and the final
+        hidden state (L, B, d); future: the heads' future inputs (mop.models.horizons.add_future_inputs)."""
+        out, h = self.gru(self.read_in(inputs), h0)  # (B, T, d), (L, B, d)
+        hidden = self.ln_f(out)
+        mu, var, later = split_horizons(self.read_out(hidden), self.cfg)
+        later = add_future_inputs(self.future_head, later, hidden, inputs, self.cfg, future)
+        return mu, var, later, h
 
     def _run(self, inputs: Tensor, h0: Tensor | None = None) -> tuple[Tensor, Tensor | None, Tensor]:
         """inputs (B, T, d_in) -> mean (B, T, m), var (B, T, m)|None, final hidden (L, B, d)."""
-        out, h = self.gru(self.read_in(inputs), h0)  # (B, T, d), (L, B, d)
-        mu, var = split_readout(self.read_out(self.ln_f(out)), self.cfg.readout)
+        mu, var, _, h = self._outputs(inputs, h0)
         return mu, var, h
+
+    def forecast_heads(self, inputs: Tensor, last: bool = False, future: Tensor | None = None) -> Tensor:
+        """inputs (B, T, d_in) -> (B, T, K, m): [:, t, k-1] is head k's mean of y_{t+k} from z_0..z_t and
+        u_{t+1}..u_{t+k-1}; future (B, T, K-1, k): those inputs (default: the inputs' own, shifted);
+        last: the last position's only (B, 1, K, m)."""
+        mu, _, later, _ = self._outputs(inputs, future=future)
+        heads = mu[:, :, None] if later is None else torch.cat([mu[:, :, None], later], dim=2)
+        return heads[:, -1:] if last else heads
 
     def forward(self, inputs: Tensor) -> Tensor:
         """inputs (B, T, d_in) -> mean predictions (B, T, m); position t predicts y_{t+1}."""
@@ -62,8 +82,8 @@ class GRUModel(nn.Module):
         return mu, var
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
-        mu, var, _ = self._run(inputs)
-        return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
+        mu, var, later, _ = self._outputs(inputs)
+        return horizon_loss(mu, var, later, targets, masked=self.cfg.observation_mask)
 
     def init_cache(self, batch_size: int) -> GRUCache:
         p = self.read_in.weight

@@ -5,6 +5,8 @@
                          loss = mean_{t,i} 0.5 [log(2 pi var) + (y - mu)^2 / var]
 
 Every model builds its read-out with readout_dim and splits it with split_readout.
+
+The direct k-step heads (model.horizons) extend this read-out: mop.models.horizons.
 """
 
 from __future__ import annotations

@@ -38,6 +38,8 @@ from torch import Tensor, nn
 
 from mop.errors import MopError, MopWarning
 from mop.missing import masked_inputs
+from mop.models.features import input_count
+from mop.models.horizons import future_inputs
 from mop.models.registry import predictor_names
 from mop.models.rollout import can_branch, forecast_batch, transformer_chunk_size
 from mop.systems.base import Trajectories
@@ -219,6 +221,8 @@ class LearnedPredictor:
         """
         if self.cfg.forecast_mode == "gap":
             return self.gap_forecast(traj, steps)
+        if self.cfg.forecast_mode == "direct":
+            return self.direct_forecast(traj, steps)
         if not can_branch(self.model):
             return self.reference_forecast(traj, steps)
         z = self._inputs(traj)  # (B, T, d_in) normalised, model dtype
@@ -266,6 +270,53 @@ class LearnedPredictor:
                 j = min(steps, rows - t)
                 out[:, t, :j] = yhat[i, :, t : t + j]
         return out
+
+    def direct_forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m) k-step forecasts read from the model's k-step heads (model.forecast_mode =
+        "direct", model.horizons >= K): f[:, t, j] is head j+1 at the last input of z_0..z_{t-1}, the model's
+        mean of y_{t+j} (j = 0 is predict(traj)). One forward per window, with the window semantics of
+        predict (mode "window"; a context-limited model reads the last C inputs); nothing is fed back.
+        f[:, 0, j] is the data-free prediction (0, or y_mean when normalised); entries with t + j > T are NaN.
+        """
+        if steps > self.cfg.horizons:
+            raise MopError(
+                f"this model has {self.cfg.horizons} forecast heads (model.horizons), so it forecasts at "
+                f"most {self.cfg.horizons} steps, not {steps}; ask for fewer steps or train with "
+                f"model.horizons={steps}"
+            )
+        z = self._inputs(traj)  # (B, T, d_in)
+        with torch.no_grad(), self._eval():
+            starts = range(0, z.shape[0], self.chunk_size)
+            parts = [self._heads(z[i : i + self.chunk_size])[:, :, :steps] for i in starts]
+        heads = torch.cat(parts)  # (B, T, K, m): position t - 1 forecasts y_t .. y_{t+K-1}
+        if self.normalization is not None:
+            heads = self.normalization.outputs(heads, None)[0]
+        B, T1, m = traj.y.shape
+        out = traj.y.new_full((B, T1, steps, m), float("nan"))
+        first = 0.0 if self.normalization is None else self.normalization.y_mean.to(out)
+        out[:, 0] = first  # no data: every head's prediction is the data-free one
+        out[:, 1:] = heads.to(out)
+        for j in range(1, steps):  # y_{t+j} beyond y_T does not exist
+            out[:, T1 - j :, j] = float("nan")
+        return out
+
+    def _heads(self, z: Tensor) -> Tensor:
+        """z (B, T, d_in) -> the k-step heads (B, T, K, m) with the window semantics of predict: position
+        t >= C reads the window z_{t-C+1}..z_t, and every head its future inputs u_{t+1}.. from z."""
+        B, T, d_in = z.shape
+        C, m, K = self.cfg.context, self.cfg.output_dim, self.cfg.horizons
+        if not self.model.context_limited or T <= C:
+            return self.model.forecast_heads(z)  # the future inputs are z's own, shifted
+        future = future_inputs(z[..., m : m + input_count(self.cfg)], K)  # (B, T, K-1, k)
+        first = self.model.forecast_heads(z[:, :C], future=future[:, :C])  # (B, C, K, m)
+        windows = z.unfold(1, C, 1)[:, 1:].permute(0, 1, 3, 2).reshape(-1, C, d_in)  # (B (T-C), C, d_in)
+        later = future[:, C:].reshape(B * (T - C), 1, *future.shape[2:])  # (B (T-C), 1, K-1, k)
+        step = self.chunk_size
+        parts = [
+            self.model.forecast_heads(windows[i : i + step], True, later[i : i + step])[:, -1]
+            for i in range(0, windows.shape[0], step)
+        ]  # each (b, K, m)
+        return torch.cat([first, torch.cat(parts).view(B, T - C, K, m)], dim=1)
 
     @contextlib.contextmanager
     def _eval(self):

@@ -38,7 +38,8 @@ from torch import Tensor, nn
 from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.models.features import FeatureState, augment, check_features, extra_input_dim, restore
-from mop.models.heads import check_dims, prediction_loss, readout_dim, require_gaussian, split_readout
+from mop.models.heads import check_dims, require_gaussian
+from mop.models.horizons import add_future_inputs, future_head, horizon_dim, horizon_loss, split_horizons
 from mop.models.registry import register_model
 
 
@@ -279,8 +280,9 @@ class Transformer(nn.Module):
         self.drop = nn.Dropout(cfg.dropout)
         self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.num_layers))
         self.ln_f = nn.LayerNorm(cfg.width)
-        self.read_out = nn.Linear(cfg.width, readout_dim(cfg))
+        self.read_out = nn.Linear(cfg.width, horizon_dim(cfg))  # one-step read-out, then any k-step heads
         self.apply(self._init_weights)
+        self.future_head = future_head(cfg)  # k-step heads on a system with inputs (mop.models.horizons)
         if cfg.rls_order > 0:  # the read-out predicts the residual on RLS: start as the RLS predictor
             nn.init.zeros_(self.read_out.weight)
 
@@ -324,16 +326,36 @@ class Transformer(nn.Module):
         return self.drop(h)
 
     def _read_out(self, h: Tensor) -> tuple[Tensor, Tensor | None]:
-        """Final hidden states (B, T, d) -> mean (B, T, m), var (B, T, m) or None."""
-        return split_readout(self.read_out(h), self.cfg.readout)
+        """Final hidden states (B, T, d) -> one-step mean (B, T, m), var (B, T, m) or None."""
+        return split_horizons(self.read_out(h), self.cfg)[:2]
 
-    def _distribution(self, inputs: Tensor, last: bool = False) -> tuple[Tensor, Tensor | None]:
-        """inputs (B, T, d_in) -> mean (B, T, m), var (B, T, m)|None in the inputs' units (T = 1: last)."""
+    def _outputs(
+        self, inputs: Tensor, last: bool = False, future: Tensor | None = None
+    ) -> tuple[Tensor, Tensor | None, Tensor | None]:
+        """inputs (B, T, d_in) -> one-step mean (B, T, m), var (B, T, m)|None and the k-step heads' means
+        (B, T, K-1, m)|None, in the inputs' units (T = 1: last). future: the k-step heads' future inputs
+        (mop.models.horizons.add_future_inputs). The features' scale and base restore every head (a k-step
+        head predicts its residual on the one-step RLS prediction)."""
         z, scale, base = augment(inputs, self.cfg)  # (B, T, d_in + extra), (B, T, 1)|None, (B, T, m)|None
         if last:
             scale, base = (None if a is None else a[:, -1:] for a in (scale, base))
-        mu, var = self._read_out(self.hidden(z, last))
-        return restore(mu, var, scale, base)
+        h = self.hidden(z, last)
+        mu, var, later = split_horizons(self.read_out(h), self.cfg)
+        later = add_future_inputs(self.future_head, later, h, inputs, self.cfg, future, last)
+        if later is not None:
+            later = restore(later, None, *(None if a is None else a[:, :, None] for a in (scale, base)))[0]
+        return (*restore(mu, var, scale, base), later)
+
+    def _distribution(self, inputs: Tensor, last: bool = False) -> tuple[Tensor, Tensor | None]:
+        """inputs (B, T, d_in) -> mean (B, T, m), var (B, T, m)|None in the inputs' units (T = 1: last)."""
+        return self._outputs(inputs, last)[:2]
+
+    def forecast_heads(self, inputs: Tensor, last: bool = False, future: Tensor | None = None) -> Tensor:
+        """inputs (B, T, d_in) -> (B, T, K, m): [:, t, k-1] is head k's mean of y_{t+k} from z_0..z_t and
+        u_{t+1}..u_{t+k-1} (k = 1 is forward's prediction); last: the last position's only (B, 1, K, m).
+        future (B, T or 1, K-1, k): those future inputs (default: the inputs' own, shifted)."""
+        mu, _, later = self._outputs(inputs, last, future)
+        return mu[:, :, None] if later is None else torch.cat([mu[:, :, None], later], dim=2)
 
     def forward(self, inputs: Tensor, last: bool = False) -> Tensor:
         """inputs (B, T, d_in) -> mean predictions (B, T, m); position t predicts y_{t+1}.
@@ -346,9 +368,9 @@ class Transformer(nn.Module):
         return self._distribution(inputs, last)
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
-        """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m)."""
-        mu, var = self._distribution(inputs)
-        return prediction_loss(mu, var, targets, masked=self.cfg.observation_mask)
+        """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m). With k-step
+        heads the mean over k of each head's loss (mop.models.heads.horizon_loss)."""
+        return horizon_loss(*self._outputs(inputs), targets, masked=self.cfg.observation_mask)
 
     # ---- branching (k-step forecasts from many origins at once: mop.models.rollout) ----
     def prefill(
