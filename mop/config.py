@@ -57,6 +57,7 @@ OMITTED_AT_DEFAULT = {
         "rls_offset": False,
         "forecast_mode": "rollout",
         "horizons": 1,
+        "horizon_loss": "mean",
     },
     "train": {
         "missing_rate": 0.0,
@@ -237,6 +238,8 @@ class ModelConfig:
     # K > 1: K read-out heads, head k predicting y_{t+k} from the inputs up to t, trained by the mean of their
     # losses (mop.models.heads); 1: the paper's one-step read-out
     horizons: int = 1
+    # how the heads' losses combine: "mean", or "balanced" (each head's gradient scaled by 1 / its loss)
+    horizon_loss: str = "mean"
 
     def __post_init__(self) -> None:
         check(
@@ -296,6 +299,15 @@ class ModelConfig:
         check(
             isinstance(self.horizons, int) and 1 <= self.horizons <= 100,
             f"model.horizons must be an integer in 1..100 (1 = the one-step read-out), got {self.horizons!r}",
+        )
+        check(
+            self.horizon_loss in ("mean", "balanced"),
+            f"model.horizon_loss must be 'mean' or 'balanced', got {self.horizon_loss!r}",
+        )
+        check(
+            self.horizon_loss == "mean" or self.readout == "mean",
+            "model.horizon_loss='balanced' divides by each head's loss, which a Gaussian read-out's NLL "
+            "can make zero or negative; use model.readout='mean'",
         )
         check(
             self.forecast_mode != "direct" or self.horizons > 1,

@@ -85,6 +85,27 @@ def test_loss_is_the_mean_of_the_heads_mse(arch, horizon):
     torch.testing.assert_close(model.loss(z, targets), sum(terms) / len(terms), rtol=1e-12, atol=0)
 
 
+def test_balanced_loss_keeps_the_value_and_scales_each_heads_gradient():
+    """horizon_loss 'balanced': the value is the mean of the heads' losses L_k, the gradient is
+    mean(L) / K * sum_k grad(L_k) / L_k (each written out by autograd on its own)."""
+    model = random_model("gpt", "learned", "mean", 0, horizons=HEADS, horizon_loss="balanced")
+    traj = random_trajectories(4, CONTEXT, 0)
+    z, targets = traj.model_inputs()[:, :-1], traj.y[:, 1:]
+    params = list(model.parameters())
+    grads = torch.autograd.grad(model.loss(z, targets), params)
+    heads = model.forecast_heads(z)
+    T = targets.shape[1]
+    losses = [((heads[:, : T - k, k] - targets[:, k:]) ** 2).mean() for k in range(HEADS)]
+    level = float(sum(losses).detach() / HEADS)
+    torch.testing.assert_close(model.loss(z, targets).detach(), torch.tensor(level, dtype=torch.float64))
+    want = [torch.zeros_like(p) for p in params]
+    for L in losses:
+        for w, g in zip(want, torch.autograd.grad(L, params, retain_graph=True), strict=True):
+            w += level / HEADS * g / float(L.detach())
+    for g, w in zip(grads, want, strict=True):
+        torch.testing.assert_close(g, w, rtol=1e-5, atol=1e-9)  # the read-out is float32
+
+
 @pytest.mark.parametrize("inputs", [0, 1])
 def test_heads_learn_the_k_step_predictor_of_an_arx_process(inputs):
     """y_{t+1} = a y_t + b u_t + 0.1 e_t with white u (b = 0 without inputs), y_0 ~ N(0, 1): the MSE-optimal
@@ -159,6 +180,8 @@ def test_direct_errors_are_one_line():
         ModelConfig(forecast_mode="direct")
     with pytest.raises(MopError, match="model.horizons must be"):
         ModelConfig(horizons=0)
+    with pytest.raises(MopError, match="use model.readout='mean'"):
+        ModelConfig(horizons=3, horizon_loss="balanced", readout="gaussian")
     p = LearnedPredictor(direct_model("gpt"))
     with pytest.raises(MopError, match=f"at most {HEADS} steps, not {HEADS + 1}"):
         p.forecast(random_trajectories(2, 10, 0), HEADS + 1)

@@ -83,7 +83,7 @@ class GRUModel(nn.Module):
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         mu, var, later, _ = self._outputs(inputs)
-        return horizon_loss(mu, var, later, targets, masked=self.cfg.observation_mask)
+        return horizon_loss(mu, var, later, targets, self.cfg.observation_mask, self.cfg.horizon_loss)
 
     def init_cache(self, batch_size: int) -> GRUCache:
         p = self.read_in.weight

@@ -74,19 +74,31 @@ class FutureInputHead(nn.Module):
 
 
 def horizon_loss(
-    mu: Tensor, var: Tensor | None, later: Tensor | None, targets: Tensor, masked: bool = False
+    mu: Tensor,
+    var: Tensor | None,
+    later: Tensor | None,
+    targets: Tensor,
+    masked: bool = False,
+    weighting: str = "mean",
 ) -> Tensor:
-    """The mean over k = 1..K of the heads' losses: head 1 is prediction_loss(mu, var, targets); head k >= 2
-    (later[:, :, k-2], position t predicting y_{t+k} = targets[:, t+k-1]) is the MSE over the positions
-    t <= T-k (heads with k > T have no target and do not count). targets (B, T, m) as for prediction_loss."""
-    loss = prediction_loss(mu, var, targets, masked)
-    if later is None:
-        return loss
-    T = targets.shape[1]
-    heads = min(later.shape[2] + 1, T)
-    for k in range(2, heads + 1):
-        loss = loss + prediction_loss(later[:, : T - k + 1, k - 2], None, targets[:, k - 1 :], masked)
-    return loss / heads
+    """The mean over k = 1..K of the heads' losses L_k: head 1 is prediction_loss(mu, var, targets); head
+    k >= 2 (later[:, :, k-2], position t predicting y_{t+k} = targets[:, t+k-1]) is the MSE over the
+    positions t <= T-k (heads with k > T have no target and do not count). targets (B, T, m) as for
+    prediction_loss.
+
+    weighting "balanced" (model.horizon_loss): the same value, but each head's gradient is scaled by
+    mean(L) / L_k (both held constant), i.e. the gradient of mean(L) * mean_k log L_k: a far horizon's larger
+    error no longer outweighs the one-step head's (on the quadrotor L_10 is about 10 L_1)."""
+    losses = [prediction_loss(mu, var, targets, masked)]
+    if later is not None:
+        T = targets.shape[1]
+        for k in range(2, min(later.shape[2] + 1, T) + 1):
+            losses.append(prediction_loss(later[:, : T - k + 1, k - 2], None, targets[:, k - 1 :], masked))
+    stacked = torch.stack(losses)  # (K,)
+    if weighting == "mean" or len(losses) == 1:
+        return stacked.mean()
+    level = stacked.mean().detach()
+    return level * (stacked / stacked.detach().clamp_min(1e-12)).mean()
 
 
 def future_head(cfg: ModelConfig) -> FutureInputHead | None:

@@ -370,7 +370,8 @@ class Transformer(nn.Module):
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m). With k-step
         heads the mean over k of each head's loss (mop.models.heads.horizon_loss)."""
-        return horizon_loss(*self._outputs(inputs), targets, masked=self.cfg.observation_mask)
+        cfg = self.cfg
+        return horizon_loss(*self._outputs(inputs), targets, cfg.observation_mask, cfg.horizon_loss)
 
     # ---- branching (k-step forecasts from many origins at once: mop.models.rollout) ----
     def prefill(
