@@ -64,6 +64,13 @@ CASES = {
     "level": (_set("claims/0/measure/level", 2), "level must be a number in (0, 1)"),
     "missing data file": (_set("conditions/0/data", "nope.csv"), "nope.csv does not exist"),
     "horizon type": (_set("conditions/0/horizon", "long"), "horizon must be an integer"),
+    "too few forecast heads": (
+        lambda d: d.update(
+            analyses=["forecast"],
+            train={"system.family": "linear", "model.horizons": 5, "model.forecast_mode": "direct"},
+        ),
+        "forecasts 10 steps, but model.horizons=5",
+    ),
 }
 
 PLUGINS = {

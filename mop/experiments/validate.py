@@ -18,7 +18,7 @@ from pathlib import Path
 from mop.config import RunConfig, apply_settings
 from mop.errors import MopError
 from mop.experiments import get_preset, run_config
-from mop.experiments.analyses import ANALYSES
+from mop.experiments.analyses import ANALYSES, FORECAST_START, FORECAST_STEPS
 from mop.experiments.figures import FIGURES, figure_names
 from mop.experiments.measures import MEASURES
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
@@ -103,11 +103,25 @@ def _condition(exp: Experiment, preset: str, seed: int, overrides: list[str], co
                 run_config(exp, preset, seed, PREDICTORS.meta(name)["arch"], condition, overrides)
         _training_source(config)
         make_family(apply_settings(config.system, condition.system))
+        _forecast_heads(exp, config, condition.horizon or config.train.horizon)
     except MopError as err:
         raise MopError(f"{where}{err}") from None
     if condition.data and not Path(condition.data).is_file():
         raise MopError(f"{where}data file {condition.data} does not exist")
     return condition.horizon or config.train.horizon
+
+
+def _forecast_heads(exp: Experiment, config: RunConfig, horizon: int) -> None:
+    """A model that forecasts by its k-step heads has one for every step the forecast analysis asks."""
+    model = config.model
+    if "forecast" not in exp.analyses or model.forecast_mode != "direct":
+        return
+    steps = min(FORECAST_STEPS, horizon + 1 - FORECAST_START)
+    if model.horizons < steps:
+        raise MopError(
+            f"the forecast analysis forecasts {steps} steps, but model.horizons={model.horizons} "
+            f"(model.forecast_mode=direct) has heads for {model.horizons}; set model.horizons={steps}"
+        )
 
 
 def _training_source(config: RunConfig) -> None:
