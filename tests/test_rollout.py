@@ -154,17 +154,48 @@ def test_prefill_continued_from_a_cache_equals_the_whole_windows_prefill(positio
             torch.testing.assert_close(mu, expected, rtol=0, atol=1e-10)
 
 
-def test_a_model_with_input_features_forecasts_by_the_reference():
-    """Input features (running scale, RLS) are functions of the whole window, fed-back inputs included:
-    no fast path, and forecast is reference_forecast."""
-    torch.manual_seed(0)
-    cfg = ModelConfig(num_layers=1, num_heads=2, width=8, context=CONTEXT, input_dim=3, output_dim=3,
-                      input_scale="running", rls_order=1)  # fmt: skip
-    model = build_model(cfg).double()
+FEATURES = [
+    dict(input_scale="running", rls_order=1),
+    dict(rls_order=2, arx_order=1, rls_offset=True),  # the ARX feature reads the inputs' lags
+    dict(rls_order=2, observation_mask=True),
+]
+
+
+def feature_model(features: dict, inputs: int) -> torch.nn.Module:
+    model = random_model("gpt", "learned", "mean", inputs, **features)
+    with torch.no_grad():  # the RLS feature's read-out starts at zero; make the network matter
+        model.read_out.weight.normal_(0.0, 0.3)
+    return model
+
+
+@pytest.mark.parametrize("features", FEATURES)
+@pytest.mark.parametrize("horizon", [4, CONTEXT - 1, 9])  # inside the context (streamed) and beyond it
+def test_a_model_with_input_features_forecasts_as_the_reference(features, horizon):
+    """Input features (running scale, RLS / ARX) are functions of the whole window, fed-back inputs
+    included, so there is no branch path. Inside the context forecasts and simulations step copies of the
+    model's cache (equal to its forward there); beyond it they take the reference path. Both equal the
+    references (one forward per origin and step) to float rounding."""
+    inputs = 2 if features.get("arx_order") else 0
+    model = feature_model(features, inputs)
     assert not can_branch(model)
-    traj = random_trajectories(2, 9, 0)
+    traj = random_trajectories(2, horizon, inputs)
+    if features.get("observation_mask"):
+        traj.y[0, 2, 1] = float("nan")  # a gap the model reads
     predictor = LearnedPredictor(model)
     assert_equal_forecasts(predictor.forecast(traj, 3), predictor.reference_forecast(traj, 3))
+    sim, ref = predictor.simulate(traj, 2), predictor.reference_simulate(traj, 2)
+    torch.testing.assert_close(sim, ref, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("arch", ["gpt", "gru"])
+def test_streamed_simulation_equals_the_reference(arch):
+    model = random_model(arch, "rope", "mean", 2)
+    traj = random_trajectories(3, CONTEXT if arch == "gpt" else 3 * CONTEXT, 2)
+    predictor = LearnedPredictor(model)
+    assert predictor._streams_exactly(traj.horizon)
+    for context in (1, 3):
+        sim = predictor.simulate(traj, context)
+        torch.testing.assert_close(sim, predictor.reference_simulate(traj, context), rtol=0, atol=1e-10)
 
 
 def test_windows_batched_across_prefill_batches(monkeypatch):

@@ -29,6 +29,7 @@ feed back its own predictions as measured. A model without the mask refuses data
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import warnings
 from collections.abc import Sequence
@@ -224,6 +225,8 @@ class LearnedPredictor:
         if self.cfg.forecast_mode == "direct":
             return self.direct_forecast(traj, steps)
         if not can_branch(self.model):
+            if self._streams_exactly(traj.horizon):
+                return self._streamed_forecast(traj, steps)
             return self.reference_forecast(traj, steps)
         z = self._inputs(traj)  # (B, T, d_in) normalised, model dtype
         first = None
@@ -349,12 +352,21 @@ class LearnedPredictor:
 
     def simulate(self, traj: Trajectories, context: int) -> Tensor:
         """(B, T+1-c, m) free-run simulation: forecast[:, c] alone (the model reads z_0..z_{c-1}, then its own
-        predicted outputs with the given inputs), one forward per simulated step; model.forecast_mode = "gap":
-        one predict with y_c..y_T read as missing)."""
+        predicted outputs with the given inputs). Where stepping the model's cache equals its forward (a
+        recurrent model; a transformer with T <= context) the cache steps once per input, else one forward
+        per simulated step (reference_simulate); model.forecast_mode = "gap": one predict with y_c..y_T read
+        as missing."""
         if self.cfg.forecast_mode == "gap":
             y = traj.y.clone()
             y[:, context:] = float("nan")
             return self.predict(Trajectories(y, traj.u))[:, context:]
+        if context > 0 and self._streams_exactly(traj.horizon):
+            return self._streamed_simulation(traj, context)
+        return self.reference_simulate(traj, context)
+
+    def reference_simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """simulate by definition: one forward of the model per simulated step, on the last C inputs of
+        z_0..z_{c-1} followed by the fed-back [yhat, u] (the slow reference of the tests)."""
         z = traj.model_inputs().double()  # (B, T+1, d_in)
         u = None if traj.u is None else traj.u.double()
         limit = self.cfg.context if self.model.context_limited else None
@@ -367,6 +379,60 @@ class LearnedPredictor:
             pred = self._last_output(hist if limit is None else hist[:, -limit:])
             out.append(pred)
         return torch.stack(out, dim=1).to(traj.y.dtype)
+
+    def _streams_exactly(self, horizon: int) -> bool:
+        """Whether stepping the model's cache over T = horizon inputs equals its forward: a recurrent model
+        always; a transformer while T <= its context (inside it, its cache and its features' running state
+        equal the forward's, mop.models.transformer)."""
+        if not callable(getattr(self.model, "init_cache", None)):
+            return False
+        return not self.model.context_limited or horizon <= self.cfg.context
+
+    def _step(self, z: Tensor, cache) -> Tensor:
+        """One input z (B, m + k) in data units through the model's cache -> its mean (B, m) in data units,
+        float64 on the CPU."""
+        mu = self.model.step(self._model_inputs(z[:, None])[:, 0], cache)
+        if self.normalization is not None:
+            mu = self.normalization.outputs(mu, None)[0]
+        return mu.double().cpu()
+
+    def _streamed_simulation(self, traj: Trajectories, context: int) -> Tensor:
+        """simulate through the model's cache: c steps over z_0..z_{c-1}, then one per simulated output."""
+        z = traj.model_inputs().double()  # (B, T+1, d_in) in data units
+        u = None if traj.u is None else traj.u.double()
+        with torch.no_grad(), self._eval():
+            cache = self.model.init_cache(z.shape[0])
+            for t in range(context):
+                pred = self._step(z[:, t], cache)  # after z_{c-1}: the prediction of y_c
+            out = [pred]
+            for t in range(context + 1, traj.horizon + 1):
+                new = pred if u is None else torch.cat([pred, u[:, t - 1]], dim=-1)
+                pred = self._step(new, cache)
+                out.append(pred)
+        return torch.stack(out, dim=1).to(traj.y.dtype)
+
+    def _streamed_forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """forecast through the model's cache (models without a branch path, e.g. with input features):
+        one trunk steps over z_0..z_{T-1}; at each origin t a copy of it steps the K-1 fed-back inputs.
+        Equal to reference_forecast where _streams_exactly; T + T (K-1) single steps instead of T (K-1)
+        forwards of up to C inputs."""
+        yhat = self.predict(traj)  # (B, T+1, m): j = 0
+        B, T1, m = yhat.shape
+        out = yhat.new_full((B, T1, steps, m), float("nan"))
+        out[:, :, 0] = yhat
+        z = traj.model_inputs().double()  # (B, T+1, d_in) in data units
+        u = None if traj.u is None else traj.u.double()
+        with torch.no_grad(), self._eval():
+            trunk = self.model.init_cache(B)
+            for t in range(T1 - 1):  # the trunk has read z_0..z_{t-1}
+                if steps > 1:
+                    branch, pred = copy.deepcopy(trunk), yhat[:, t].double().cpu()
+                    for j in range(1, min(steps, T1 - t)):
+                        new = pred if u is None else torch.cat([pred, u[:, t + j - 1]], dim=-1)
+                        pred = self._step(new, branch)
+                        out[:, t, j] = pred.to(out)
+                self._step(z[:, t], trunk)
+        return out
 
     def _last_output(self, z: Tensor) -> Tensor:
         """The model's mean output (B, m) in data units, float64, at the last position of z (B, L, m + k)."""
