@@ -239,14 +239,18 @@ def _forecast_table(extras: dict) -> str:
     return "\n".join(forecast_markdown(extras["forecast"])) + "\n"
 
 
-@ANALYSES.register("forecast", markdown=_forecast_table)
+def forecast_steps(horizon: int) -> int:
+    """The steps K the forecast analysis asks of every predictor on trajectories of `horizon` steps."""
+    return max(min(FORECAST_STEPS, horizon + 1 - FORECAST_START), 1)
+
+
+@ANALYSES.register("forecast", markdown=_forecast_table, forecast_steps=forecast_steps)
 def forecast_analysis(result: ConditionResult, predictors: list[Predictor], reference: str) -> dict:
     """k-step forecast error against k = 1..FORECAST_STEPS (10) per predictor with a forecast: mean over test
     systems and forecast origins t >= FORECAST_START (20) of ||y_{t+k-1} - forecast_{t,k-1}|| (horizon_errors;
     k = 1 is the one-step error over t >= 20). Predictors without a forecast are left out."""
-    steps = min(FORECAST_STEPS, result.traj.horizon + 1 - FORECAST_START)
-    start = FORECAST_START if steps >= 1 else 1
-    steps = max(steps, 1)
+    start = FORECAST_START if result.traj.horizon + 1 - FORECAST_START >= 1 else 1
+    steps = forecast_steps(result.traj.horizon)
     table = {}
     for p in predictors:
         if not callable(getattr(p, "forecast", None)):

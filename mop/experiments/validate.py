@@ -18,7 +18,7 @@ from pathlib import Path
 from mop.config import RunConfig, apply_settings
 from mop.errors import MopError
 from mop.experiments import get_preset, run_config
-from mop.experiments.analyses import ANALYSES, FORECAST_START, FORECAST_STEPS
+from mop.experiments.analyses import ANALYSES
 from mop.experiments.figures import FIGURES, figure_names
 from mop.experiments.measures import MEASURES
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
@@ -112,16 +112,18 @@ def _condition(exp: Experiment, preset: str, seed: int, overrides: list[str], co
 
 
 def _forecast_heads(exp: Experiment, config: RunConfig, horizon: int) -> None:
-    """A model that forecasts by its k-step heads has one for every step the forecast analysis asks."""
+    """A model that forecasts by its k-step heads has one for every step an analysis forecasts (the
+    analyses registered with forecast_steps: horizon -> K)."""
     model = config.model
-    if "forecast" not in exp.analyses or model.forecast_mode != "direct":
+    if model.forecast_mode != "direct":
         return
-    steps = min(FORECAST_STEPS, horizon + 1 - FORECAST_START)
-    if model.horizons < steps:
-        raise MopError(
-            f"the forecast analysis forecasts {steps} steps, but model.horizons={model.horizons} "
-            f"(model.forecast_mode=direct) has heads for {model.horizons}; set model.horizons={steps}"
-        )
+    for name in exp.analyses:
+        steps = ANALYSES.meta(name).get("forecast_steps", lambda horizon: 0)(horizon)
+        if model.horizons < steps:
+            raise MopError(
+                f"the {name} analysis forecasts {steps} steps, but model.horizons={model.horizons} "
+                f"(model.forecast_mode=direct) has heads for {model.horizons}; set model.horizons={steps}"
+            )
 
 
 def _training_source(config: RunConfig) -> None:
