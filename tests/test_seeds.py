@@ -79,3 +79,25 @@ def test_reproduce_seeds_trains_each_seed_on_the_same_test_systems(tmp_path, tin
 def test_reproduce_seeds_must_be_positive(capsys):
     assert cli.main(["reproduce", "linear", "--seeds", "0"]) == 2
     assert "--seeds must be at least 1" in capsys.readouterr().err
+
+
+def test_jobs_run_the_seeds_in_worker_processes_with_the_same_numbers(tmp_path, one_thread, capsys):
+    """--jobs 2 trains and evaluates each seed in its own process (one torch thread): the same eval.json
+    numbers as --jobs 1 in this process (one thread too), in separate run directories."""
+    keys = ["train.steps=3", "train.batch_size=8", "train.checkpoint_every=3"]
+    evals = {}
+    for jobs in (1, 2):
+        out, runs = tmp_path / f"j{jobs}", tmp_path / f"runs{jobs}"
+        argv = ["reproduce", "linear", "--preset", "smoke", "--out", str(out), "--runs", str(runs)]
+        assert cli.main([*argv, "--quiet", "--seeds", "2", "--jobs", str(jobs), *keys]) == 0
+        evals[jobs] = [json.loads((out / f"seed-{s}" / "eval.json").read_text()) for s in (0, 1)]
+        assert (out / "seeds.md").is_file() and len(list(runs.iterdir())) == 2
+    for one, two in zip(evals[1], evals[2], strict=True):
+        assert one["predictors"]["mop"]["error"] == two["predictors"]["mop"]["error"]
+        assert one["to_best"] == two["to_best"]
+    assert evals[2][0]["predictors"]["mop"]["error"] != evals[2][1]["predictors"]["mop"]["error"]
+
+
+def test_jobs_must_be_positive(capsys):
+    assert cli.main(["reproduce", "linear", "--jobs", "0"]) == 2
+    assert "--jobs must be at least 1" in capsys.readouterr().err

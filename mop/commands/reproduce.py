@@ -9,12 +9,18 @@ key=value overrides change the training config of every run (e.g. train.steps=50
 writes DIR/seeds.md and seeds.json: every ratio's mean over seeds, range and each seed's bootstrap CI
 (mop.experiments.seeds). `all` also writes DIR/summary.md: each experiment's MOP / best predictor ratio
 beside the authors' number.
+--jobs N runs the (experiment, seed) units in N worker processes with one torch thread each (the small
+model's training gains nothing from a second thread, so two jobs on two cores take about half the time);
+units that share a trained run wait for it (the run directory's lock) and reuse it. A training's numbers
+depend on the thread count only through float rounding.
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import json
+import multiprocessing
 from pathlib import Path
 
 import torch
@@ -86,6 +92,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="evaluate the shipped models (mop pretrained) instead of training (default preset: small)",
     )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="run experiments (and seeds) in N processes, one torch thread each (1: in this process)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     parser.add_argument(
         "--no-wait",
@@ -110,6 +122,8 @@ def choices(args: argparse.Namespace) -> dict[str, bool]:
 def run(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         raise MopError(f"--seeds must be at least 1, got {args.seeds}")
+    if args.jobs < 1:
+        raise MopError(f"--jobs must be at least 1, got {args.jobs}")
     if args.pretrained and args.seeds > 1:
         raise MopError("--seeds K trains K seeds and --pretrained trains none; use one of them")
     default = "small" if args.pretrained else ("paper" if torch.cuda.is_available() else "small")
@@ -129,36 +143,38 @@ def run(args: argparse.Namespace) -> int:
     overrides = list(args.overrides or [])
     for exp in experiments:  # every mistake in any of them before the first training step
         validate_experiment(exp, preset, seed=args.seed, overrides=overrides, choices=chosen)
+    units = [(exp, s) for exp in experiments for s in range(args.seed, args.seed + args.seeds)]
+    common = dict(
+        preset=preset, seed=args.seed, overrides=overrides, choices=chosen, pretrained=args.pretrained,
+        wait=not args.no_wait, runs=args.runs, skip_missing=args.pretrained and args.experiment == "all",
+    )  # fmt: skip
+    outs = {
+        exp.name: root / exp.name if (args.experiment == "all" or not args.out) else root
+        for exp in experiments
+    }
+    if args.jobs == 1:
+        done = [_unit(exp, s, outs[exp.name], args.seeds, not args.quiet, **common) for exp, s in units]
+    else:
+        spec = args.experiment if is_experiment_file(args.experiment) else None  # files reload (plugins)
+        context = multiprocessing.get_context("spawn")
+        with concurrent.futures.ProcessPoolExecutor(
+            args.jobs, mp_context=context, initializer=_one_thread
+        ) as pool:
+            futures = [
+                pool.submit(_unit, spec or exp.name, s, outs[exp.name], args.seeds, False, **common)
+                for exp, s in units
+            ]
+            try:
+                done = [f.result() for f in futures]
+            except BaseException:  # the first failure stops the units not yet started
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
     rows = []
     for exp in experiments:
-        out = root / exp.name if (args.experiment == "all" or not args.out) else root
-        evals = {}
-        for train_seed in range(args.seed, args.seed + args.seeds):
-            seed_out = out if args.seeds == 1 else out / f"seed-{train_seed}"
-            try:
-                report = run_experiment(
-                    exp,
-                    preset,
-                    seed_out,
-                    seed=args.seed,
-                    train_seed=train_seed,
-                    runs_dir=Path(args.runs) if args.runs else (out.parent / "runs"),
-                    overrides=overrides,
-                    progress=not args.quiet,
-                    choices=chosen,
-                    pretrained=args.pretrained,
-                    wait=not args.no_wait,
-                )
-            except MopError as err:
-                if not (args.pretrained and args.experiment == "all" and "no pretrained model" in str(err)):
-                    raise
-                print(f"mop reproduce {exp.name}: skipped ({err})")  # raised before any work
-                break
-            evals[train_seed] = json.loads((seed_out / "eval.json").read_text())
-            suffix = ", pretrained" if args.pretrained else f", seed {train_seed}"
-            print(f"mop reproduce {exp.name} ({preset}{suffix}): report at {report}")
+        evals = {s: result for (e, s), result in zip(units, done, strict=True) if e is exp and result}
         if not evals:
             continue
+        out = outs[exp.name]
         summary = seed_summary(evals)
         if args.seeds > 1:
             write_json(out / "seeds.json", summary)
@@ -171,3 +187,53 @@ def run(args: argparse.Namespace) -> int:
         write_text(root / "summary.md", title + lead_table(rows))
         print(f"summary: {root / 'summary.md'}")
     return 0
+
+
+def _one_thread() -> None:
+    torch.set_num_threads(1)
+
+
+def _unit(
+    exp,
+    train_seed: int,
+    out: Path,
+    num_seeds: int,
+    progress: bool,
+    *,
+    preset: str,
+    seed: int,
+    overrides: list[str],
+    choices: dict[str, bool],
+    pretrained: bool,
+    wait: bool,
+    runs: str | None,
+    skip_missing: bool,
+) -> dict | None:
+    """One (experiment, training seed): run it into out (or out/seed-<s>) and hand back its eval.json, or
+    None where `all --pretrained` has no shipped model for it (skip_missing). exp: an Experiment, or in a
+    worker process its name or experiment file (reloaded there, with its plugins)."""
+    if isinstance(exp, str):
+        exp = load_experiment(exp) if is_experiment_file(exp) else get_experiment(exp)
+    seed_out = out if num_seeds == 1 else out / f"seed-{train_seed}"
+    try:
+        report = run_experiment(
+            exp,
+            preset,
+            seed_out,
+            seed=seed,
+            train_seed=train_seed,
+            runs_dir=Path(runs) if runs else (out.parent / "runs"),
+            overrides=overrides,
+            progress=progress,
+            choices=choices,
+            pretrained=pretrained,
+            wait=wait,
+        )
+    except MopError as err:
+        if not (skip_missing and "no pretrained model" in str(err)):
+            raise
+        print(f"mop reproduce {exp.name}: skipped ({err})", flush=True)  # raised before any work
+        return None
+    suffix = ", pretrained" if pretrained else f", seed {train_seed}"
+    print(f"mop reproduce {exp.name} ({preset}{suffix}): report at {report}", flush=True)
+    return json.loads((seed_out / "eval.json").read_text())
