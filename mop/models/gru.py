@@ -14,7 +14,14 @@ from torch import Tensor, nn
 from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.models.heads import check_dims, require_gaussian
-from mop.models.horizons import add_future_inputs, future_head, horizon_dim, horizon_loss, split_horizons
+from mop.models.horizons import (
+    add_future_inputs,
+    future_head,
+    horizon_dim,
+    horizon_loss,
+    split_horizons,
+    stack_heads,
+)
 from mop.models.registry import register_model
 
 
@@ -69,7 +76,7 @@ class GRUModel(nn.Module):
         u_{t+1}..u_{t+k-1}; future (B, T, K-1, k): those inputs (default: the inputs' own, shifted);
         last: the last position's only (B, 1, K, m)."""
         mu, _, later, _ = self._outputs(inputs, future=future)
-        heads = mu[:, :, None] if later is None else torch.cat([mu[:, :, None], later], dim=2)
+        heads = stack_heads(mu, later)
         return heads[:, -1:] if last else heads
 
     def forward(self, inputs: Tensor) -> Tensor:

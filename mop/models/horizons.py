@@ -43,6 +43,17 @@ def split_horizons(raw: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None
     return mu, var, raw[..., width:].to(mu.dtype).unflatten(-1, (cfg.horizons - 1, cfg.output_dim))
 
 
+def stack_heads(mu: Tensor, later: Tensor | None) -> Tensor:
+    """One-step mean (B, T, m) and k-step heads (B, T, K-1, m)|None -> all heads (B, T, K, m)."""
+    return mu[:, :, None] if later is None else torch.cat([mu[:, :, None], later], dim=2)
+
+
+def own_future_inputs(inputs: Tensor, cfg: ModelConfig) -> Tensor:
+    """The model inputs' own u channels shifted: (B, T, d_in) -> future_inputs (B, T, K-1, k)."""
+    m = cfg.output_dim
+    return future_inputs(inputs[..., m : m + input_count(cfg)], cfg.horizons)
+
+
 def future_inputs(u: Tensor, horizons: int) -> Tensor:
     """u (B, T, k) at positions 0..T-1 -> (B, T, K-1, k): [:, t, j] = u_{t+1+j}, 0 beyond T-1."""
     B, T, k = u.shape
@@ -122,7 +133,6 @@ def add_future_inputs(
     if head is None or later is None:
         return later
     if future is None:
-        m = cfg.output_dim
-        future = future_inputs(inputs[..., m : m + input_count(cfg)], cfg.horizons)
+        future = own_future_inputs(inputs, cfg)
         future = future[:, -1:] if last else future
     return later + head(h, future)

@@ -39,8 +39,7 @@ from torch import Tensor, nn
 
 from mop.errors import MopError, MopWarning
 from mop.missing import masked_inputs
-from mop.models.features import input_count
-from mop.models.horizons import future_inputs
+from mop.models.horizons import own_future_inputs
 from mop.models.registry import predictor_names
 from mop.models.rollout import can_branch, forecast_batch, transformer_chunk_size
 from mop.systems.base import Trajectories
@@ -306,13 +305,13 @@ class LearnedPredictor:
     def _heads(self, z: Tensor) -> Tensor:
         """z (B, T, d_in) -> the k-step heads (B, T, K, m) with the window semantics of predict: position
         t >= C reads the window z_{t-C+1}..z_t, and every head its future inputs u_{t+1}.. from z."""
-        B, T, d_in = z.shape
+        B, T, _ = z.shape
         C, m, K = self.cfg.context, self.cfg.output_dim, self.cfg.horizons
         if not self.model.context_limited or T <= C:
             return self.model.forecast_heads(z)  # the future inputs are z's own, shifted
-        future = future_inputs(z[..., m : m + input_count(self.cfg)], K)  # (B, T, K-1, k)
+        future = own_future_inputs(z, self.cfg)  # (B, T, K-1, k)
         first = self.model.forecast_heads(z[:, :C], future=future[:, :C])  # (B, C, K, m)
-        windows = z.unfold(1, C, 1)[:, 1:].permute(0, 1, 3, 2).reshape(-1, C, d_in)  # (B (T-C), C, d_in)
+        windows = later_windows(z, C)  # (B (T-C), C, d_in)
         later = future[:, C:].reshape(B * (T - C), 1, *future.shape[2:])  # (B (T-C), 1, K-1, k)
         step = self.chunk_size
         parts = [
@@ -344,7 +343,7 @@ class LearnedPredictor:
         for t in range(T1 - 1):
             hist, pred = z[:, :t], yhat[:, t].double()
             for j in range(1, min(steps, T1 - t)):
-                new = pred if u is None else torch.cat([pred, u[:, t + j - 1]], dim=-1)
+                new = fed_back(pred, u, t + j - 1)
                 hist = torch.cat([hist, new[:, None]], dim=1)
                 pred = self._last_output(hist if context is None else hist[:, -context:])
                 out[:, t, j] = pred.to(out.dtype)
@@ -374,7 +373,7 @@ class LearnedPredictor:
         pred = self._last_output(hist if limit is None else hist[:, -limit:])  # y_c from z_{<c}
         out = [pred]
         for t in range(context + 1, traj.horizon + 1):
-            new = pred if u is None else torch.cat([pred, u[:, t - 1]], dim=-1)
+            new = fed_back(pred, u, t - 1)
             hist = torch.cat([hist, new[:, None]], dim=1)
             pred = self._last_output(hist if limit is None else hist[:, -limit:])
             out.append(pred)
@@ -406,7 +405,7 @@ class LearnedPredictor:
                 pred = self._step(z[:, t], cache)  # after z_{c-1}: the prediction of y_c
             out = [pred]
             for t in range(context + 1, traj.horizon + 1):
-                new = pred if u is None else torch.cat([pred, u[:, t - 1]], dim=-1)
+                new = fed_back(pred, u, t - 1)
                 pred = self._step(new, cache)
                 out.append(pred)
         return torch.stack(out, dim=1).to(traj.y.dtype)
@@ -428,7 +427,7 @@ class LearnedPredictor:
                 if steps > 1:
                     branch, pred = copy.deepcopy(trunk), yhat[:, t].double().cpu()
                     for j in range(1, min(steps, T1 - t)):
-                        new = pred if u is None else torch.cat([pred, u[:, t + j - 1]], dim=-1)
+                        new = fed_back(pred, u, t + j - 1)
                         pred = self._step(new, branch)
                         out[:, t, j] = pred.to(out)
                 self._step(z[:, t], trunk)
@@ -449,6 +448,17 @@ def stream(model: nn.Module, z: Tensor, gaussian: bool = False) -> tuple[Tensor,
     return mu, var
 
 
+def fed_back(pred: Tensor, u: Tensor | None, t: int) -> Tensor:
+    """The model input a forecast feeds back: [pred, u_t] (B, m + k), or pred (B, m) without inputs."""
+    return pred if u is None else torch.cat([pred, u[:, t]], dim=-1)
+
+
+def later_windows(z: Tensor, context: int) -> Tensor:
+    """The windows z_{t-C+1}..z_t for t = C..T-1, system-major: z (B, T, d_in) -> (B (T-C), C, d_in)."""
+    windows = z.unfold(1, context, 1)[:, 1:]  # (B, T-C+1, d_in, C) -> drop the first: (B, T-C, d_in, C)
+    return windows.permute(0, 1, 3, 2).reshape(-1, context, z.shape[-1])
+
+
 def sliding_window(
     model: nn.Module, z: Tensor, gaussian: bool, context: int, windows_per_batch: int = 256
 ) -> tuple[Tensor, Tensor | None]:
@@ -461,8 +471,7 @@ def sliding_window(
     B, T, d_in = z.shape
     run = model.predict_distribution if gaussian else (lambda x, last=False: (model(x, last), None))
     mu0, var0 = run(z[:, :context])  # (B, C, m)
-    windows = z.unfold(1, context, 1)[:, 1:]  # (B, T-C+1, d_in, C) -> drop first: (B, T-C, d_in, C)
-    windows = windows.permute(0, 1, 3, 2).reshape(-1, context, d_in)  # (B*(T-C), C, d_in)
+    windows = later_windows(z, context)  # (B*(T-C), C, d_in)
     mus, vars_ = [], []
     for i in range(0, windows.shape[0], windows_per_batch):
         mu, var = run(windows[i : i + windows_per_batch], last=True)  # (b, 1, m)

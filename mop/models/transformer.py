@@ -39,7 +39,14 @@ from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.models.features import FeatureState, augment, check_features, extra_input_dim, restore
 from mop.models.heads import check_dims, require_gaussian
-from mop.models.horizons import add_future_inputs, future_head, horizon_dim, horizon_loss, split_horizons
+from mop.models.horizons import (
+    add_future_inputs,
+    future_head,
+    horizon_dim,
+    horizon_loss,
+    split_horizons,
+    stack_heads,
+)
 from mop.models.registry import register_model
 
 
@@ -355,7 +362,7 @@ class Transformer(nn.Module):
         u_{t+1}..u_{t+k-1} (k = 1 is forward's prediction); last: the last position's only (B, 1, K, m).
         future (B, T or 1, K-1, k): those future inputs (default: the inputs' own, shifted)."""
         mu, _, later = self._outputs(inputs, last, future)
-        return mu[:, :, None] if later is None else torch.cat([mu[:, :, None], later], dim=2)
+        return stack_heads(mu, later)
 
     def forward(self, inputs: Tensor, last: bool = False) -> Tensor:
         """inputs (B, T, d_in) -> mean predictions (B, T, m); position t predicts y_{t+1}.
