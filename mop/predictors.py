@@ -78,12 +78,14 @@ def first_learned(names: Iterable[str]) -> str:
     raise MopError(f"no learned predictor among {', '.join(names)}; add one (e.g. a trained model)")
 
 
-def forecast(predictor: Predictor, traj: Trajectories, steps: int) -> Tensor:
+def forecast(predictor: Predictor, traj: Trajectories, steps: int, start: int = 0) -> Tensor:
     """k-step-ahead forecasts (B, T+1, K, m), K = steps, of a predictor with a `forecast` method.
 
     forecast[:, t, j] predicts y_{t+j} from y_0..y_{t-1} (and the inputs u_0..u_{t+j-1}, given where the
     family has inputs); j = 0 is the one-step predict(traj)[:, t]. Entries whose target index t + j exceeds T
-    are NaN. Each predictor documents how it rolls out (filters: their time update with no measurement;
+    are NaN, and so are those of origins t < start: a predictor whose `forecast` takes `start` skips their
+    roll-outs (the particle filter does), the others compute them and they are dropped. Each predictor
+    documents how it rolls out (filters: their time update with no measurement;
     RLS / subspace: iterating the fitted model; learned: autoregressively on their own predictions, or with
     model.forecast_mode = "gap" by reading the future outputs as missing).
     """
@@ -101,7 +103,15 @@ def forecast(predictor: Predictor, traj: Trajectories, steps: int) -> Tensor:
         f"a {steps}-step forecast of {B} trajectories x {T1} steps",
         "forecast fewer steps or fewer trajectories at a time",
     )
-    return nan_beyond_horizon(method(traj, steps))
+    if not isinstance(start, int) or not 0 <= start <= T1 - 1:
+        raise MopError(f"forecast start must be an integer origin in [0, T = {T1 - 1}], got {start!r}")
+    takes_start = "start" in inspect.signature(method).parameters
+    out = nan_beyond_horizon(
+        method(traj, steps, start=start) if takes_start and start else method(traj, steps)
+    )
+    if start:
+        out[:, :start] = float("nan")
+    return out
 
 
 def simulate(predictor: Predictor, traj: Trajectories, context: int) -> Tensor:

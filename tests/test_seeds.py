@@ -10,6 +10,7 @@ from mop import cli
 from mop.experiments.runner import distance_to_best
 from mop.experiments.seeds import lead_table, seed_summary, seeds_table
 from mop.metrics import mse_ratio_ci
+from mop.train import resolve_config
 
 
 def _eval(ratio_ref, ratio_best):
@@ -101,3 +102,40 @@ def test_jobs_run_the_seeds_in_worker_processes_with_the_same_numbers(tmp_path, 
 def test_jobs_must_be_positive(capsys):
     assert cli.main(["reproduce", "linear", "--jobs", "0"]) == 2
     assert "--jobs must be at least 1" in capsys.readouterr().err
+
+
+def test_planned_runs_are_the_runs_the_experiment_trains(tmp_path, one_thread):
+    """planned_runs (what --jobs trains ahead) names exactly the run directories run_experiment creates,
+    for an experiment that trains five runs over its conditions (scaling), and the configs they train."""
+    from mop.experiments import get_experiment
+    from mop.experiments.runner import planned_runs, run_experiment
+    from mop.runs import load_config
+
+    keys = ["train.steps=2", "train.batch_size=4", "train.checkpoint_every=2"]
+    exp, runs = get_experiment("scaling"), tmp_path / "runs"
+    planned = planned_runs(exp, "smoke", seed=0, train_seed=0, runs_dir=runs, overrides=keys)
+    run_experiment(exp, "smoke", tmp_path / "out", seed=0, runs_dir=runs, overrides=keys, progress=False)
+    assert len(planned) == 5
+    assert sorted(run for _, run in planned) == sorted(str(p) for p in runs.iterdir())
+    for config, run in planned:
+        assert load_config(run) == resolve_config(config)
+
+
+def test_jobs_train_an_experiments_runs_as_their_own_tasks_with_the_same_numbers(tmp_path, one_thread):
+    """--jobs 2 trains the two runs of calibration (linear and colored noise) as two tasks, then evaluates:
+    the same eval.json numbers as --jobs 1."""
+    keys = ["train.steps=3", "train.batch_size=8", "train.checkpoint_every=3"]
+    evals = {}
+    for jobs in (1, 2):
+        out, runs = tmp_path / f"j{jobs}", tmp_path / f"runs{jobs}"
+        argv = ["reproduce", "calibration", "--preset", "smoke", "--out", str(out), "--runs", str(runs)]
+        assert cli.main([*argv, "--quiet", "--jobs", str(jobs), *keys]) == 0
+        evals[jobs] = json.loads((out / "eval.json").read_text())
+        assert len(list(runs.iterdir())) == 2
+
+    def untimed(condition: dict) -> dict:  # every number but the wall times
+        return {p: {k: v for k, v in r.items() if k != "seconds"} for p, r in condition["predictors"].items()}
+
+    for name, one in evals[1]["conditions"].items():
+        two = evals[2]["conditions"][name]
+        assert untimed(one) == untimed(two) and one["to_best"] == two["to_best"]

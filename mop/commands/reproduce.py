@@ -9,10 +9,10 @@ key=value overrides change the training config of every run (e.g. train.steps=50
 writes DIR/seeds.md and seeds.json: every ratio's mean over seeds, range and each seed's bootstrap CI
 (mop.experiments.seeds). `all` also writes DIR/summary.md: each experiment's MOP / best predictor ratio
 beside the authors' number.
---jobs N runs the (experiment, seed) units in N worker processes with one torch thread each (the small
-model's training gains nothing from a second thread, so two jobs on two cores take about half the time);
-units that share a trained run wait for it (the run directory's lock) and reuse it. A training's numbers
-depend on the thread count only through float rounding.
+--jobs N runs the work in N worker processes with one torch thread each (the small model's training gains
+nothing from a second thread, so two jobs on two cores take about half the time): first every run the
+(experiment, seed) units train, each a task of its own, the most work first; each unit as soon as its runs
+are trained. A training's numbers depend on the thread count only through float rounding.
 """
 
 from __future__ import annotations
@@ -27,13 +27,15 @@ import torch
 
 from mop.atomic import write_json, write_text
 from mop.commands import OverridesAnywhere
+from mop.config import RunConfig, from_dict, to_dict
 from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
-from mop.experiments.runner import run_experiment
+from mop.experiments.runner import planned_runs, run_experiment
 from mop.experiments.seeds import lead_table, seed_summary, seeds_table
 from mop.experiments.validate import validate_experiment
 from mop.predictors import PREDICTORS
+from mop.train import train
 
 EPILOG = """examples:
   mop reproduce linear                                   # GPU: paper preset, else small
@@ -156,19 +158,7 @@ def run(args: argparse.Namespace) -> int:
         done = [_unit(exp, s, outs[exp.name], args.seeds, not args.quiet, **common) for exp, s in units]
     else:
         spec = args.experiment if is_experiment_file(args.experiment) else None  # files reload (plugins)
-        context = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(
-            args.jobs, mp_context=context, initializer=_one_thread
-        ) as pool:
-            futures = [
-                pool.submit(_unit, spec or exp.name, s, outs[exp.name], args.seeds, False, **common)
-                for exp, s in units
-            ]
-            try:
-                done = [f.result() for f in futures]
-            except BaseException:  # the first failure stops the units not yet started
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
+        done = _in_workers(units, outs, args.jobs, args.seeds, spec, common)
     rows = []
     for exp in experiments:
         evals = {s: result for (e, s), result in zip(units, done, strict=True) if e is exp and result}
@@ -191,6 +181,85 @@ def run(args: argparse.Namespace) -> int:
 
 def _one_thread() -> None:
     torch.set_num_threads(1)
+
+
+def training_cost(config: RunConfig) -> float:
+    """A training's work in arbitrary units, to start the longest first: steps x tokens x a transformer
+    layer's multiply-adds per token (12 d^2 in the projections and MLP, 2 d per attended position)."""
+    m, t = config.model, config.train
+    return (
+        t.steps
+        * t.batch_size
+        * t.horizon
+        * m.num_layers
+        * m.width
+        * (12 * m.width + 2 * min(t.horizon, m.context))
+    )
+
+
+def _in_workers(units: list, outs: dict, jobs: int, num_seeds: int, spec: str | None, common: dict) -> list:
+    """Every unit's eval.json (or None), computed in `jobs` spawned workers of one torch thread each.
+
+    The runs the units train are trained first, as tasks of their own, the most work first (training_cost),
+    so a unit that trains several (calibration, scaling) spreads over the workers. A unit is started once
+    all its runs are finished, ahead of any training still waiting, so the long evaluations overlap the
+    trainings. The first failure stops every task not yet started."""
+    needs, plans = [], {}
+    for exp, s in units:
+        runs_dir = Path(common["runs"]) if common["runs"] else outs[exp.name].parent / "runs"
+        planned = [] if common["pretrained"] else planned_runs(
+            exp, common["preset"], seed=common["seed"], train_seed=s, runs_dir=runs_dir,
+            overrides=common["overrides"], choices=common["choices"],
+        )  # fmt: skip
+        mine = {run for config, run in planned if not (Path(run) / "done.json").is_file()}
+        plans.update({run: config for config, run in planned if run in mine})
+        needs.append(mine)
+    trainings = sorted(plans, key=lambda run: -training_cost(plans[run]))
+    results: list = [None] * len(units)
+    waiting, trained, running = list(range(len(units))), set(), {}
+    context = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=_one_thread) as pool:
+
+        def start_next() -> None:
+            """Start the first unit whose runs are all trained, else the next training."""
+            ready = [i for i in waiting if needs[i] <= trained]
+            if ready:
+                waiting.remove(ready[0])
+                exp, s = units[ready[0]]
+                task = pool.submit(_unit, spec or exp.name, s, outs[exp.name], num_seeds, False, **common)
+                running[task] = ("unit", ready[0])
+            else:
+                run = trainings.pop(0)
+                running[pool.submit(_train_run, spec, to_dict(plans[run]), run, common["wait"])] = (
+                    "run",
+                    run,
+                )
+
+        try:
+            while waiting or running:
+                while len(running) < jobs and (trainings or any(needs[i] <= trained for i in waiting)):
+                    start_next()
+                if not running:  # cannot happen: every run a unit needs is in `trainings` until trained
+                    raise RuntimeError(f"units {waiting} wait for runs nobody trains")
+                finished, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
+                for future in finished:
+                    kind, key = running.pop(future)
+                    value = future.result()
+                    if kind == "run":
+                        trained.add(key)
+                    else:
+                        results[key] = value
+        except BaseException:  # the first failure stops the tasks not yet started
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+    return results
+
+
+def _train_run(spec: str | None, config: dict, run: str, wait: bool) -> None:
+    """Train one run in a worker (the experiment file is loaded first: its plugins define the config)."""
+    if spec:
+        load_experiment(spec)
+    train(from_dict(RunConfig, config), run, progress=False, wait=wait)
 
 
 def _unit(

@@ -255,7 +255,7 @@ def forecast_analysis(result: ConditionResult, predictors: list[Predictor], refe
     for p in predictors:
         if not callable(getattr(p, "forecast", None)):
             continue
-        table[p.name] = horizon_errors(result.traj.y, forecast(p, result.traj, steps), start)
+        table[p.name] = horizon_errors(result.traj.y, forecast(p, result.traj, steps, start), start)
     return {"forecast": {"k": list(range(1, steps + 1)), "start": start, "error": table}}
 
 

@@ -117,13 +117,42 @@ def learned_predictor(session: Session, name: str, condition: Condition, trained
         if run not in session.loaded:
             session.loaded[run] = make_predictor(name, run_dir=run)
     else:
-        config = _with_arch(trained, name)
-        run = str(session.runs_dir / f"{name}-{config_hash(config)}")
+        config, run = training_run(session, name, trained)
         if run not in session.loaded:
             model = train_model(config, run, progress=session.progress, wait=session.wait)
             session.loaded[run] = make_predictor(name, run_dir=run, model=model)
     session.runs[f"{name} [{condition.name}]"] = run
     return session.loaded[run]
+
+
+def training_run(session: Session, name: str, trained: RunConfig) -> tuple[RunConfig, str]:
+    """(the RunConfig learned predictor `name` trains, its run directory RUNS/<name>-<config hash>)."""
+    config = _with_arch(trained, name)
+    return config, str(session.runs_dir / f"{name}-{config_hash(config)}")
+
+
+def planned_runs(
+    exp: Experiment,
+    preset: str,
+    *,
+    seed: int,
+    train_seed: int,
+    runs_dir: Path,
+    overrides: list[str] = (),
+    choices: dict[str, bool] | None = None,
+) -> list[tuple[RunConfig, str]]:
+    """The (config, run directory) of every run `run_experiment` with these arguments trains (not those it
+    is given), each once, in the order it needs them; `mop reproduce --jobs` trains them ahead."""
+    session = Session(exp, preset, seed, Path(runs_dir), list(overrides), False, dict(choices or {}))
+    session.train_seed = train_seed
+    runs: dict[str, RunConfig] = {}
+    for condition in exp.conditions_for(preset):
+        trained = condition_config(session, condition)
+        for name in wanted(session, condition):
+            if is_learned(name) and not given_run(session, name, condition, trained):
+                config, run = training_run(session, name, trained)
+                runs.setdefault(run, config)
+    return [(config, run) for run, config in runs.items()]
 
 
 def condition_config(session: Session, condition: Condition, arch: str = "gpt") -> RunConfig:

@@ -71,6 +71,12 @@ def _predict(X: Tensor, u: Tensor | None, f: Dynamics, L_Q: Tensor, generator: t
     return FX + eps @ L_Q.mT
 
 
+def rollout_seed(seed: int, origin: int) -> int:
+    """The seed of the roll-out draws from forecast origin t: one generator per origin, so a forecast from t
+    is the same whichever other origins are forecast (and the filter's own draws never depend on them)."""
+    return 1_000_003 * (seed + 1) + origin
+
+
 def pf_predict(
     model: StateSpace,
     y: Tensor,
@@ -96,16 +102,18 @@ def pf_forecast(
     num_particles: int = 1000,
     seed: int = 0,
     project: bool = True,
+    start: int = 0,
 ) -> tuple[Tensor, Tensor]:
     """(k-step forecasts (B, T+1, K, m), one-step predictive variances (B, T+1, m)), float64.
 
     Forecasts: the prior particles of x_t (given y_{<t}) propagated j times
     through f with process-noise draws (and the projection), no resampling; forecast[:, t, j] = C_{t+j}
-    mean_i X^i. The roll-out draws come from a second generator (seed + 1), so j = 0 is pf_predict exactly
-    and the filter's own draws do not depend on `steps`. Entries with t + j > T are NaN. Variances: the
+    mean_i X^i. The roll-out from origin t draws from its own generator (rollout_seed), so j = 0 is
+    pf_predict exactly, the filter's own draws do not depend on `steps`, and origins t < start (left NaN for
+    j >= 1, not rolled out) change nothing else. Entries with t + j > T are NaN. Variances: the
     diagonal of C Cov_i(X^i) C^T + R over the prior particles of x_t.
     """
-    ahead_gen = torch.Generator(device=y.device).manual_seed(seed + 1)
+    ahead_gen = torch.Generator(device=y.device)
     generator = torch.Generator(device=y.device).manual_seed(seed)
     proj = model.project if project and model.project is not None else (lambda x: x)
     y, u = y.double(), None if u is None else u.double()
@@ -125,7 +133,8 @@ def pf_forecast(
         out[:, t, 0] = (C @ X.mean(1)[..., None])[..., 0]  # (B, m)
         var[:, t] = (X @ C.mT).var(1, unbiased=False) + model.R.diagonal(dim1=-2, dim2=-1)
         Xj = X
-        for j in range(1, min(steps, T1 - t)):
+        ahead_gen.manual_seed(rollout_seed(seed, t))
+        for j in range(1, min(steps, T1 - t) if t >= start else 1):
             f = lambda x, v, s=t + j - 1: model.f(x, v, s)  # noqa: E731
             Xj = proj(_predict(Xj, None if u is None else u[:, t + j - 1], f, L_Q, ahead_gen))
             out[:, t, j] = (model.output_matrix(t + j) @ Xj.mean(1)[..., None])[..., 0]
@@ -166,8 +175,9 @@ class ParticleFilterPredictor:
         )
         return out[:, :, 0].to(traj.y.dtype), var.to(traj.y.dtype)
 
-    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
-        """(B, T+1, K, m): particles propagated through f with seeded noise draws, averaged (pf_forecast)."""
+    def forecast(self, traj: Trajectories, steps: int, start: int = 0) -> Tensor:
+        """(B, T+1, K, m): particles propagated through f with seeded noise draws, averaged (pf_forecast);
+        origins t < start are not rolled out (NaN for k >= 2)."""
         out, _ = pf_forecast(
             state_space_of(traj),
             traj.y,
@@ -176,6 +186,7 @@ class ParticleFilterPredictor:
             num_particles=self.num_particles,
             seed=self.seed,
             project=self.project,
+            start=start,
         )
         return out.to(traj.y.dtype)
 
