@@ -58,7 +58,6 @@ OMITTED_AT_DEFAULT = {
         "forecast_mode": "rollout",
         "horizons": 1,
         "horizon_loss": "mean",
-        "position_loss": "mean",
     },
     "train": {
         "missing_rate": 0.0,
@@ -241,9 +240,6 @@ class ModelConfig:
     horizons: int = 1
     # how the heads' losses combine: "mean", or "balanced" (each head's gradient scaled by 1 / its loss)
     horizon_loss: str = "mean"
-    # how a head's loss weighs the positions t: "mean" (the paper's MSE over all), or "balanced" (each
-    # position's gradient scaled by 1 / its MSE, so the early positions' large errors do not drown the late)
-    position_loss: str = "mean"
 
     def __post_init__(self) -> None:
         check(
@@ -312,15 +308,6 @@ class ModelConfig:
             self.horizon_loss == "mean" or self.readout == "mean",
             "model.horizon_loss='balanced' divides by each head's loss, which a Gaussian read-out's NLL "
             "can make zero or negative; use model.readout='mean'",
-        )
-        check(
-            self.position_loss in ("mean", "balanced"),
-            f"model.position_loss must be 'mean' or 'balanced', got {self.position_loss!r}",
-        )
-        check(
-            self.position_loss == "mean" or self.readout == "mean",
-            "model.position_loss='balanced' divides by each position's MSE, which a Gaussian read-out does "
-            "not minimise; use model.readout='mean'",
         )
         check(
             self.forecast_mode != "direct" or self.horizons > 1,

@@ -90,10 +90,7 @@ class GRUModel(nn.Module):
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         mu, var, later, _ = self._outputs(inputs)
-        cfg = self.cfg
-        return horizon_loss(
-            mu, var, later, targets, cfg.observation_mask, cfg.horizon_loss, cfg.position_loss
-        )
+        return horizon_loss(mu, var, later, targets, self.cfg.observation_mask, self.cfg.horizon_loss)
 
     def init_cache(self, batch_size: int) -> GRUCache:
         p = self.read_in.weight

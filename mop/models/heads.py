@@ -52,36 +52,11 @@ def require_gaussian(cfg: ModelConfig) -> None:
         )
 
 
-def balanced_mean(losses: Tensor) -> Tensor:
-    """mean(L) over the entries L_i of `losses` (positive), with each one's gradient scaled by mean(L) / L_i
-    (both held constant): the gradient of mean(L) * mean_i log L_i, so large losses no longer drown small
-    ones."""
-    level = losses.mean().detach()
-    return level * (losses / losses.detach().clamp_min(1e-12)).mean()
-
-
-def position_mse(mu: Tensor, targets: Tensor, masked: bool = False) -> Tensor:
-    """(T,) the MSE at each position t of mu, targets (B, T, m) (masked: over the measured entries only)."""
-    if not masked:
-        return ((targets - mu) ** 2).mean((0, 2))
-    seen = ~torch.isnan(targets)
-    per = (torch.where(seen, targets, mu.detach()) - mu) ** 2 * seen
-    return per.sum((0, 2)) / seen.sum((0, 2)).clamp_min(1)
-
-
-def prediction_loss(
-    mu: Tensor, var: Tensor | None, targets: Tensor, masked: bool = False, positions: str = "mean"
-) -> Tensor:
+def prediction_loss(mu: Tensor, var: Tensor | None, targets: Tensor, masked: bool = False) -> Tensor:
     """MSE when var is None, else mean over all entries of 0.5 [log(2 pi var) + (y - mu)^2 / var].
 
     masked (models with an observation mask): targets may hold NaN (missing outputs); the mean is over the
-    measured entries only (0 when there are none).
-    positions "balanced" (model.position_loss, MSE only): the mean over positions t of the MSE at t, each
-    position's gradient scaled by mean / its MSE (balanced_mean). The first positions' errors, before the
-    model has identified the system, are many times the late ones' (upper-triangular: about 12x at t <= 10
-    against t >= 20) and otherwise take most of the gradient."""
-    if positions == "balanced":
-        return balanced_mean(position_mse(mu, targets, masked))
+    measured entries only (0 when there are none)."""
     if masked:
         seen = ~torch.isnan(targets)
         y = torch.where(seen, targets, mu.detach())

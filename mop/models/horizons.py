@@ -25,7 +25,7 @@ from torch.nn import functional as F
 
 from mop.config import ModelConfig
 from mop.models.features import input_count
-from mop.models.heads import balanced_mean, prediction_loss, readout_dim, split_readout
+from mop.models.heads import prediction_loss, readout_dim, split_readout
 
 
 def horizon_dim(cfg: ModelConfig) -> int:
@@ -91,7 +91,6 @@ def horizon_loss(
     targets: Tensor,
     masked: bool = False,
     weighting: str = "mean",
-    positions: str = "mean",
 ) -> Tensor:
     """The mean over k = 1..K of the heads' losses L_k: head 1 is prediction_loss(mu, var, targets); head
     k >= 2 (later[:, :, k-2], position t predicting y_{t+k} = targets[:, t+k-1]) is the MSE over the
@@ -100,18 +99,17 @@ def horizon_loss(
 
     weighting "balanced" (model.horizon_loss): the same value, but each head's gradient is scaled by
     mean(L) / L_k (both held constant), i.e. the gradient of mean(L) * mean_k log L_k: a far horizon's larger
-    error no longer outweighs the one-step head's (on the quadrotor L_10 is about 10 L_1).
-    positions: how each head's loss weighs its positions (model.position_loss; prediction_loss)."""
-    losses = [prediction_loss(mu, var, targets, masked, positions)]
+    error no longer outweighs the one-step head's (on the quadrotor L_10 is about 10 L_1)."""
+    losses = [prediction_loss(mu, var, targets, masked)]
     if later is not None:
         T = targets.shape[1]
         for k in range(2, min(later.shape[2] + 1, T) + 1):
-            head = later[:, : T - k + 1, k - 2]
-            losses.append(prediction_loss(head, None, targets[:, k - 1 :], masked, positions))
+            losses.append(prediction_loss(later[:, : T - k + 1, k - 2], None, targets[:, k - 1 :], masked))
     stacked = torch.stack(losses)  # (K,)
     if weighting == "mean" or len(losses) == 1:
         return stacked.mean()
-    return balanced_mean(stacked)
+    level = stacked.mean().detach()
+    return level * (stacked / stacked.detach().clamp_min(1e-12)).mean()
 
 
 def future_head(cfg: ModelConfig) -> FutureInputHead | None:

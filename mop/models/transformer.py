@@ -378,8 +378,7 @@ class Transformer(nn.Module):
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m). With k-step
         heads the mean over k of each head's loss (mop.models.heads.horizon_loss)."""
         cfg = self.cfg
-        outputs = self._outputs(inputs)
-        return horizon_loss(*outputs, targets, cfg.observation_mask, cfg.horizon_loss, cfg.position_loss)
+        return horizon_loss(*self._outputs(inputs), targets, cfg.observation_mask, cfg.horizon_loss)
 
     # ---- branching (k-step forecasts from many origins at once: mop.models.rollout) ----
     def prefill(
