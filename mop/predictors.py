@@ -98,13 +98,13 @@ def forecast(predictor: Predictor, traj: Trajectories, steps: int, start: int = 
             "use --steps 1 (one-step predict) or another predictor"
         )
     B, T1, m = traj.y.shape
+    if not isinstance(start, int) or not 0 <= start <= T1 - 1:
+        raise MopError(f"forecast start must be an integer origin in [0, T = {T1 - 1}], got {start!r}")
     check_allocation(  # the output and one working copy of it
         2 * B * T1 * steps * m * traj.y.element_size(),
         f"a {steps}-step forecast of {B} trajectories x {T1} steps",
         "forecast fewer steps or fewer trajectories at a time",
     )
-    if not isinstance(start, int) or not 0 <= start <= T1 - 1:
-        raise MopError(f"forecast start must be an integer origin in [0, T = {T1 - 1}], got {start!r}")
     takes_start = "start" in inspect.signature(method).parameters
     out = nan_beyond_horizon(
         method(traj, steps, start=start) if takes_start and start else method(traj, steps)

@@ -230,6 +230,8 @@ def test_forecast_helper_refuses_predictors_without_one_and_bad_steps():
         forecast(OneStep(), traj, 2)
     with pytest.raises(MopError, match="steps"):
         forecast(make_predictor("last"), traj, 0)
+    with pytest.raises(MopError, match=r"forecast start must be an integer origin in \[0, T = 5\], got 6"):
+        forecast(make_predictor("last"), traj, 2, start=6)
 
 
 @pytest.mark.parametrize("name", PREDICTORS.names())

@@ -230,10 +230,8 @@ def _in_workers(units: list, outs: dict, jobs: int, num_seeds: int, spec: str | 
                 running[task] = ("unit", ready[0])
             else:
                 run = trainings.pop(0)
-                running[pool.submit(_train_run, spec, to_dict(plans[run]), run, common["wait"])] = (
-                    "run",
-                    run,
-                )
+                task = pool.submit(_train_run, spec, to_dict(plans[run]), run, common["wait"])
+                running[task] = ("run", run)
 
         try:
             while waiting or running:
