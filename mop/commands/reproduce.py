@@ -219,24 +219,18 @@ def _in_workers(units: list, outs: dict, jobs: int, num_seeds: int, spec: str | 
     waiting, trained, running = list(range(len(units))), set(), {}
     context = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context, initializer=_one_thread) as pool:
-
-        def start_next() -> None:
-            """Start the first unit whose runs are all trained, else the next training."""
-            ready = [i for i in waiting if needs[i] <= trained]
-            if ready:
-                waiting.remove(ready[0])
-                exp, s = units[ready[0]]
-                task = pool.submit(_unit, spec or exp.name, s, outs[exp.name], num_seeds, False, **common)
-                running[task] = ("unit", ready[0])
-            else:
-                run = trainings.pop(0)
-                task = pool.submit(_train_run, spec, to_dict(plans[run]), run, common["wait"])
-                running[task] = ("run", run)
-
         try:
             while waiting or running:
-                while len(running) < jobs and (trainings or any(needs[i] <= trained for i in waiting)):
-                    start_next()
+                while len(running) < jobs and (task := next_task(waiting, needs, trained, trainings)):
+                    kind, key = task
+                    if kind == "unit":
+                        exp, s = units[key]
+                        future = pool.submit(
+                            _unit, spec or exp.name, s, outs[exp.name], num_seeds, False, **common
+                        )
+                    else:
+                        future = pool.submit(_train_run, spec, to_dict(plans[key]), key, common["wait"])
+                    running[future] = task
                 if not running:  # cannot happen: every run a unit needs is in `trainings` until trained
                     raise RuntimeError(f"units {waiting} wait for runs nobody trains")
                 finished, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
@@ -251,6 +245,18 @@ def _in_workers(units: list, outs: dict, jobs: int, num_seeds: int, spec: str | 
             pool.shutdown(wait=True, cancel_futures=True)
             raise
     return results
+
+
+def next_task(
+    waiting: list[int], needs: list[set[str]], trained: set[str], trainings: list[str]
+) -> tuple[str, int | str] | None:
+    """The next task to start, taken off its list: ("unit", i) for the first waiting unit i whose runs
+    (needs[i]) are all trained, else ("run", the next of `trainings`), else None (nothing can start yet)."""
+    ready = [i for i in waiting if needs[i] <= trained]
+    if ready:
+        waiting.remove(ready[0])
+        return "unit", ready[0]
+    return ("run", trainings.pop(0)) if trainings else None
 
 
 def _train_run(spec: str | None, config: dict, run: str, wait: bool) -> None:
