@@ -183,6 +183,12 @@ def _one_thread() -> None:
     torch.set_num_threads(1)
 
 
+def shared_runs(runs: str | None, out: Path) -> Path:
+    """The directory of the trained runs: --runs, else OUT/../runs (one rule for the units and the planner,
+    so the runs --jobs trains ahead are the ones the units look for)."""
+    return Path(runs) if runs else out.parent / "runs"
+
+
 def training_cost(config: RunConfig) -> float:
     """A training's work in arbitrary units, to start the longest first: steps x tokens x a transformer
     layer's multiply-adds per token (12 d^2 in the projections and MLP, 2 d per attended position)."""
@@ -206,7 +212,7 @@ def _in_workers(units: list, outs: dict, jobs: int, num_seeds: int, spec: str | 
     trainings. The first failure stops every task not yet started."""
     needs, plans = [], {}
     for exp, s in units:
-        runs_dir = Path(common["runs"]) if common["runs"] else outs[exp.name].parent / "runs"
+        runs_dir = shared_runs(common["runs"], outs[exp.name])
         planned = [] if common["pretrained"] else planned_runs(
             exp, common["preset"], seed=common["seed"], train_seed=s, runs_dir=runs_dir,
             overrides=common["overrides"], choices=common["choices"],
@@ -295,7 +301,7 @@ def _unit(
             seed_out,
             seed=seed,
             train_seed=train_seed,
-            runs_dir=Path(runs) if runs else (out.parent / "runs"),
+            runs_dir=shared_runs(runs, out),
             overrides=overrides,
             progress=progress,
             choices=choices,
