@@ -86,6 +86,18 @@ def test_card_is_rendered_from_card_json_and_records_the_files(name):
     assert card["rebuild"].startswith(f"mop pretrained build {name} ")
 
 
+@pytest.mark.parametrize("name", SHIPPED)
+def test_card_names_the_input_features_the_shipped_config_turns_on(name):
+    """A model reading the RLS / ARX prediction or the running scale says so on its card; a plain one not."""
+    model = load_config(pretrained.ROOT / name).model
+    lines = (pretrained.ROOT / name / "CARD.md").read_text().splitlines()
+    line = next(x for x in lines if x.startswith("- model:"))
+    fit = f"ARX({model.rls_order}, {model.arx_order})" if model.arx_order else f"RLS-AR({model.rls_order})"
+    assert (f"the {fit} one-step prediction" in line) == (model.rls_order > 0), line
+    assert ("the running output scale" in line) == (model.input_scale == "running"), line
+    assert ("reads" in line) == (model.rls_order > 0 or model.input_scale == "running"), line
+
+
 def test_linear_is_within_5_percent_of_the_kf_on_the_authors_generator():
     """Trajectories of the authors' generator (numpy, tests/reference.py) and filterpy's KF: MOP/KF MSE over
     t in [20, 50] <= 1.05 on 300 systems."""

@@ -66,6 +66,17 @@ def _noise_table(shift: dict[str, Any] | None, reference: str) -> list[str]:
     return lines
 
 
+def _features(model: dict[str, Any]) -> str:
+    """The card's clause naming the model's input features (mop.models.features); empty if plain."""
+    parts = ["the running output scale"] if model.get("input_scale", "none") == "running" else []
+    p, q = model.get("rls_order", 0), model.get("arx_order", 0)
+    if p:
+        fit = f"ARX({p}, {q})" if q else f"RLS-AR({p})"
+        offset = " with an offset" if model.get("rls_offset") else ""
+        parts.append(f"the {fit} one-step prediction{offset}")
+    return f", reads {' and '.join(parts)}" if parts else ""
+
+
 def render_card(card: dict[str, Any]) -> str:
     """The CARD.md text of `card` (card.json's content)."""
     ev, recipe, machine = card["evaluation"], card["recipe"], card["machine"] or {}
@@ -80,7 +91,8 @@ def render_card(card: dict[str, Any]) -> str:
         f"- family: {card['family']['family']} ({_settings(card['family'])})",
         f"- model: {model['arch']} {model['num_layers']} layers x {model['width']} wide, "
         f"{model['num_heads']} heads, context {model['context']}, read-out {model['readout']}, input "
-        f"{model['input_dim']} -> output {model['output_dim']}; {card['num_parameters']} parameters, "
+        f"{model['input_dim']} -> output {model['output_dim']}{_features(model)}; "
+        f"{card['num_parameters']} parameters, "
         f"{card['size_bytes']} bytes of weights",
         f"- recipe: preset `{recipe['preset']}` of experiment `{recipe['experiment']}`"
         + (f" (condition `{recipe['condition']}`)" if recipe["condition"] else "")
