@@ -1,5 +1,6 @@
-"""What every system family shares: trajectories, configs, the state-space description filters consume,
-the family registry, sampling helpers and the redraw loop.
+"""What every system family shares: configs, the family registry, sampling helpers and the redraw loop; and,
+re-exported from their own modules, Trajectories (mop.systems.trajectories) and the state-space description
+filters consume (mop.systems.state_space).
 
 Time indexing used everywhere in mop: a trajectory of horizon T holds outputs y_0..y_T
 (T + 1 of them). Inputs u_t (where a family has them) act between y_t and y_{t+1}:
@@ -23,95 +24,26 @@ A new family is one module:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import numpy as np
 import torch
 from torch import Tensor
 
 from mop.errors import MopError, check
 from mop.registry import Registry
+from mop.systems.state_space import (  # noqa: F401 (re-exported: the families' API)
+    LINEAR_MODEL_ARRAYS,
+    Projection,
+    StateSpace,
+    Transition,
+    TransitionJacobian,
+    linear_model_from_params,
+    linear_state_space,
+)
+from mop.systems.trajectories import Trajectories
 
 MAX_REDRAWS = 100
-
-
-@dataclass
-class Trajectories:
-    """A batch of simulated (or measured) trajectories.
-
-    y: (B, T+1, m) outputs y_0..y_T; NaN marks an output channel not measured at a step (a gap; `observed`
-        is the mask). Every predictor skips what was not measured; inputs u must be complete.
-    u: (B, T+1, k) inputs u_0..u_T, or None for families without inputs.
-    x: (B, T+1, n) true states, or None for measured data.
-    params: per-system parameters, each with leading dim B (e.g. "A": (B, n, n), "C": (B, m, n),
-        "Q": (B, n, n), "R": (B, m, m)); what a predictor that knows the system may use.
-    family: name of the family that made it ("" for user data); its state_space(params) describes the systems.
-    """
-
-    y: Tensor
-    u: Tensor | None = None
-    x: Tensor | None = None
-    params: dict[str, Tensor] = field(default_factory=dict)
-    family: str = ""
-
-    @property
-    def num_systems(self) -> int:
-        return self.y.shape[0]
-
-    @property
-    def horizon(self) -> int:
-        """T: the number of steps; there are T + 1 outputs."""
-        return self.y.shape[1] - 1
-
-    @property
-    def output_dim(self) -> int:
-        return self.y.shape[2]
-
-    @property
-    def input_dim(self) -> int:
-        return 0 if self.u is None else self.u.shape[2]
-
-    @property
-    def observed(self) -> Tensor | None:
-        """(B, T+1, m) bool, True where y was measured; None when every entry was (no gaps)."""
-        seen = ~torch.isnan(self.y)
-        return None if bool(seen.all()) else seen
-
-    @property
-    def num_missing(self) -> int:
-        """How many scalar outputs are missing (NaN in y)."""
-        return int(torch.isnan(self.y).sum())
-
-    def model_inputs(self) -> Tensor:
-        """(B, T+1, m + k): [y_t, u_t] per step, the sequence a learned predictor reads (NaN where y is
-        missing; mop.missing.masked_inputs gives the layout of a model with an observation mask)."""
-        return self.y if self.u is None else torch.cat([self.y, self.u], dim=-1)
-
-    def _map(self, fn: Callable[[Tensor], Tensor]) -> Trajectories:
-        opt = lambda t: None if t is None else fn(t)  # noqa: E731
-        return Trajectories(
-            fn(self.y), opt(self.u), opt(self.x), {k: fn(v) for k, v in self.params.items()}, self.family
-        )
-
-    def to(self, device: torch.device | str) -> Trajectories:
-        return self._map(lambda t: t.to(device))
-
-    def select(self, index: slice | Tensor) -> Trajectories:
-        """The subset of systems picked by `index` along the batch dimension."""
-        return self._map(lambda t: t[index])
-
-    def to_numpy_dict(self) -> dict[str, np.ndarray]:
-        """Flat dict for np.savez: y, u (if any), x (if any), params as param_<name>, and family."""
-        out = {"y": self.y.cpu().numpy()}
-        if self.u is not None:
-            out["u"] = self.u.cpu().numpy()
-        if self.x is not None:
-            out["x"] = self.x.cpu().numpy()
-        out.update({f"param_{k}": v.cpu().numpy() for k, v in self.params.items()})
-        if self.family:
-            out["family"] = np.array(self.family)
-        return out
 
 
 @dataclass(frozen=True)
@@ -145,114 +77,6 @@ class SystemConfig:
             f"system family {self.family!r} takes a {expected.__name__}, not a {type(self).__name__}",
         )
         check(self.max_abs > 0, f"system.max_abs must be > 0, got {self.max_abs}")
-
-
-Transition = Callable[
-    [Tensor, "Tensor | None", int], Tensor
-]  # (x (B, N, n), u (B, N, k) | None, t) -> (B, N, n)
-TransitionJacobian = Callable[
-    [Tensor, "Tensor | None", int], Tensor
-]  # (x (B, n), u (B, k) | None, t) -> (B, n, n)
-Projection = Callable[[Tensor], Tensor]  # x (..., n) -> (..., n), e.g. clipping to bounds
-
-
-@dataclass(frozen=True)
-class StateSpace:
-    """The model a filter that knows the system is given, batched over B systems (float64):
-
-        x_{t+1} = project(f(x_t, u_t, t) + w_t),  w_t ~ N(0, Q);   y_t = C_t x_t + v_t,  v_t ~ N(0, R);
-        x_0 ~ N(m0, P0) (then projected).
-
-    f maps point sets x (B, N, n) (N = 1 for a mean, N particles or sigma points) with u (B, N, k) | None.
-    jacobian: df/dx at x (B, n), u (B, k) | None -> (B, n, n); None means autograd (torch.func.jacrev).
-    C: (B, m, n), or a function t -> (B, m, n) for time-varying outputs (switching systems).
-    project: the simulator's state projection (the quadrotor's clipping); None for none.
-    """
-
-    f: Transition
-    C: Tensor | Callable[[int], Tensor]
-    Q: Tensor
-    R: Tensor
-    m0: Tensor
-    P0: Tensor
-    jacobian: TransitionJacobian | None = None
-    project: Projection | None = None
-
-    def output_matrix(self, t: int) -> Tensor:
-        return self.C(t) if callable(self.C) else self.C
-
-    def transition_jacobian(self, x: Tensor, u: Tensor | None, t: int) -> Tensor:
-        """(B, n, n) df/dx at x (B, n): the family's, or autograd through f. Each system's next state depends
-        on its own state only, so the Jacobian of sum_b f(x_b) with respect to x_b is system b's."""
-        if self.jacobian is not None:
-            return self.jacobian(x, u, t)
-        u_set = None if u is None else u[:, None]
-        summed = torch.func.jacrev(lambda z: self.f(z[:, None], u_set, t)[:, 0].sum(0))(x)  # (n, B, n)
-        return summed.permute(1, 0, 2)
-
-
-def linear_state_space(
-    A: Tensor,
-    C: Tensor,
-    Q: Tensor,
-    R: Tensor,
-    P0: Tensor,
-    B: Tensor | None = None,
-    m0: Tensor | None = None,
-) -> StateSpace:
-    """x_{t+1} = A x_t + B u_t + w_t, y_t = C x_t + v_t, x_0 ~ N(m0, P0) (m0 default 0); float64.
-
-    A (B, n, n), C (B, m, n), Q (B, n, n), R (B, m, m), P0 (B, n, n), B (B, n, k) or None (no inputs: the
-    inputs, if any, do not act on the state), m0 (B, n) or None."""
-    A, C, Q, R, P0 = (M.double() for M in (A, C, Q, R, P0))
-    Bu = None if B is None else B.double()
-
-    def f(x: Tensor, u: Tensor | None, t: int) -> Tensor:
-        if Bu is None or u is None:
-            return x @ A.mT
-        return x @ A.mT + u @ Bu.mT  # (B, N, n)
-
-    return StateSpace(
-        f=f,
-        C=C,
-        Q=Q,
-        R=R,
-        m0=A.new_zeros(A.shape[:-1]) if m0 is None else m0.double(),
-        P0=P0,
-        jacobian=lambda x, u, t: A,
-    )
-
-
-LINEAR_MODEL_ARRAYS = ("A", "C", "Q", "R")  # required; optional: "B", "P0", "x0_mean"
-
-
-def linear_model_from_params(params: dict[str, Tensor]) -> StateSpace:
-    """A known linear-Gaussian model x_{t+1} = A x_t + B u_t + w_t, y_t = C x_t + v_t, x_0 ~ N(x0_mean, P0),
-    from params "A" (B, n, n), "C" (B, m, n), "Q" (B, n, n), "R" (B, m, m) and optional "B" (B, n, k)
-    (default: the inputs do not act), "P0" (B, n, n) (default I), "x0_mean" (B, n) (default 0).
-    MopError naming the first missing or misshapen array (as param_<name>, the .npz key)."""
-    missing = [f"param_{k}" for k in LINEAR_MODEL_ARRAYS if k not in params]
-    if missing:
-        raise MopError(f"a linear model needs {', '.join(missing)}; add them (see mop predict --help)")
-    A = params["A"]
-    if A.ndim != 3 or A.shape[1] != A.shape[2]:
-        raise MopError(f"param_A has shape {tuple(A.shape)}, need (B, n, n)")
-    batch, n, m = A.shape[0], A.shape[-1], params["C"].shape[-2]
-    eye = torch.eye(n, dtype=torch.float64, device=A.device).expand(batch, n, n)
-    P0 = params.get("P0", eye)
-    x0 = params.get("x0_mean", A.new_zeros(batch, n))
-    B = params.get("B")
-    expected = {"C": (batch, m, n), "Q": (batch, n, n), "R": (batch, m, m), "P0": (batch, n, n)}
-    expected["x0_mean"] = (batch, n)
-    if B is not None:
-        expected["B"] = (batch, n, B.shape[-1])
-    values = {"C": params["C"], "Q": params["Q"], "R": params["R"], "P0": P0, "x0_mean": x0, "B": B}
-    for name, shape in expected.items():
-        if tuple(values[name].shape) != shape:
-            raise MopError(
-                f"param_{name} has shape {tuple(values[name].shape)}, need {shape} for A {n} x {n}"
-            )
-    return linear_state_space(A, params["C"], params["Q"], params["R"], P0, B, x0)
 
 
 class SystemFamily:

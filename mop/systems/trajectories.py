@@ -1,0 +1,92 @@
+"""Trajectories: a batch of simulated or measured outputs (and inputs, states, system parameters).
+
+Time indexing used everywhere in mop: a trajectory of horizon T holds outputs y_0..y_T (T + 1 of them);
+inputs u_t (where a family has them) act between y_t and y_{t+1}.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+
+@dataclass
+class Trajectories:
+    """A batch of simulated (or measured) trajectories.
+
+    y: (B, T+1, m) outputs y_0..y_T; NaN marks an output channel not measured at a step (a gap; `observed`
+        is the mask). Every predictor skips what was not measured; inputs u must be complete.
+    u: (B, T+1, k) inputs u_0..u_T, or None for families without inputs.
+    x: (B, T+1, n) true states, or None for measured data.
+    params: per-system parameters, each with leading dim B (e.g. "A": (B, n, n), "C": (B, m, n),
+        "Q": (B, n, n), "R": (B, m, m)); what a predictor that knows the system may use.
+    family: name of the family that made it ("" for user data); its state_space(params) describes the systems.
+    """
+
+    y: Tensor
+    u: Tensor | None = None
+    x: Tensor | None = None
+    params: dict[str, Tensor] = field(default_factory=dict)
+    family: str = ""
+
+    @property
+    def num_systems(self) -> int:
+        return self.y.shape[0]
+
+    @property
+    def horizon(self) -> int:
+        """T: the number of steps; there are T + 1 outputs."""
+        return self.y.shape[1] - 1
+
+    @property
+    def output_dim(self) -> int:
+        return self.y.shape[2]
+
+    @property
+    def input_dim(self) -> int:
+        return 0 if self.u is None else self.u.shape[2]
+
+    @property
+    def observed(self) -> Tensor | None:
+        """(B, T+1, m) bool, True where y was measured; None when every entry was (no gaps)."""
+        seen = ~torch.isnan(self.y)
+        return None if bool(seen.all()) else seen
+
+    @property
+    def num_missing(self) -> int:
+        """How many scalar outputs are missing (NaN in y)."""
+        return int(torch.isnan(self.y).sum())
+
+    def model_inputs(self) -> Tensor:
+        """(B, T+1, m + k): [y_t, u_t] per step, the sequence a learned predictor reads (NaN where y is
+        missing; mop.missing.masked_inputs gives the layout of a model with an observation mask)."""
+        return self.y if self.u is None else torch.cat([self.y, self.u], dim=-1)
+
+    def _map(self, fn: Callable[[Tensor], Tensor]) -> Trajectories:
+        opt = lambda t: None if t is None else fn(t)  # noqa: E731
+        return Trajectories(
+            fn(self.y), opt(self.u), opt(self.x), {k: fn(v) for k, v in self.params.items()}, self.family
+        )
+
+    def to(self, device: torch.device | str) -> Trajectories:
+        return self._map(lambda t: t.to(device))
+
+    def select(self, index: slice | Tensor) -> Trajectories:
+        """The subset of systems picked by `index` along the batch dimension."""
+        return self._map(lambda t: t[index])
+
+    def to_numpy_dict(self) -> dict[str, np.ndarray]:
+        """Flat dict for np.savez: y, u (if any), x (if any), params as param_<name>, and family."""
+        out = {"y": self.y.cpu().numpy()}
+        if self.u is not None:
+            out["u"] = self.u.cpu().numpy()
+        if self.x is not None:
+            out["x"] = self.x.cpu().numpy()
+        out.update({f"param_{k}": v.cpu().numpy() for k, v in self.params.items()})
+        if self.family:
+            out["family"] = np.array(self.family)
+        return out
