@@ -12,17 +12,19 @@ Registering a predictor is one decorator in its own module:
     @PREDICTORS.register("my-filter", needs_system=True, gaussian=True)
     class MyFilter: ...
 
-Metadata: needs_system (reads traj.params: it knows the system), gaussian (has predict_distribution),
-learned (resolves a trained run directory; the entry's `arch` names the model architecture;
-mop.runs.register_learned adds one); default_reference (the one predictor an experiment's MSE ratios
-divide by when it names no reference: the optimal filter of the default family, the KF); default_panel
-(drawn in the error panel of an experiment that names no panel, beside its model and reference: RLS).
+Metadata: the keys of PREDICTOR_KEYS, no others (a misspelt key is refused where it is registered and
+where it is read).
+
+Options: make_predictor(name, **options) refuses an option the predictor's constructor does not take, so
+`make_predictor("pf", num_particle=10)` is an error, not 1000 particles. A caller handing the same options to
+many predictors (an experiment's seed) passes them as `shared=`, of which each predictor takes the ones it
+accepts.
 """
 
 from __future__ import annotations
 
 import inspect
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import Any, Protocol, runtime_checkable
 
 from torch import Tensor
@@ -44,20 +46,45 @@ class Predictor(Protocol):
 
 # Filled by the modules that define predictors: mop.filters (classical), mop.runs (learned, one per model
 # architecture); `import mop` imports both. Plugins: the entry points of the group mop.predictors.
-PREDICTORS: Registry = Registry("predictor", group="mop.predictors")
+PREDICTOR_KEYS = {
+    "needs_system": "reads traj.params: it knows the system",
+    "gaussian": "has predict_distribution",
+    "learned": "resolves a trained run directory (mop.runs.register_learned adds one)",
+    "arch": "a learned predictor's model architecture",
+    "linear_model": "also runs on any linear-Gaussian model given as arrays (mop predict)",
+    "default_reference": "the predictor an experiment's MSE ratios divide by when it names none (the KF)",
+    "default_panel": "drawn in the error panel of an experiment that names no panel (RLS)",
+    "preset_options": "{preset: {option: value}}: options the experiments give it under that preset",
+    "skip_presets": "presets whose experiments leave it out unless asked for (--with NAME)",
+}
+PREDICTORS: Registry = Registry("predictor", group="mop.predictors", keys=PREDICTOR_KEYS)
 
 
-def make_predictor(name: str, **options: Any) -> Predictor:
-    """The registered predictor `name`, built with the options its constructor accepts (others ignored).
+def accepted_options(name: str) -> list[str] | None:
+    """The options predictor `name`'s constructor takes (None: any, it takes **kwargs)."""
+    params = inspect.signature(PREDICTORS.get(name)).parameters
+    if any(p.kind is p.VAR_KEYWORD for p in params.values()):
+        return None
+    return [k for k, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
 
-    E.g. make_predictor("pf", seed=3); make_predictor("mop", run_dir="runs/x") for a learned one, or
-    run_dir="pretrained:linear" for a model shipped with mop (mop.pretrained).
+
+def make_predictor(name: str, shared: Mapping[str, Any] | None = None, **options: Any) -> Predictor:
+    """The registered predictor `name` built with `options`; MopError for an option it does not take.
+
+    shared: options offered to many predictors at once (e.g. an experiment's seed): only those the
+    predictor accepts are passed; `options` override them. E.g. make_predictor("pf", seed=3);
+    make_predictor("mop", run_dir="runs/x") for a learned one, or run_dir="pretrained:linear" for a
+    model shipped with mop (mop.pretrained).
     """
-    factory = PREDICTORS.get(name)
-    params = inspect.signature(factory).parameters
-    takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
-    kwargs = {k: v for k, v in options.items() if takes_any or k in params}
-    predictor = factory(**kwargs)
+    factory, accepted = PREDICTORS.get(name), accepted_options(name)
+    unknown = [k for k in options if accepted is not None and k not in accepted]
+    if unknown:
+        raise MopError(
+            f"predictor {name!r} takes no option {', '.join(map(repr, unknown))}; "
+            f"it accepts: {', '.join(accepted) or 'no options'}"
+        )
+    offered = {k: v for k, v in (shared or {}).items() if accepted is None or k in accepted}
+    predictor = factory(**{**offered, **options})
     predictor.name = name
     return predictor
 

@@ -37,7 +37,7 @@ def main() -> None:
     rows = {}
     for name in ["mop", *args.predictors]:
         t0 = time.time()
-        p = make_predictor(name, run_dir=args.run_dir)
+        p = make_predictor(name, shared={"run_dir": args.run_dir})
         rows[name] = horizon_errors(traj.y, forecast(p, traj, args.steps), args.start)
         print(f"  {name}: {time.time() - t0:.1f} s", flush=True)
     print("| k | " + " | ".join(rows) + " |")

@@ -79,7 +79,7 @@ def homes() -> dict[str, set[str]]:
             entry = registry.get(name)
             home = out.setdefault(name, set())
             home.add(entry.__module__)
-            arch = registry.meta(name).get("arch")
+            arch = registry.meta(name).get("arch") if registry is PREDICTORS else None
             if arch:
                 home.add(models._MODELS[arch].__module__)
     for name in EXPERIMENTS.names():  # an Experiment is an instance: its home is the data module naming it

@@ -143,17 +143,17 @@ def test_every_forecast_is_causal_and_starts_at_predict(name, tiny_run, tiny_gru
     run_dir = {"mop": tiny_run, "gru": tiny_gru}.get(name)
     options = {"run_dir": run_dir, "num_particles": 50, "seed": 0}
     traj = _trajectory_for(name, tiny_run)
-    f = forecast(make_predictor(name, **options), traj, K)
+    f = forecast(make_predictor(name, shared=options), traj, K)
     T = traj.horizon
     assert f.shape == (traj.num_systems, T + 1, K, traj.output_dim)
     later = traj.select(slice(None))
     later.y = traj.y.clone()
     later.y[:, 7:] += 2.0
-    f_later = forecast(make_predictor(name, **options), later, K)
+    f_later = forecast(make_predictor(name, shared=options), later, K)
     torch.testing.assert_close(f_later[:, :8], f[:, :8], rtol=1e-5, atol=1e-6, equal_nan=True)
     assert (f_later[:, 9:, 0] - f[:, 9:, 0]).abs().max() > 1e-3 or name == "zero"  # the data is used
     torch.testing.assert_close(
-        f[:, :, 0], make_predictor(name, **options).predict(traj), rtol=1e-5, atol=1e-6
+        f[:, :, 0], make_predictor(name, shared=options).predict(traj), rtol=1e-5, atol=1e-6
     )
     for j in range(1, K):
         assert torch.isnan(f[:, T + 1 - j :, j]).all() and torch.isfinite(f[:, : T + 1 - j, j]).all()
@@ -241,8 +241,8 @@ def test_forecast_from_a_start_origin_equals_the_full_forecast_there(name, tiny_
     run_dir = {"mop": tiny_run, "gru": tiny_gru}.get(name)
     options = {"run_dir": run_dir, "num_particles": 50, "seed": 0}
     traj = _trajectory_for(name, tiny_run)
-    full = forecast(make_predictor(name, **options), traj, K)
-    part = forecast(make_predictor(name, **options), traj, K, start=6)
+    full = forecast(make_predictor(name, shared=options), traj, K)
+    part = forecast(make_predictor(name, shared=options), traj, K, start=6)
     assert torch.isnan(part[:, :6]).all()
     assert torch.equal(torch.isnan(part[:, 6:]), torch.isnan(full[:, 6:]))
     torch.testing.assert_close(part[:, 6:], full[:, 6:], rtol=0, atol=0, equal_nan=True)

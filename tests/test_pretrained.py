@@ -68,7 +68,7 @@ def test_ratio_on_200_fresh_systems_is_within_tolerance_of_the_card(name):
     r = ev["ratio_to_reference"][window]
     traj = family_traj(name, 200, FRESH_SEED, ev["horizon"])
     e_mop = errors(mop.load(f"pretrained:{name}").predict(traj), traj.y)
-    e_ref = errors(make_predictor(ev["reference"], seed=0).predict(traj), traj.y)
+    e_ref = errors(make_predictor(ev["reference"], shared={"seed": 0}).predict(traj), traj.y)
     ratio = late_mse(e_mop) / late_mse(e_ref)
     half = max(r["high"] - r["ratio"], r["ratio"] - r["low"])
     tolerance = 3 * half * np.sqrt(ev["num_systems"] / 200) + 0.01 * r["ratio"]

@@ -95,15 +95,15 @@ def test_every_predictor_is_causal(name, tiny_run):
     )
     traj = _trajectories_for(name, tiny)
     options = {"run_dir": str(tiny_run)} if is_learned(name) else {"seed": 0}
-    predictor = make_predictor(name, **options)
+    predictor = make_predictor(name, shared=options)
     yhat = predictor.predict(traj)
     assert yhat.shape == traj.y.shape and torch.isfinite(yhat).all()
     later = dataclasses.replace(traj, y=traj.y.clone())
     later.y[:, -1] += 3.0
-    torch.testing.assert_close(make_predictor(name, **options).predict(later), yhat)
+    torch.testing.assert_close(make_predictor(name, shared=options).predict(later), yhat)
     if PREDICTORS.meta(name).get("gaussian") and not is_learned(name):  # the variance is causal too
         mean, var = predictor.predict_distribution(traj)
-        _, var_later = make_predictor(name, **options).predict_distribution(later)
+        _, var_later = make_predictor(name, shared=options).predict_distribution(later)
         torch.testing.assert_close(var_later, var)
         assert var.shape == yhat.shape and (var > 0).all()
 

@@ -26,7 +26,15 @@ from mop.predictors import Predictor, first_learned, forecast, simulate
 from mop.registry import Registry
 from mop.report import forecast_markdown
 
-ANALYSES: Registry = Registry("analysis")
+ANALYSES: Registry = Registry(
+    "analysis",
+    keys={
+        "markdown": "extras -> the report's table",
+        "to_json": "results -> entries for eval.json",
+        "sections": "entries -> report sections",
+        "forecast_steps": "horizon -> the forecast steps it needs (validation)",
+    },
+)
 COVERAGE_LEVELS = [round(q, 2) for q in np.arange(0.05, 1.0, 0.05)]
 
 

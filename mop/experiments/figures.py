@@ -25,7 +25,7 @@ from mop.experiments.spec import Experiment
 from mop.predictors import first_learned
 from mop.registry import Registry
 
-FIGURES: Registry = Registry("figure")
+FIGURES: Registry = Registry("figure", keys={"default": "drawn when an experiment names no figures"})
 
 
 def _stem(exp: Experiment, results: Results, condition: str, suffix: str) -> str:

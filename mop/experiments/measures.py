@@ -23,7 +23,16 @@ from mop.experiments.spec import Measure
 from mop.metrics import mse_ratio_ci
 from mop.registry import Registry
 
-MEASURES: Registry = Registry("measure")
+MEASURES: Registry = Registry(
+    "measure",
+    keys={
+        "describe": "(measure, value) -> the claim's text",
+        "reads_reference": "compares with a reference predictor (its `reference`, else the experiment's)",
+        "needs": "the analysis whose results it reads",
+        "over_conditions": "measured across the conditions of a sweep axis",
+        "interval": "its value has a confidence interval",
+    },
+)
 
 
 def _span(measure: Measure, horizon: int) -> tuple[int, int]:

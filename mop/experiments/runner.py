@@ -207,8 +207,8 @@ def run_condition(session: Session, condition: Condition) -> ConditionResult:
             predictors.append(learned_predictor(session, name, condition, trained))
         else:
             per_preset = PREDICTORS.meta(name).get("preset_options", {})  # the entry's own options
-            options = {"seed": session.seed, **per_preset.get(session.preset, {})}
-            predictors.append(make_predictor(name, **options))
+            options = per_preset.get(session.preset, {})
+            predictors.append(make_predictor(name, shared={"seed": session.seed}, **options))
     horizon = condition.horizon or trained.train.horizon  # with the command line's overrides, like the run
     if condition.data:
         traj = recorded_trajectories(condition.data, horizon)

@@ -129,7 +129,7 @@ def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[s
     model = load_predictor(run_dir)  # named by its architecture's registry entry (the paper's model: mop)
     names = [n for n in (condition.predictors or exp.predictors) if not is_learned(n)]
     per_preset = {n: PREDICTORS.meta(n).get("preset_options", {}).get(entry.preset, {}) for n in names}
-    others = [make_predictor(n, **{"seed": entry.seed, **per_preset[n]}) for n in names]
+    others = [make_predictor(n, shared={"seed": entry.seed}, **per_preset[n]) for n in names]
     system = test_system(config, condition)
     horizon = condition.horizon or config.train.horizon
     traj = test_trajectories(system, preset.num_test_systems, horizon, entry.seed)
