@@ -12,6 +12,7 @@ from mop.checkpoint import load_model_weights, save_model
 from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.models import build_model, model_names, register_model, registry
+from mop.models.interface import CAPABILITIES, LearnedModel, check_model_class
 
 
 def tiny(arch: str, **kw) -> ModelConfig:
@@ -50,16 +51,64 @@ def test_duplicate_name_refused():
         register_model("gpt")(nn.Linear)
 
 
+class Toy(LearnedModel):
+    """The least a registered architecture declares: every flag, forward, predict_distribution and loss."""
+
+    context_limited = supports_stream = supports_branch = branchable_state = False
+    has_direct_heads = reads_features = False
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__(cfg)
+        self.read_out = nn.Linear(cfg.input_dim, cfg.output_dim)
+
+    def forward(self, inputs):
+        return self.read_out(inputs)
+
+    def predict_distribution(self, inputs):
+        return self(inputs), torch.ones_like(self(inputs))
+
+    def loss(self, inputs, targets):
+        return ((self(inputs) - targets) ** 2).mean()
+
+
 def test_new_model_registers_itself(monkeypatch):
     monkeypatch.setattr(registry, "_MODELS", dict(registry._MODELS))
-
-    @register_model("toy")
-    class Toy(nn.Module):
-        def __init__(self, cfg: ModelConfig) -> None:
-            super().__init__()
-            self.cfg = cfg
-
+    register_model("toy")(Toy)
     assert "toy" in model_names() and isinstance(build_model(tiny("toy")), Toy)
+
+
+def test_an_undeclared_member_is_refused_in_one_line(monkeypatch):
+    """A class that leaves a capability flag or a required method undeclared, or declares a flag True
+    without its methods, is refused at registration, naming what is missing."""
+    monkeypatch.setattr(registry, "_MODELS", dict(registry._MODELS))
+    no_flag = type("NoFlag", (Toy,), {"reads_features": LearnedModel.reads_features})
+    no_loss = type("NoLoss", (Toy,), {"loss": LearnedModel.loss})
+    false_promise = type("FalsePromise", (Toy,), {"supports_stream": True})
+    cases = [
+        (no_flag, "model class NoFlag \\(arch 'a'\\) does not declare reads_features"),
+        (no_loss, "does not declare loss"),
+        (false_promise, "declares supports_stream = True but does not define init_cache, step_distribution"),
+        (nn.Linear, "must derive from mop.models.interface.LearnedModel"),
+    ]
+    for cls, message in cases:
+        with pytest.raises(MopError, match=message) as err:
+            register_model("a")(cls)
+        assert "\n" not in str(err.value)
+    assert "a" not in model_names()
+
+
+def test_a_path_the_model_does_not_declare_raises(monkeypatch):
+    model = Toy(tiny("gpt"))
+    with pytest.raises(MopError, match="does not declare supports_stream"):
+        model.init_cache(2)
+
+
+@pytest.mark.parametrize("arch", model_names())
+def test_builtin_models_declare_their_capabilities(arch):
+    """The built-in classes pass the registration check and answer every declared flag as a bool."""
+    model = build_model(tiny(arch))
+    check_model_class(arch, type(model))
+    assert all(isinstance(getattr(model, flag), bool) for flag in CAPABILITIES)
 
 
 def test_loading_does_not_import_the_trainer():

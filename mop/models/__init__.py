@@ -3,11 +3,12 @@
     gpt   mop.models.transformer   the paper's GPT-2-style causal transformer
     gru   mop.models.gru           GRU baseline
 
-A new architecture is one module in this package with a class decorated by @register_model("name"),
-imported below.
+A new architecture is one module in this package with a LearnedModel subclass (mop.models.interface:
+its declared capabilities and methods) decorated by @register_model("name"), imported below.
 """
 
 from mop.models import gru, transformer  # noqa: F401 (importing registers the built-in models)
+from mop.models.interface import LearnedModel
 from mop.models.registry import (
     build_model,
     check_arch,
@@ -17,4 +18,12 @@ from mop.models.registry import (
     skip_presets,
 )
 
-__all__ = ["build_model", "check_arch", "model_names", "predictor_names", "register_model", "skip_presets"]
+__all__ = [
+    "LearnedModel",
+    "build_model",
+    "check_arch",
+    "model_names",
+    "predictor_names",
+    "register_model",
+    "skip_presets",
+]

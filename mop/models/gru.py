@@ -22,6 +22,7 @@ from mop.models.horizons import (
     split_horizons,
     stack_heads,
 )
+from mop.models.interface import LearnedModel
 from mop.models.registry import register_model
 
 
@@ -34,15 +35,19 @@ class GRUCache:
 
 
 @register_model("gru", skip_presets=("small", "smoke"))
-class GRUModel(nn.Module):
+class GRUModel(LearnedModel):
     context_limited = False  # forward takes any T
+    supports_stream = True  # the hidden state, step by step: equal to forward
+    supports_branch = False
+    branchable_state = True  # GRUCache.h is the whole state (mop.models.rollout.recurrent_forecast)
+    has_direct_heads = True
+    reads_features = False  # no input features (refused below)
 
     def __init__(self, cfg: ModelConfig) -> None:
-        super().__init__()
+        super().__init__(cfg)
         check_dims(cfg)
         if cfg.input_scale != "none" or cfg.rls_order > 0 or cfg.arx_order > 0:
             raise MopError("model.input_scale and model.rls_order are options of arch 'gpt', not of the GRU")
-        self.cfg = cfg
         self.read_in = nn.Linear(cfg.input_dim, cfg.width)
         self.gru = nn.GRU(
             cfg.width,

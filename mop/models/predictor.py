@@ -383,7 +383,7 @@ class LearnedPredictor:
         """Whether stepping the model's cache over T = horizon inputs equals its forward: a recurrent model
         always; a transformer while T <= its context (inside it, its cache and its features' running state
         equal the forward's, mop.models.transformer)."""
-        if not callable(getattr(self.model, "init_cache", None)):
+        if not self.model.supports_stream:
             return False
         return not self.model.context_limited or horizon <= self.cfg.context
 

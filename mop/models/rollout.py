@@ -34,34 +34,36 @@ Both equal LearnedPredictor.reference_forecast (one forward of S(t, j) per (t, j
 from __future__ import annotations
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
-from mop.models.features import extra_input_dim
+from mop.errors import MopError
+from mop.models.interface import LearnedModel
 
 CACHE_BUDGET_BYTES = 256 * 2**20  # keys/values kept per chunk of systems (transformer_chunk_size)
 WINDOWS_PER_BATCH = 256  # sliding windows per prefill forward and its branches (activations in cache)
 
 
-def can_branch(model: nn.Module) -> bool:
-    """Whether forecast_batch has a fast path for `model` (transformer prefill/branch, or a GRU cache).
+def can_branch(model: LearnedModel) -> bool:
+    """Whether forecast_batch has a fast path for `model`, by its declared capabilities: prefill / branch
+    (the transformer) or a stream state that copies branch (the GRU).
 
-    Not for a transformer with input features (model.input_scale / rls_order): they are functions of the
-    whole window, fed-back inputs included, so its forecasts take the reference path."""
-    if model.context_limited:
-        has = callable(getattr(model, "prefill", None)) and callable(getattr(model, "branch", None))
-        return has and extra_input_dim(model.cfg) == 0
-    return callable(getattr(model, "init_cache", None)) and hasattr(model.init_cache(1), "h")
+    Not for a model that reads input features (model.input_scale / rls_order): they are functions of the
+    whole window, fed-back inputs included, so its forecasts take another path."""
+    return (model.supports_branch and not model.reads_features) or model.branchable_state
 
 
-def forecast_batch(model: nn.Module, z: Tensor, steps: int, first: Tensor | None = None) -> Tensor:
+def forecast_batch(model: LearnedModel, z: Tensor, steps: int, first: Tensor | None = None) -> Tensor:
     """z (B, T, d_in) model inputs z_0..z_{T-1} -> f (B, T+1, K, m), K = steps, in the model's units.
 
     f[:, t, j] forecasts y_{t+j} from z_0..z_{t-1} (see the module docstring); NaN where t + j > T.
     first (B, T+1, m): one-step predictions to roll out from instead of the window's own (mode "stream").
+    MopError for a model that can_branch refuses.
     """
-    if model.context_limited:
+    if model.supports_branch and not model.reads_features:
         return transformer_forecast(model, z, steps, first)
-    return recurrent_forecast(model, z, steps)
+    if model.branchable_state:
+        return recurrent_forecast(model, z, steps)
+    raise MopError(f"model arch {model.cfg.arch!r} has no fast k-step forecast (see can_branch)")
 
 
 def transformer_chunk_size(cfg, horizon: int, steps: int) -> int:
@@ -72,7 +74,7 @@ def transformer_chunk_size(cfg, horizon: int, steps: int) -> int:
     return max(1, CACHE_BUDGET_BYTES // (4 * floats))
 
 
-def transformer_forecast(model: nn.Module, z: Tensor, steps: int, first: Tensor | None = None) -> Tensor:
+def transformer_forecast(model: LearnedModel, z: Tensor, steps: int, first: Tensor | None = None) -> Tensor:
     """forecast_batch for a context-limited model with prefill / branch (mop.models.transformer).
 
     Window 0 and the origins inside the context first; then the later windows s in batches, in order of s:
@@ -148,7 +150,7 @@ def _token(y: Tensor, u: Tensor) -> Tensor:
     return y if u.shape[-1] == 0 else torch.cat([y, u], dim=-1)
 
 
-def recurrent_forecast(model: nn.Module, z: Tensor, steps: int) -> Tensor:
+def recurrent_forecast(model: LearnedModel, z: Tensor, steps: int) -> Tensor:
     """forecast_batch for a recurrent model whose cache holds its state h (L, B, d) (mop.models.gru)."""
     B, T, _ = z.shape
     m = model.cfg.output_dim

@@ -47,6 +47,7 @@ from mop.models.horizons import (
     split_horizons,
     stack_heads,
 )
+from mop.models.interface import LearnedModel
 from mop.models.registry import register_model
 
 
@@ -70,8 +71,7 @@ class CausalSelfAttention(nn.Module):
         super().__init__()
         self.num_heads, self.head_dim = cfg.num_heads, cfg.width // cfg.num_heads
         self.qkv = nn.Linear(cfg.width, 3 * cfg.width)  # fused Q, K, V
-        self.proj = nn.Linear(cfg.width, cfg.width)
-        self.proj.residual = True  # scaled init
+        self.proj = nn.Linear(cfg.width, cfg.width)  # a residual projection: scaled init
         self.dropout = cfg.dropout
         self.rope = cfg.position == "rope"
 
@@ -200,8 +200,7 @@ class MLP(nn.Module):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
         self.fc = nn.Linear(cfg.width, 4 * cfg.width)
-        self.proj = nn.Linear(4 * cfg.width, cfg.width)
-        self.proj.residual = True
+        self.proj = nn.Linear(4 * cfg.width, cfg.width)  # a residual projection: scaled init
         self.drop = nn.Dropout(cfg.dropout)
 
     def forward(self, x: Tensor) -> Tensor:
@@ -272,31 +271,40 @@ class KVCache:
 
 
 @register_model("gpt", predictor="mop")
-class Transformer(nn.Module):
+class Transformer(LearnedModel):
     """GPT-2 body with a linear read-in (d_in -> d) and read-out (d -> m, or 2m for the Gaussian readout)."""
 
     context_limited = True  # at most cfg.context inputs per forward (LearnedPredictor windows longer ones)
+    supports_stream = True  # the rolling KV cache: equal to forward inside the context
+    supports_branch = True  # prefill / branch (mop.models.rollout), unless it reads features
+    branchable_state = False
+    has_direct_heads = True
 
     def __init__(self, cfg: ModelConfig) -> None:
-        super().__init__()
+        super().__init__(cfg)
         check_dims(cfg)
         check_features(cfg)
-        self.cfg = cfg
         self.read_in = nn.Linear(cfg.input_dim + extra_input_dim(cfg), cfg.width)
         self.wpe = nn.Embedding(cfg.context, cfg.width) if cfg.position == "learned" else None
         self.drop = nn.Dropout(cfg.dropout)
         self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.num_layers))
         self.ln_f = nn.LayerNorm(cfg.width)
         self.read_out = nn.Linear(cfg.width, horizon_dim(cfg))  # one-step read-out, then any k-step heads
-        self.apply(self._init_weights)
+        residual = {id(p) for b in self.blocks for p in (b.attn.proj, b.mlp.proj)}  # scaled init
+        self.apply(lambda module: self._init_weights(module, id(module) in residual))
         self.future_head = future_head(cfg)  # k-step heads on a system with inputs (mop.models.horizons)
         if cfg.rls_order > 0:  # the read-out predicts the residual on RLS: start as the RLS predictor
             nn.init.zeros_(self.read_out.weight)
 
-    def _init_weights(self, module: nn.Module) -> None:
+    @property
+    def reads_features(self) -> bool:
+        """The running scale or the RLS / ARX feature is on (model.input_scale / rls_order)."""
+        return extra_input_dim(self.cfg) > 0
+
+    def _init_weights(self, module: nn.Module, residual: bool) -> None:
         """GPT-2 init: N(0, 0.02), residual projections N(0, 0.02 / sqrt(2 L)), zero biases."""
         if isinstance(module, nn.Linear):
-            std = 0.02 / math.sqrt(2 * self.cfg.num_layers) if getattr(module, "residual", False) else 0.02
+            std = 0.02 / math.sqrt(2 * self.cfg.num_layers) if residual else 0.02
             nn.init.normal_(module.weight, mean=0.0, std=std)
             nn.init.zeros_(module.bias)
         elif isinstance(module, nn.Embedding):
