@@ -65,6 +65,7 @@ OMITTED_AT_DEFAULT = {
         "missing_burst_length": 5,
         "score_dropped": False,
     },
+    "data": {"split": "auto", "validation_path": ""},
 }
 
 
@@ -76,7 +77,7 @@ def to_dict(config: Any, omit_defaults: bool = True) -> dict[str, Any]:
         if config.data is None:
             del data["data"]
         for section, defaults in OMITTED_AT_DEFAULT.items() if omit_defaults else ():
-            for key, default in defaults.items():
+            for key, default in defaults.items() if section in data else ():
                 if data[section][key] == default:
                     del data[section][key]
     return data
@@ -411,8 +412,11 @@ class DataConfig:
 
     path: a .npz (y (B, T+1, m), optional u (B, T+1, k)) or the long CSV that `mop predict` reads; one
         trajectory per system, lengths may differ (those shorter than train.horizon + 1 outputs are skipped).
-    validation_fraction: share of the trajectories held out (a permutation seeded by split_seed) for the
-        validation loss; at least one trajectory on each side.
+    validation_fraction: share held out for the validation loss: of the trajectories (split "trajectory",
+        a permutation seeded by split_seed) or of each trajectory's last steps (split "time").
+    split: "auto" (by trajectory where that leaves one on each side, else in time: mop.train.records),
+        "trajectory" or "time"; unused with validation_path.
+    validation_path: a separate validation record (`mop train --val FILE`); every step of path then trains.
     y_mean, y_std (m values each), u_mean, u_std (k values each, [] without inputs): per-channel
         normalisation in the file's units, fitted on the training split by the trainer (None = not yet
         fitted; a given value must equal the fit). The predictor of the run applies it, so predictions come
@@ -422,6 +426,8 @@ class DataConfig:
     path: str = ""
     validation_fraction: float = 0.1
     split_seed: int = 0
+    split: str = "auto"
+    validation_path: str = ""
     y_mean: list[float] | None = None
     y_std: list[float] | None = None
     u_mean: list[float] | None = None
@@ -434,6 +440,11 @@ class DataConfig:
             f"data.validation_fraction must be in (0, 1), got {self.validation_fraction!r}",
         )
         check(isinstance(self.split_seed, int), f"data.split_seed must be an integer: {self.split_seed!r}")
+        check(
+            self.split in ("auto", "trajectory", "time"),
+            f"data.split must be auto|trajectory|time, got {self.split!r}",
+        )
+        check(isinstance(self.validation_path, str), "data.validation_path must name a .npz or .csv file")
         for name in ("y_std", "u_std"):
             value = getattr(self, name)
             check(

@@ -15,7 +15,7 @@ from mop.errors import MopError
 from mop.runs import load_config, load_predictor
 from mop.systems import make_family
 from mop.systems.base import Trajectories
-from mop.train.data import RecordedData, recorded_data
+from mop.train.records import RecordedData, recorded_data
 from tests.reference import sigint_during_step
 
 TINY = [
@@ -215,7 +215,7 @@ def _bad_files(tmp: Path) -> dict[str, tuple[Path, str]]:
     np.savez(tmp / "short.npz", y=y[:, :5])
     files["too short"] = (tmp / "short.npz", "no training trajectory has")
     np.savez(tmp / "one.npz", y=y[:1])
-    files["one trajectory"] = (tmp / "one.npz", "cannot be split")
+    files["one short record"] = (tmp / "one.npz", "split in time, the longest validation part has 2 of 12")
     (tmp / "bad.csv").write_text("trajectory,t,y0\nr0,0,1.0\nr0,1\n")
     files["malformed csv"] = (tmp / "bad.csv", "columns")
     (tmp / "mixed.csv").write_text("trajectory,t,y0,u0\nr0,0,1.0,x\n")

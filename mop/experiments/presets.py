@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from mop.config import ModelConfig, TrainConfig
+import torch
+
+from mop.config import ModelConfig, RunConfig, TrainConfig
 from mop.errors import MopError
 
 
@@ -66,3 +68,15 @@ def get_preset(name: str) -> Preset:
     if name not in PRESETS:
         raise MopError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
     return PRESETS[name]
+
+
+def default_preset() -> str:
+    """The preset `mop reproduce` and `mop train` use unless told: "paper" where a CUDA GPU is present,
+    else "small" (the CPU preset)."""
+    return "paper" if torch.cuda.is_available() else "small"
+
+
+def preset_config(name: str) -> RunConfig:
+    """The RunConfig of preset `name` on its own (the default family, the preset's model and training)."""
+    p = get_preset(name)
+    return RunConfig(model=p.model, train=p.train)

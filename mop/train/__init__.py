@@ -1,6 +1,7 @@
 """Training the learned predictor (the paper's recipe) into a run directory, with resume and DDP.
 
     data.py      TrainingData, validation_batch: batches from the system family, one seeded generator
+    records.py   recorded data: the split (by trajectory, in time, a --val file), normalisation, windows
     optim.py     AdamW, lr schedule, autocast, compile, train_step, validation_loss
     device.py    the device and the DDP process group
     rundir.py    the run directory: config check and reuse, metrics log, checkpoint of the training state

@@ -19,6 +19,7 @@ import os
 import signal
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -33,6 +34,7 @@ from mop.progress import progress as make_progress
 from mop.runs import load_model
 from mop.train.data import TrainingData, validation_batch
 from mop.train.device import init_distributed, setup_device
+from mop.train.estimate import plan_line
 from mop.train.lock import run_lock
 from mop.train.optim import (
     LossModule,
@@ -80,15 +82,18 @@ def train(
     progress: bool = True,
     wait: bool = True,
     fresh: bool = False,
+    announce: Callable[[str], None] | None = None,
 ) -> Path:
     """Train `config` into `out_dir` (resuming from its checkpoint if any); returns the run directory.
 
     Rank 0 holds the run directory's lock (mop.train.lock) while training: another process training the
     same directory is waited for (wait=True; then its finished run is reused) or refused in one line.
     fresh: start over, removing what the directory holds besides config.json (a damaged run).
+    announce: given, rank 0 hands it one line before the first step: the model's size, the steps left and an
+    estimated time (mop.train.estimate.plan_line; a few trial steps on a copy of the model).
     Temporaries of writes killed in an earlier run are removed first.
     """
-    _train(config, Path(out_dir), progress, wait, fresh)
+    _train(config, Path(out_dir), progress, wait, fresh, announce)
     return Path(out_dir)
 
 
@@ -101,7 +106,14 @@ def train_model(
     return load_model(out_dir)[0] if model is None else model.to("cpu").eval()
 
 
-def _train(config: RunConfig, out_dir: Path, progress: bool, wait: bool, fresh: bool) -> nn.Module | None:
+def _train(
+    config: RunConfig,
+    out_dir: Path,
+    progress: bool,
+    wait: bool,
+    fresh: bool,
+    announce: Callable[[str], None] | None = None,
+) -> nn.Module | None:
     """The trained model, or None when `out_dir` holds a finished run of `config` (nothing is trained)."""
     config = resolve_config(config)
     cfg = config.train
@@ -119,14 +131,23 @@ def _train(config: RunConfig, out_dir: Path, progress: bool, wait: bool, fresh: 
             clean_orphans(out_dir)
             if fresh:
                 fresh_start(out_dir)
-        return _train_locked(config, out_dir, rank, world, progress)
+        return _train_locked(config, out_dir, rank, world, progress, announce)
 
 
-def _train_locked(config: RunConfig, out_dir: Path, rank: int, world: int, progress: bool) -> nn.Module:
+def _train_locked(
+    config: RunConfig,
+    out_dir: Path,
+    rank: int,
+    world: int,
+    progress: bool,
+    announce: Callable[[str], None] | None = None,
+) -> nn.Module:
     device = setup_device(config.train, world)
     if rank == 0:
         write_config(out_dir, config)
     state = _start(config, out_dir, device, rank, world)
+    if announce is not None and rank == 0:
+        announce(plan_line(config, state.model, device, state.step))
     try:
         _loop(state, progress)
     finally:

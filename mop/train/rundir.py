@@ -34,7 +34,7 @@ from mop.errors import MopError
 from mop.models import check_arch
 from mop.runs import read_run_json, retrain_hint
 from mop.systems import make_family
-from mop.train.data import recorded_data
+from mop.train.records import recorded_data
 
 TRAINING_FILES = ("model.safetensors", "checkpoint.safetensors", "metrics.jsonl", "done.json", "inputs.json")
 

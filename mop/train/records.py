@@ -1,0 +1,269 @@
+"""Recorded trajectories to train on (`mop train --data FILE [--val FILE]`): the split, the normalisation and
+the windows.
+
+Three ways to hold out validation data (data.split, reported by `summary`):
+- "trajectory": a seeded permutation (data.split_seed) holds out round(data.validation_fraction * n) whole
+  trajectories; the validation batch is the first train.horizon + 1 steps of each held-out trajectory. For
+  many short trajectories (one per system, as `mop simulate` writes them).
+- "time": every trajectory is cut in time; its first steps train, its last ceil(validation_fraction * L_i)
+  steps validate, and no window crosses the cut. For one long record or a few, as identification data comes.
+- "file": `--val FILE` (data.validation_path) is the validation record and every step of data.path trains.
+"auto" (the default) is "trajectory" wherever that split holds at least one trajectory on each side (as
+before the other splits existed), else "time".
+
+Every part is an array (L, m + k) of [y_t, u_t] in the file's units. The validation batch of the "time" and
+"file" splits is every window of train.horizon + 1 steps of the validation parts, thinned evenly to at most
+MAX_VALIDATION_WINDOWS. Per-channel mean / std are fitted on the training parts only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from mop.config import DataConfig
+from mop.errors import MopError
+from mop.io import Data, read_trajectories
+
+MAX_VALIDATION_WINDOWS = 256
+
+
+@dataclasses.dataclass
+class Windows:
+    """Normalised training parts padded to (N, L, d_in) float32 and their valid windows (W, 2)."""
+
+    z: Tensor  # (N, L, d_in): [y, u] per step, normalised, zero past each part's end
+    starts: Tensor  # (W, 2) long: (part, first step) of every window of horizon + 1 steps
+    horizon: int
+    output_dim: int
+
+    def sample(self, batch_size: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+        """Windows drawn uniformly (with replacement): inputs (B, T, d_in), targets (B, T, m)."""
+        pick = torch.randint(
+            0, self.starts.shape[0], (batch_size,), generator=generator, device=generator.device
+        )
+        part, start = self.starts[pick, 0], self.starts[pick, 1]  # (B,), (B,)
+        steps = start[:, None] + torch.arange(self.horizon + 1, device=start.device)  # (B, T+1)
+        z = self.z[part[:, None], steps]  # (B, T+1, d_in)
+        return z[:, :-1].contiguous(), z[:, 1:, : self.output_dim].contiguous()
+
+
+def _widths(path: str, data: Data) -> tuple[int, int]:
+    """(m, k) shared by every trajectory of `data`, or a one-line MopError."""
+    widths = {(y.shape[1], 0 if u is None else u.shape[1]) for y, u in data}
+    if len(widths) != 1:
+        raise MopError(f"{path}: trajectories differ in output/input widths {sorted(widths)}")
+    return widths.pop()
+
+
+def _joined(data: Data) -> list[np.ndarray]:
+    """[(L_i, m + k)] [y, u] of each trajectory (k = 0 without inputs), float64."""
+    return [y if u is None else np.concatenate([y, u], axis=1) for y, u in data]
+
+
+def choose_split(split: str, num_trajectories: int, fraction: float) -> str:
+    """The split "auto" resolves to for a file of `num_trajectories` (no separate validation file)."""
+    if split != "auto":
+        return split
+    held_out = int(round(fraction * num_trajectories))
+    return "trajectory" if 1 <= held_out <= num_trajectories - 1 else "time"
+
+
+def window_count(parts: list[np.ndarray], horizon: int) -> int:
+    """Windows of horizon + 1 consecutive steps inside the parts."""
+    return sum(max(0, len(a) - horizon) for a in parts)
+
+
+class RecordedData:
+    """A file of recorded trajectories split into training and validation parts (see the module docstring).
+
+    train_parts / val_parts: lists of (L, m + k) float64 arrays in the file's units; train_index / val_index:
+    the trajectories on each side of a "trajectory" split (None for the others).
+    """
+
+    def __init__(self, cfg: DataConfig) -> None:
+        self.path = cfg.path
+        _, data = read_trajectories(cfg.path)
+        self.output_dim, self.input_dim = _widths(cfg.path, data)
+        self.num_trajectories = len(data)
+        self.num_missing = int(sum(np.isnan(y).sum() for y, _ in data))  # outputs missing in the file
+        self.train_index = self.val_index = None
+        parts = _joined(data)
+        if cfg.validation_path:
+            self.split = "file"
+            self.train_parts, self.val_parts = parts, self._validation_file(cfg.validation_path)
+        else:
+            self.split = choose_split(cfg.split, len(parts), cfg.validation_fraction)
+            cut = self._by_trajectory if self.split == "trajectory" else self._in_time
+            self.train_parts, self.val_parts = cut(parts, cfg)
+
+    def _validation_file(self, path: str) -> list[np.ndarray]:
+        _, data = read_trajectories(path)
+        widths = _widths(path, data)
+        if widths != (self.output_dim, self.input_dim):
+            raise MopError(
+                f"--val {path} has m={widths[0]} outputs and k={widths[1]} inputs, but {self.path} has "
+                f"m={self.output_dim}, k={self.input_dim}; give a validation record of the same plant"
+            )
+        self.num_missing += int(sum(np.isnan(y).sum() for y, _ in data))
+        return _joined(data)
+
+    def _by_trajectory(self, parts: list[np.ndarray], cfg: DataConfig) -> tuple[list, list]:
+        n, n_val = len(parts), int(round(cfg.validation_fraction * len(parts)))
+        if n < 2 or not 1 <= n_val <= n - 1:
+            raise MopError(
+                f"{cfg.path}: {n} trajectories cannot be split into training and validation with "
+                f"data.validation_fraction={cfg.validation_fraction}; use data.split=time (or auto), or --val"
+            )
+        order = np.random.default_rng(cfg.split_seed).permutation(n)
+        self.val_index, self.train_index = np.sort(order[:n_val]), np.sort(order[n_val:])
+        return [parts[i] for i in self.train_index], [parts[i] for i in self.val_index]
+
+    @staticmethod
+    def _in_time(parts: list[np.ndarray], cfg: DataConfig) -> tuple[list, list]:
+        cuts = [len(a) - math.ceil(cfg.validation_fraction * len(a)) for a in parts]
+        pairs = list(zip(parts, cuts, strict=True))
+        return [a[:c] for a, c in pairs], [a[c:] for a, c in pairs]
+
+    def fit(self) -> dict[str, list[float]]:
+        """Per-channel mean and std (population, ddof 0; 1 for a constant channel) over every step of the
+        training parts, in the file's units: y_mean, y_std (m,), u_mean, u_std (k,)."""
+        a = np.concatenate(self.train_parts)  # (sum L_i, m + k)
+        m = self.output_dim
+        if np.isnan(a[:, :m]).all(axis=0).any():
+            raise MopError(f"{self.path}: an output channel is missing at every training step")
+        mean, std = np.nanmean(a, axis=0), np.nanstd(a, axis=0)  # missing outputs (NaN) left out
+        std = np.where(std > 0, std, 1.0)
+        as_list = lambda v: [float(x) for x in v]  # noqa: E731
+        return {
+            "y_mean": as_list(mean[:m]),
+            "y_std": as_list(std[:m]),
+            "u_mean": as_list(mean[m:]),
+            "u_std": as_list(std[m:]),
+        }
+
+    def _normalised(self, cfg: DataConfig, parts: list[np.ndarray]) -> list[np.ndarray]:
+        """[(L_i, m + k)] normalised parts, float64."""
+        mean = np.array([*cfg.y_mean, *cfg.u_mean])
+        std = np.array([*cfg.y_std, *cfg.u_std])
+        return [(a - mean) / std for a in parts]
+
+    def _long_enough(self, parts: list[np.ndarray], horizon: int, side: str) -> list[np.ndarray]:
+        kept = [a for a in parts if len(a) >= horizon + 1]
+        if kept:
+            return kept
+        longest = max(len(a) for a in parts)
+        if self.split == "time":
+            total = max(len(a) + len(b) for a, b in zip(self.train_parts, self.val_parts, strict=True))
+            raise MopError(
+                f"{self.path}: split in time, the longest {side} part has {longest} of {total} steps, fewer "
+                f"than train.horizon + 1 = {horizon + 1}; lower train.horizon, change "
+                "data.validation_fraction, or give a validation record with --val FILE"
+            )
+        what = "trajectory" if self.split == "trajectory" else "--val trajectory"
+        raise MopError(
+            f"{self.path}: no {side} {what} has train.horizon + 1 = {horizon + 1} steps (the longest has "
+            f"T = {longest - 1}); lower train.horizon or record longer trajectories"
+        )
+
+    def check_lengths(self, horizon: int) -> None:
+        """MopError unless both sides hold a part of at least horizon + 1 steps."""
+        self._long_enough(self.train_parts, horizon, "training")
+        self._long_enough(self.val_parts, horizon, "validation")
+
+    def windows(self, cfg: DataConfig, horizon: int, device: torch.device) -> Windows:
+        """Every window of horizon + 1 steps of the training parts at least that long."""
+        z = self._normalised(cfg, self._long_enough(self.train_parts, horizon, "training"))
+        padded = np.zeros((len(z), max(len(a) for a in z), z[0].shape[1]), dtype=np.float32)
+        starts = []
+        for j, a in enumerate(z):
+            padded[j, : len(a)] = a
+            starts.extend((j, s) for s in range(len(a) - horizon))
+        return Windows(
+            z=torch.from_numpy(padded).to(device),
+            starts=torch.tensor(starts, dtype=torch.long, device=device),
+            horizon=horizon,
+            output_dim=self.output_dim,
+        )
+
+    def validation_windows(self, horizon: int) -> list[tuple[int, int]]:
+        """(part, first step) of the validation windows: the first window of each held-out trajectory
+        ("trajectory"), else every window of the parts thinned evenly to MAX_VALIDATION_WINDOWS."""
+        parts = self.val_parts
+        if self.split == "trajectory":
+            return [(j, 0) for j, a in enumerate(parts) if len(a) >= horizon + 1]
+        every = [(j, s) for j, a in enumerate(parts) for s in range(len(a) - horizon)]
+        if len(every) <= MAX_VALIDATION_WINDOWS:
+            return every
+        keep = np.linspace(0, len(every) - 1, MAX_VALIDATION_WINDOWS).round().astype(int)
+        return [every[i] for i in keep]
+
+    def validation(self, cfg: DataConfig, horizon: int, device: torch.device) -> tuple[Tensor, Tensor]:
+        """The validation windows (validation_windows): inputs (N, T, d_in), targets (N, T, m)."""
+        self._long_enough(self.val_parts, horizon, "validation")
+        parts = self._normalised(cfg, self.val_parts)
+        windows = [parts[j][s : s + horizon + 1] for j, s in self.validation_windows(horizon)]
+        z = torch.from_numpy(np.stack(windows).astype(np.float32)).to(device)  # (N, T+1, d_in)
+        return z[:, :-1].contiguous(), z[:, 1:, : self.output_dim].contiguous()
+
+    def summary(self, horizon: int) -> str:
+        """One line: the file, its shape, the split and the windows of horizon + 1 steps on each side."""
+        n_train, n_val = len(self.train_parts), len(self.val_parts)
+        skipped = sum(len(a) < horizon + 1 for a in self.train_parts)
+        skipped_val = sum(len(a) < horizon + 1 for a in self.val_parts)
+        split = {
+            "trajectory": f"split by trajectory: {n_train} training / {n_val} validation",
+            "time": f"split in time: the last {self._val_share()} steps validate",
+            "file": f"validation from --val ({_count(n_val, 'trajectory', 'trajectories')})",
+        }[self.split]
+        return (
+            f"data {self.path}: {_count(self.num_trajectories, 'trajectory', 'trajectories')} "
+            f"(m={self.output_dim}, k={self.input_dim}), "
+            f"{split}; {window_count(self.train_parts, horizon)} training / "
+            f"{len(self.validation_windows(horizon))} validation windows of {horizon + 1} steps; "
+            f"{skipped} / {skipped_val} shorter than train.horizon + 1 = {horizon + 1} steps skipped"
+        )
+
+    def _val_share(self) -> str:
+        steps = sum(len(a) for a in self.val_parts)
+        total = steps + sum(len(a) for a in self.train_parts)
+        each = " (the end of each trajectory)" if len(self.val_parts) > 1 else ""
+        return f"{steps} of {total}{each}"
+
+
+def _count(n: int, one: str, many: str) -> str:
+    return f"{n} {one if n == 1 else many}"
+
+
+def recorded_data(cfg: DataConfig) -> RecordedData:
+    """RecordedData of cfg (read once per file version and split; callers must not modify it)."""
+    files = tuple(_file_key(p) for p in (cfg.path, cfg.validation_path) if p)
+    split = (cfg.validation_fraction, cfg.split_seed, cfg.split, cfg.validation_path)
+    return _recorded(files, cfg.path, split)
+
+
+def _file_key(path: str) -> tuple:
+    p = Path(path)
+    stat = p.stat() if p.is_file() else None
+    return os.path.abspath(p), stat and (stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=2)
+def _recorded(files: tuple, path: str, split: tuple) -> RecordedData:
+    fraction, seed, how, validation_path = split
+    return RecordedData(
+        DataConfig(
+            path=path,
+            validation_fraction=fraction,
+            split_seed=seed,
+            split=how,
+            validation_path=validation_path,
+        )
+    )

@@ -1,0 +1,145 @@
+"""Records as identification data comes: one long record split in time, an estimation and a validation
+record (--val), the summary line, and `mop train`'s defaults (preset rule, experiment files, the ARX feature
+on records with inputs, the plan line before the first step)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from mop.cli import main
+from mop.config import DataConfig, RunConfig, to_dict
+from mop.experiments.presets import PRESETS
+from mop.experiments.training import RECORDED_FEATURES, training_config
+from mop.train.estimate import duration
+from mop.train.records import RecordedData, choose_split
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+TINY = [
+    "model.num_layers=1",
+    "model.width=16",
+    "model.num_heads=2",
+    "model.context=8",
+    "train.horizon=8",
+    "train.batch_size=8",
+    "train.steps=4",
+    "train.log_every=2",
+    "train.checkpoint_every=2",
+    "train.device=cpu",
+]
+
+
+def write_record(path: Path, lengths=(200,), inputs: bool = True, seed: int = 0) -> Path:
+    """CSV records: y_t = step index (so a window's steps identify themselves) plus the record's number
+    * 1000; u a seeded random input."""
+    rng = np.random.default_rng(seed)
+    lines = ["trajectory,t,y0" + (",u0" if inputs else "")]
+    for i, n in enumerate(lengths):
+        for t in range(n):
+            lines.append(f"r{i},{t},{1000 * i + t}" + (f",{rng.normal():.6f}" if inputs else ""))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_auto_split_is_by_trajectory_where_possible_else_in_time():
+    assert choose_split("auto", 30, 0.1) == "trajectory"
+    assert choose_split("auto", 5, 0.2) == "trajectory"  # one held out, four left: as before
+    assert choose_split("auto", 1, 0.1) == "time"
+    assert choose_split("auto", 2, 0.1) == "time"  # round(0.2) = 0 held out
+    assert choose_split("time", 30, 0.1) == "time"
+
+
+def test_one_record_splits_in_time_and_no_window_crosses_the_cut(tmp_path):
+    path = write_record(tmp_path / "one.csv", lengths=(200,))
+    rec = RecordedData(DataConfig(path=str(path)))
+    assert rec.split == "time"
+    # the last ceil(0.1 * 200) = 20 steps validate, the first 180 train
+    (train,), (val,) = rec.train_parts, rec.val_parts
+    np.testing.assert_array_equal(train[:, 0], np.arange(180))
+    np.testing.assert_array_equal(val[:, 0], np.arange(180, 200))
+    stats = rec.fit()  # the training part only: mean of 0..179
+    assert stats["y_mean"] == [89.5] and stats["y_std"] == [pytest.approx(np.arange(180).std())]
+    cfg = DataConfig(path=str(path), **stats)
+    windows = rec.windows(cfg, 8, torch.device("cpu"))
+    assert windows.starts.shape[0] == 180 - 8  # every window of 9 steps inside 0..179
+    g = torch.Generator().manual_seed(0)
+    inputs, targets = windows.sample(500, g)
+    steps = torch.cat([inputs[:, :1, 0], targets[..., 0]], 1).double() * stats["y_std"][0] + 89.5
+    assert steps.max() < 179.5 and torch.allclose(steps.diff(dim=1), torch.ones(1, dtype=torch.float64))
+    vin, vtarget = rec.validation(cfg, 8, torch.device("cpu"))
+    assert vin.shape == (20 - 8, 8, 2)  # every window of 9 steps inside 180..199
+    first = vin[:, 0, 0].double() * stats["y_std"][0] + 89.5
+    assert first.min() > 179.5 and first.max() < 191.5 + 1e-3
+
+
+def test_a_validation_record_validates_and_all_of_data_trains(tmp_path):
+    est = write_record(tmp_path / "est.csv", lengths=(100,))
+    val = write_record(tmp_path / "val.csv", lengths=(30,), seed=1)
+    rec = RecordedData(DataConfig(path=str(est), validation_path=str(val)))
+    assert rec.split == "file" and len(rec.train_parts[0]) == 100 and len(rec.val_parts[0]) == 30
+    assert "validation from --val (1 trajectory)" in rec.summary(8)
+    assert "92 training / 22 validation windows of 9 steps" in rec.summary(8)
+    wrong = write_record(tmp_path / "wrong.csv", lengths=(30,), inputs=False)
+    with pytest.raises(Exception, match="has m=1 outputs and k=0 inputs, but .* has m=1, k=1"):
+        RecordedData(DataConfig(path=str(est), validation_path=str(wrong)))
+
+
+def test_validation_windows_are_thinned_evenly(tmp_path):
+    path = write_record(tmp_path / "long.csv", lengths=(6000,))
+    rec = RecordedData(DataConfig(path=str(path)))
+    windows = rec.validation_windows(8)
+    assert len(windows) == 256 and windows[0] == (0, 0) and windows[-1] == (0, 600 - 9)
+
+
+def test_one_record_trains_through_the_cli_with_the_small_preset_and_the_arx_feature(tmp_path, capsys):
+    path = write_record(tmp_path / "one.csv", lengths=(300,))
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(path), "--out", str(run), "--no-progress", *TINY]) == 0
+    out = capsys.readouterr().out
+    assert "1 trajectory (m=1, k=1), split in time: the last 30 of 300 steps validate;" in out
+    assert "262 training / 22 validation windows of 9 steps" in out
+    assert "model: " in out and "parameters" in out and "4 steps of batch 8 x 8 on cpu: about" in out
+    saved = json.loads((run / "config.json").read_text())
+    small = PRESETS["small"].train
+    assert saved["train"]["lr"] == small.lr and saved["train"]["lr_schedule"] == small.lr_schedule
+    assert {k.split(".")[1]: saved["model"][k.split(".")[1]] for k in RECORDED_FEATURES} == {
+        k.split(".")[1]: v for k, v in RECORDED_FEATURES.items()
+    }
+    records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert any(np.isfinite(r.get("val_loss", np.nan)) for r in records)
+
+
+def test_training_config_layers(tmp_path):
+    small, paper = PRESETS["small"], PRESETS["paper"]
+    assert training_config(None, "small").model == small.model
+    assert training_config(None, "paper").train == paper.train
+    with_inputs = write_record(tmp_path / "u.csv", lengths=(60,))
+    without = write_record(tmp_path / "y.csv", lengths=(60,), inputs=False)
+    assert training_config(None, "small", str(with_inputs)).model.arx_order == 2
+    assert training_config(None, "small", str(without)).model.rls_order == 0  # no inputs: no ARX default
+    off = training_config(None, "small", str(with_inputs), overrides=["model.rls_order=0"])
+    assert off.model.rls_order == 0 and off.model.arx_order == 0  # a named feature key: no default at all
+    toml = Path(__file__).resolve().parents[1] / "examples" / "rlc_circuit.toml"
+    rlc = training_config(str(toml), "smoke")
+    assert rlc.system.family == "rlc-circuit" and rlc.train.steps == PRESETS["smoke"].train.steps
+    assert training_config(str(toml), "small").train.steps == 5000  # the file's [presets.small]
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"train": {"steps": 7}}))
+    assert training_config(str(cfg)).train.steps == 7
+    with pytest.raises(Exception, match="it fixes the model and training; drop --preset small"):
+        training_config(str(cfg), "small")
+    with pytest.raises(Exception, match="--val FILE is the validation record of --data FILE"):
+        training_config(None, "small", None, str(with_inputs))
+
+
+def test_rundirs_of_the_old_split_keep_their_config(tmp_path):
+    """New data keys at their defaults are left out of config.json, so earlier runs keep their hash."""
+    config = RunConfig(data=DataConfig(path="x.csv"))
+    assert "split" not in to_dict(config)["data"] and "validation_path" not in to_dict(config)["data"]
+
+
+def test_duration_words():
+    assert duration(40.2) == "40 s" and duration(200) == "3 min 20 s" and duration(7500) == "2 h 05 min"
