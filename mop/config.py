@@ -8,13 +8,13 @@ Each config validates itself in __post_init__ with a MopError naming the bad val
 from __future__ import annotations
 
 import dataclasses
-import json
-import types
 import typing
 from typing import Any, TypeVar
 
 from mop.errors import MopError, check  # noqa: F401  (check: re-exported for config validation)
+from mop.identity import identity
 from mop.systems.base import SystemConfig, config_class
+from mop.typecheck import dataclass_type, parse_value, type_matches, type_words
 
 T = TypeVar("T")
 
@@ -34,7 +34,7 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
         )
     kwargs = {}
     for name, value in data.items():
-        sub = _dataclass_type(hints[name])
+        sub = dataclass_type(hints[name])
         if sub and isinstance(value, dict):
             value = from_dict(sub, value, f"{where}{name}.")
         elif not type_matches(value, hints[name]):
@@ -46,40 +46,15 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
         raise MopError(f"bad config{where and ' ' + where}: {err}") from None
 
 
-# Keys left out of a RunConfig's dict while they hold these defaults, so configs (and their hashes, which name
-# run directories) written before the keys existed are unchanged.
-OMITTED_AT_DEFAULT = {
-    "model": {
-        "observation_mask": False,
-        "input_scale": "none",
-        "rls_order": 0,
-        "arx_order": 0,
-        "rls_offset": False,
-        "forecast_mode": "rollout",
-        "horizons": 1,
-        "horizon_loss": "mean",
-    },
-    "train": {
-        "missing_rate": 0.0,
-        "missing_burst_rate": 0.0,
-        "missing_burst_length": 5,
-        "score_dropped": False,
-    },
-    "data": {"split": "auto", "validation_path": ""},
-}
-
-
 def to_dict(config: Any, omit_defaults: bool = True) -> dict[str, Any]:
-    """The config as nested dicts; a RunConfig without recorded data has no "data" key (as before), and the
-    keys of OMITTED_AT_DEFAULT are left out while they hold their defaults (unless omit_defaults=False)."""
+    """The config as nested dicts. A RunConfig gives its identity (mop.identity: config.json, the run hash):
+    no "data" key without recorded data, and only the keys written before that rule or away from their
+    defaults; omit_defaults=False gives every key."""
+    if isinstance(config, RunConfig) and omit_defaults:
+        return identity(config)
     data = dataclasses.asdict(config)
-    if isinstance(config, RunConfig):
-        if config.data is None:
-            del data["data"]
-        for section, defaults in OMITTED_AT_DEFAULT.items() if omit_defaults else ():
-            for key, default in defaults.items() if section in data else ():
-                if data[section][key] == default:
-                    del data[section][key]
+    if isinstance(config, RunConfig) and config.data is None:
+        del data["data"]
     return data
 
 
@@ -91,7 +66,7 @@ def parse_overrides(overrides: list[str]) -> dict[str, Any]:
         if "=" not in item:
             raise MopError(f"override {item!r} is not key=value (e.g. train.steps=200)")
         key, raw = item.split("=", 1)
-        settings[key] = _parse_value(raw)
+        settings[key] = parse_value(raw)
     return settings
 
 
@@ -139,74 +114,6 @@ def _change_family(node: dict[str, Any], family: Any) -> None:
     for key, value in defaults.items():
         if key not in node or (key in before and node[key] == before[key]):
             node[key] = value
-
-
-def _parse_value(raw: str) -> Any:
-    try:
-        return json.loads(raw)
-    except json.JSONDecodeError:
-        return {"none": None, "null": None, "true": True, "false": False}.get(raw.lower(), raw)
-
-
-def type_matches(value: Any, hint: Any) -> bool:
-    """Whether `value` (as JSON, TOML or a key=value override gives it) fits the type hint `hint`.
-
-    int accepts no bool or float; float accepts int; a list or tuple fits list[...] and tuple[...] hints
-    (files give lists), element by element.
-    """
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if hint is Any or isinstance(hint, TypeVar):
-        return True
-    if origin in (typing.Union, types.UnionType):
-        return any(type_matches(value, a) for a in args)
-    if hint is type(None) or hint is None:
-        return value is None
-    if hint is bool:
-        return isinstance(value, bool)
-    if hint is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if hint is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-    if hint is str:
-        return isinstance(value, str)
-    if origin in (list, tuple) or hint in (list, tuple):
-        if not isinstance(value, (list, tuple)):
-            return False
-        if origin is tuple and args and args[-1] is not Ellipsis:
-            return len(value) == len(args) and all(map(type_matches, value, args))
-        return not args or all(type_matches(v, args[0]) for v in value)
-    if origin is dict or hint is dict:
-        return isinstance(value, dict)
-    if dataclasses.is_dataclass(hint):
-        return isinstance(value, hint)
-    return True
-
-
-def type_words(hint: Any) -> str:
-    """A type hint in words for error messages: 'a number', 'a list of numbers', 'a pair', ..."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        words = [type_words(a) for a in args if a is not type(None)]
-        return " or ".join(words) + (" (or none)" if type(None) in args else "")
-    simple = {bool: "true or false", int: "an integer", float: "a number", str: "a string", dict: "a table"}
-    if hint in simple:
-        return simple[hint]
-    if origin is dict:
-        return "a table"
-    if origin in (list, tuple):
-        if origin is tuple and args and args[-1] is not Ellipsis:
-            return f"a list of {len(args)} values ({', '.join(type_words(a) for a in args)})"
-        return "a list" + (f" of {type_words(args[0])} values" if args else "")
-    if dataclasses.is_dataclass(hint):
-        return f"a table of {hint.__name__} fields"
-    return getattr(hint, "__name__", str(hint))
-
-
-def _dataclass_type(hint: Any) -> type | None:
-    for candidate in (hint, *typing.get_args(hint)):
-        if dataclasses.is_dataclass(candidate):
-            return candidate
-    return None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -19,6 +19,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mop"
 # lowest first; a module belongs to the layer of its longest matching prefix
 LAYERS: list[tuple[str, ...]] = [
     ("mop.errors", "mop.registry", "mop.atomic", "mop.progress", "mop.metrics", "mop.io", "mop.report"),
+    ("mop.typecheck", "mop.identity"),  # core: they import no mop module
     ("mop.memory", "mop.outputs"),  # core too: they import only errors and atomic
     ("mop.missing",),
     ("mop.pretrained",),  # the shipped runs' files and cards (mop.runs resolves pretrained:NAME with it)
