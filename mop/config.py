@@ -11,7 +11,7 @@ import dataclasses
 import typing
 from typing import Any, TypeVar
 
-from mop.errors import MopError, check  # noqa: F401  (check: re-exported for config validation)
+from mop.errors import MopError, check, check_choice, check_int  # noqa: F401  (check: re-exported)
 from mop.identity import identity
 from mop.systems.base import SystemConfig, config_class
 from mop.typecheck import dataclass_type, parse_value, type_matches, type_words
@@ -116,6 +116,15 @@ def _change_family(node: dict[str, Any], family: Any) -> None:
             node[key] = value
 
 
+MODEL_CHOICES: dict[str, tuple[str, ...]] = {
+    "readout": ("mean", "gaussian"),
+    "position": ("learned", "rope"),
+    "input_scale": ("none", "running"),
+    "forecast_mode": ("rollout", "gap", "direct"),
+    "horizon_loss": ("mean", "balanced"),
+}
+
+
 @dataclasses.dataclass(frozen=True)
 class ModelConfig:
     """The learned predictor. input_dim / output_dim of 0 mean "take them from the system family"."""
@@ -150,67 +159,34 @@ class ModelConfig:
     horizon_loss: str = "mean"
 
     def __post_init__(self) -> None:
-        check(
-            self.position in ("learned", "rope"),
-            f"model.position must be 'learned' or 'rope', got {self.position!r}",
-        )
-        # the known names live in mop.models' registry; build_model and the trainer check them
+        # the known architectures live in mop.models' registry; build_model and the trainer check them
         check(isinstance(self.arch, str) and self.arch != "", f"model.arch must be a name, got {self.arch!r}")
         for name in ("num_layers", "num_heads", "width", "context"):
-            value = getattr(self, name)
-            check(
-                isinstance(value, int) and value > 0,
-                f"model.{name} must be a positive integer, got {value!r}",
-            )
+            check_int(f"model.{name}", getattr(self, name), 1)
         check(
             self.width % self.num_heads == 0,
             f"model.num_heads ({self.num_heads}) must divide model.width ({self.width})",
         )
         check(self.input_dim >= 0 and self.output_dim >= 0, "model.input_dim/output_dim must be >= 0")
-        check(
-            self.readout in ("mean", "gaussian"),
-            f"model.readout must be 'mean' or 'gaussian', got {self.readout!r}",
-        )
         check(0 <= self.dropout < 1, f"model.dropout must be in [0, 1), got {self.dropout}")
-        check(
-            self.input_scale in ("none", "running"),
-            f"model.input_scale must be 'none' or 'running', got {self.input_scale!r}",
-        )
-        check(
-            isinstance(self.rls_order, int) and 0 <= self.rls_order <= 20,
-            f"model.rls_order must be an integer in 0..20 (0 = off), got {self.rls_order!r}",
-        )
-        check(
-            isinstance(self.arx_order, int) and 0 <= self.arx_order <= 20,
-            f"model.arx_order must be an integer in 0..20 (0 = output-only RLS), got {self.arx_order!r}",
-        )
+        for name, choices in MODEL_CHOICES.items():
+            check_choice(f"model.{name}", getattr(self, name), choices)
+        check_int("model.rls_order", self.rls_order, 0, 20, " (0 = off)")
+        check_int("model.arx_order", self.arx_order, 0, 20, " (0 = output-only RLS)")
+        check_int("model.horizons", self.horizons, 1, 100, " (1 = the one-step read-out)")
+        for name in ("rls_offset", "observation_mask"):
+            check_choice(f"model.{name}", getattr(self, name), (True, False))
+        self._check_combinations()
+
+    def _check_combinations(self) -> None:
+        """The knobs that need another knob set."""
         check(
             self.arx_order == 0 or self.rls_order > 0,
             "model.arx_order adds input lags to the RLS feature: set model.rls_order > 0 too",
         )
         check(
-            isinstance(self.rls_offset, bool),
-            f"model.rls_offset must be true or false, got {self.rls_offset!r}",
-        )
-        check(
             not self.rls_offset or self.rls_order > 0,
             "model.rls_offset adds a constant to the RLS feature: set model.rls_order > 0 too",
-        )
-        check(
-            isinstance(self.observation_mask, bool),
-            f"model.observation_mask must be true or false, got {self.observation_mask!r}",
-        )
-        check(
-            self.forecast_mode in ("rollout", "gap", "direct"),
-            f"model.forecast_mode must be 'rollout', 'gap' or 'direct', got {self.forecast_mode!r}",
-        )
-        check(
-            isinstance(self.horizons, int) and 1 <= self.horizons <= 100,
-            f"model.horizons must be an integer in 1..100 (1 = the one-step read-out), got {self.horizons!r}",
-        )
-        check(
-            self.horizon_loss in ("mean", "balanced"),
-            f"model.horizon_loss must be 'mean' or 'balanced', got {self.horizon_loss!r}",
         )
         check(
             self.horizon_loss == "mean" or self.readout == "mean",
@@ -227,6 +203,13 @@ class ModelConfig:
             "model.forecast_mode='gap' reads future outputs as missing: it needs model.observation_mask=true "
             "(train with train.missing_burst_rate > 0, and train.score_dropped=true to learn the gaps)",
         )
+
+
+TRAIN_CHOICES: dict[str, tuple[str, ...]] = {
+    "lr_schedule": ("constant", "cosine"),
+    "precision": ("auto", "fp32", "bf16"),
+    "compile": ("auto", "on", "off"),
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -282,16 +265,15 @@ class TrainConfig:
             "train.score_dropped=true scores the outputs training drops: it needs train.missing_rate or "
             f"train.missing_burst_rate > 0 (got score_dropped={self.score_dropped!r})",
         )
-        check(
-            isinstance(self.missing_burst_length, int) and self.missing_burst_length > 0,
-            f"train.missing_burst_length must be a positive integer, got {self.missing_burst_length!r}",
-        )
-        for name in ("steps", "batch_size", "horizon", "log_every", "checkpoint_every"):
-            value = getattr(self, name)
-            check(
-                isinstance(value, int) and value > 0,
-                f"train.{name} must be a positive integer, got {value!r}",
-            )
+        for name in (
+            "steps",
+            "batch_size",
+            "horizon",
+            "log_every",
+            "checkpoint_every",
+            "missing_burst_length",
+        ):
+            check_int(f"train.{name}", getattr(self, name), 1)
         check(
             self.num_source_systems >= 0,
             f"train.num_source_systems must be >= 0, got {self.num_source_systems}",
@@ -300,17 +282,8 @@ class TrainConfig:
         check(
             self.weight_decay >= 0 and self.grad_clip > 0, "train.weight_decay must be >= 0 and grad_clip > 0"
         )
-        check(
-            self.lr_schedule in ("constant", "cosine"),
-            f"train.lr_schedule must be constant|cosine, got {self.lr_schedule!r}",
-        )
-        check(
-            self.precision in ("auto", "fp32", "bf16"),
-            f"train.precision must be auto|fp32|bf16, got {self.precision!r}",
-        )
-        check(
-            self.compile in ("auto", "on", "off"), f"train.compile must be auto|on|off, got {self.compile!r}"
-        )
+        for name, choices in TRAIN_CHOICES.items():
+            check_choice(f"train.{name}", getattr(self, name), choices)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,6 +6,7 @@ The CLI prints it as ``mop: error: <message>`` and exits with status 2, without 
 
 import errno
 import os
+from typing import Any
 
 
 class MopError(Exception):
@@ -70,3 +71,20 @@ def check(condition: bool, message: str) -> None:
     """Raise MopError(message) unless condition holds; for __post_init__ validation."""
     if not condition:
         raise MopError(message)
+
+
+def check_int(where: str, value: Any, low: int, high: int | None = None, note: str = "") -> None:
+    """MopError unless `value` is an integer (not a bool) in low..high (high None: no upper bound)."""
+    ok = isinstance(value, int) and not isinstance(value, bool) and low <= value
+    if high is not None:
+        ok, want = ok and value <= high, f"an integer in {low}..{high}"
+    else:
+        want = "a positive integer" if low == 1 else f"an integer >= {low}"
+    check(ok, f"{where} must be {want}{note}, got {value!r}")
+
+
+def check_choice(where: str, value: Any, choices: tuple[Any, ...]) -> None:
+    """MopError unless `value` is one of `choices` (true / false for (True, False))."""
+    words = "true or false" if choices == (True, False) else " or ".join(map(repr, choices))
+    ok = any(value is c if isinstance(c, bool) else value == c for c in choices)
+    check(ok, f"{where} must be {words}, got {value!r}")
