@@ -320,10 +320,7 @@ class DataConfig:
             f"data.validation_fraction must be in (0, 1), got {self.validation_fraction!r}",
         )
         check(isinstance(self.split_seed, int), f"data.split_seed must be an integer: {self.split_seed!r}")
-        check(
-            self.split in ("auto", "trajectory", "time"),
-            f"data.split must be auto|trajectory|time, got {self.split!r}",
-        )
+        check_choice("data.split", self.split, ("auto", "trajectory", "time"))
         check(isinstance(self.validation_path, str), "data.validation_path must name a .npz or .csv file")
         for name in ("y_std", "u_std"):
             value = getattr(self, name)
