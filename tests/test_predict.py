@@ -67,14 +67,14 @@ def test_unequal_lengths_in_padded_batches_equal_one_at_a_time(
     """Sorted, padded batches (two of them here) give each trajectory's own predictions: bit for bit for
     the classical predictors; for the learned model to float32 rounding (the batched matrix products differ
     in the last bit from one-row ones, as they do for equal lengths)."""
-    from mop.commands import predict
+    from mop import records
     from mop.predictors import make_predictor
 
-    monkeypatch.setattr(predict, "BATCH_SIZE", 4)
+    monkeypatch.setattr(records, "BATCH_SIZE", 4)
     rng = np.random.default_rng(3)
     data = [(rng.normal(size=(length, 2)), None) for length in (25, 31, 12, 40, 25, 33, 18)]
     p = load_predictor(tiny_run) if name == "mop" else make_predictor(name)
-    batched, alone = predict.predict_all(p, data, steps), _one_at_a_time(p, data, steps)
+    batched, alone = records.predict_all(p, data, steps), _one_at_a_time(p, data, steps)
     for (y, _), a, b in zip(data, batched, alone, strict=True):
         assert a.shape == b.shape and a.shape[0] == len(y)
         if name == "mop":

@@ -104,11 +104,22 @@ def test_predict_simulate_writes_the_simulation_and_prints_both_errors(tmp_path,
     capsys.readouterr()
     assert main(["predict", "arx", str(path), "--simulate", "20", "--out", str(tmp_path / "p.npz")]) == 0
     printed = capsys.readouterr().out
-    assert "one-step rmse" in printed and "simulation rmse" in printed
+    assert "1-step rmse" in printed and "sim rmse" in printed and "sim fit %" in printed
     d = np.load(path)
     traj = Trajectories(y=torch.from_numpy(d["y"]), u=torch.from_numpy(d["u"]))
     ref = simulate(make_predictor("arx"), traj, 20).numpy()
     np.testing.assert_allclose(np.load(tmp_path / "p.npz")["ysim"], ref, rtol=1e-5, atol=1e-5)
+    # the overall line: RMSE and fit % (per channel 100 (1 - ||y - ysim|| / ||y - mean y||), then averaged)
+    y = d["y"][:, 20:].reshape(-1, 2)
+    e = y - ref.reshape(-1, 2)
+    fit = 100 * (1 - np.linalg.norm(e, axis=0) / np.linalg.norm(y - y.mean(0), axis=0)).mean()
+    overall = next(line for line in printed.splitlines() if line.split()[0] == "overall").split()
+    assert float(overall[4]) == pytest.approx(np.sqrt((e**2).mean()), rel=1e-3)
+    assert float(overall[6]) == pytest.approx(fit, abs=0.01)
     assert main(["predict", "arx", str(path), "--simulate", "31"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "--simulate must be in [1, 30]" in err and "\n" not in err
+    assert "--simulate must be in [0, 30]" in err and "\n" not in err
+    # --simulate 0: from the start, y_0 the initial condition: the simulation after one output
+    assert main(["predict", "arx", str(path), "--simulate", "0", "--out", str(tmp_path / "p0.npz")]) == 0
+    ref1 = simulate(make_predictor("arx"), traj, 1).numpy()
+    np.testing.assert_allclose(np.load(tmp_path / "p0.npz")["ysim"], ref1, rtol=1e-5, atol=1e-5)

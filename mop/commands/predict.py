@@ -32,17 +32,15 @@ from mop.io import read_system, read_trajectories
 from mop.memory import check_allocation
 from mop.predictors import (
     PREDICTORS,
-    forecast,
     is_learned,
     make_predictor,
-    nan_beyond_horizon,
     needs_system,
-    simulate,
 )
 from mop.pretrained import is_pretrained
+from mop.records import predict_all, scores, simulate_all
 from mop.runs import load_predictor
 from mop.systems import FAMILIES
-from mop.systems.base import LINEAR_MODEL_ARRAYS, Trajectories, linear_model_from_params
+from mop.systems.base import LINEAR_MODEL_ARRAYS, linear_model_from_params
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,7 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--simulate",
         type=int,
         metavar="C",
-        help="free-run simulation of y_C..y_T after a context of C outputs",
+        help="free-run simulation of y_C..y_T after a context of C outputs (0: from the start, y_0 its "
+        "initial condition)",
     )
 
 
@@ -129,62 +128,6 @@ def system_of(
     return "", tensors
 
 
-BATCH_SIZE = 256  # trajectories per padded batch of unequal lengths
-
-
-def batches(data, family: str, params: dict) -> list[tuple[list[int], Trajectories]]:
-    """(indices into data, Trajectories) batches. All trajectories at once when they share a length (with
-    the system's parameters); otherwise sorted by length, BATCH_SIZE at a time, each padded at the end to
-    the longest of its batch by repeating its last row. Every predictor is causal (yhat_t reads y_<t, u_<t;
-    forecast[t, j] reads y_<t, u_<t+j), so the entries predict_all keeps (t <= T_i) never read the padding."""
-    lengths = [len(y) for y, _ in data]
-    if len(set(lengths)) == 1:
-        y = torch.tensor(np.stack([y for y, _ in data]), dtype=torch.float32)
-        u = None if data[0][1] is None else torch.tensor(np.stack([u for _, u in data]), dtype=torch.float32)
-        return [(list(range(len(data))), Trajectories(y=y, u=u, params=params, family=family))]
-    order = sorted(range(len(data)), key=lambda i: lengths[i])
-    out = []
-    for start in range(0, len(order), BATCH_SIZE):
-        idx = order[start : start + BATCH_SIZE]
-        longest = lengths[idx[-1]]
-        y = torch.tensor(np.stack([_pad(data[i][0], longest) for i in idx]), dtype=torch.float32)
-        u = None
-        if data[idx[0]][1] is not None:
-            u = torch.tensor(np.stack([_pad(data[i][1], longest) for i in idx]), dtype=torch.float32)
-        rows = {k: v[idx] for k, v in params.items()}
-        out.append((idx, Trajectories(y=y, u=u, params=rows, family=family)))
-    return out
-
-
-def _pad(a: np.ndarray, length: int) -> np.ndarray:
-    """(T_i+1, c) -> (length, c): the last row repeated."""
-    return np.concatenate([a, np.repeat(a[-1:], length - len(a), axis=0)])
-
-
-def predict_all(predictor, data, steps: int | None = None, family: str = "", params=None) -> list[np.ndarray]:
-    """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps, NaN where t + j > T_i), in the
-    order of data, computed in batches (see batches)."""
-    out: list[np.ndarray | None] = [None] * len(data)
-    for idx, traj in batches(data, family, params or {}):
-        pred = predictor.predict(traj) if steps is None else forecast(predictor, traj, steps)
-        pred = pred.double().cpu()
-        for row, i in enumerate(idx):
-            own = pred[row : row + 1, : len(data[i][0])].clone()  # (1, T_i+1, ...)
-            out[i] = (own if steps is None else nan_beyond_horizon(own))[0].numpy()
-    return out
-
-
-def simulate_all(predictor, data, context: int, family: str = "", params=None) -> list[np.ndarray]:
-    """[(T_i+1-C, m)] free-run simulations after C outputs, in the order of data, computed in batches (see
-    batches: sim[:, j] predicts y_{C+j} from y_<C and u_<C+j, so the kept j <= T_i - C never read padding)."""
-    out: list[np.ndarray | None] = [None] * len(data)
-    for idx, traj in batches(data, family, params or {}):
-        sim = simulate(predictor, traj, context).double().cpu().numpy()
-        for row, i in enumerate(idx):
-            out[i] = sim[row, : len(data[i][0]) - context]
-    return out
-
-
 def write_simulation(path: Path, names: list[str], sims: list[np.ndarray], context: int) -> None:
     if path.suffix == ".npz":
         if len({len(p) for p in sims}) != 1:
@@ -200,17 +143,21 @@ def write_simulation(path: Path, names: list[str], sims: list[np.ndarray], conte
                 w.writerow([name, context + j, *[f"{v:.7g}" for v in row]])
 
 
+SIMULATION_HEADER = ("trajectory", "steps", "1-step rmse", "fit %", "sim rmse", "sim nrmse", "sim fit %")
+
+
 def print_simulation_errors(names, data, yhat, sims, context: int) -> None:
-    """Per trajectory and overall RMSE over t >= C: one-step (yhat) beside free-run simulation."""
-    print(f"{'trajectory':>12} {'steps':>6} {'one-step rmse':>14} {'simulation rmse':>16}")
-    one, sim = [], []
-    for name, (y, _), p, s in zip(names, data, yhat, sims, strict=True):
-        one.append(y[context:] - p[context:])
-        sim.append(y[context:] - s)
-        rm = lambda e: np.sqrt((e**2).mean())  # noqa: E731
-        print(f"{name:>12} {len(s):>6} {rm(one[-1]):>14.4g} {rm(sim[-1]):>16.4g}")
-    e1, es = np.concatenate(one), np.concatenate(sim)
-    print(f"{'overall':>12} {len(es):>6} {np.sqrt((e1**2).mean()):>14.4g} {np.sqrt((es**2).mean()):>16.4g}")
+    """Per trajectory and overall, over t >= C: one-step (yhat) beside free-run simulation: RMSE, NRMSE and
+    fit % (mop.records.scores)."""
+    print("{:>12} {:>6} {:>12} {:>7} {:>12} {:>10} {:>10}".format(*SIMULATION_HEADER))
+    rows = [(n, y[context:], p[context:], s) for n, (y, _), p, s in zip(names, data, yhat, sims, strict=True)]
+    rows.append(("overall", [r[1] for r in rows], [r[2] for r in rows], [r[3] for r in rows]))
+    for name, y, p, s in rows:
+        one, sim = scores(y, p), scores(y, s)
+        print(
+            f"{name:>12} {sim.steps:>6} {one.rmse:>12.4g} {one.fit:>7.2f} {sim.rmse:>12.4g} "
+            f"{sim.nrmse:>10.4g} {sim.fit:>10.2f}"
+        )
 
 
 def write_output(path: Path, names: list[str], yhat: list[np.ndarray]) -> None:
@@ -244,15 +191,14 @@ def observed_norms(e: np.ndarray) -> np.ndarray:
 
 
 def print_errors(names, data, yhat) -> None:
-    """RMSE and mean ||e_t|| over t >= 1, on the measured outputs only (missing ones, NaN, are skipped)."""
-    print(f"{'trajectory':>12} {'steps':>6} {'rmse':>10} {'mean|e|':>10}")
-    errs = []
-    for name, (y, _), p in zip(names, data, yhat, strict=True):
-        e = y[1:] - p[1:]  # (T, m), skip t=0 (no data)
-        errs.append(e)
-        print(f"{name:>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
-    e = np.concatenate(errs)
-    print(f"{'overall':>12} {len(e):>6} {np.sqrt(np.nanmean(e**2)):>10.4g} {observed_norms(e).mean():>10.4g}")
+    """RMSE, NRMSE, fit % and mean ||e_t|| over t >= 1 (mop.records.scores), on the measured outputs only
+    (missing ones, NaN, are skipped)."""
+    print(f"{'trajectory':>12} {'steps':>6} {'rmse':>10} {'nrmse':>8} {'fit %':>7} {'mean|e|':>10}")
+    rows = [(name, y[1:], p[1:]) for name, (y, _), p in zip(names, data, yhat, strict=True)]  # t=0: no data
+    rows.append(("overall", [r[1] for r in rows], [r[2] for r in rows]))
+    for name, y, p in rows:
+        s = scores(y, p)
+        print(f"{name:>12} {s.steps:>6} {s.rmse:>10.4g} {s.nrmse:>8.4g} {s.fit:>7.2f} {s.mean_norm:>10.4g}")
 
 
 def print_horizon_errors(data, forecasts, steps: int) -> None:
@@ -284,6 +230,18 @@ def check_predict_size(data, steps: int | None) -> None:
     )
 
 
+def simulation_context(simulate: int, data) -> int:
+    """The context C of --simulate C; 0 (from the record's start) is C = 1: y_0 is the only output a
+    simulation from the start can know, its initial condition (a state-space model estimates its initial
+    state from it as its order allows), and y_1..y_T are simulated."""
+    shortest = min(len(y) for y, _ in data) - 1
+    if not 0 <= simulate <= shortest:
+        raise MopError(f"--simulate must be in [0, {shortest}] (the shortest trajectory's T), got {simulate}")
+    if simulate == 0:
+        print("--simulate 0: simulated from each record's start, y_0 its initial condition (t >= 1 scored)")
+    return max(simulate, 1)
+
+
 def run(args: argparse.Namespace) -> int:
     data_path = Path(args.data)
     out = Path(args.out) if args.out else data_path.with_name(data_path.stem + "_pred" + data_path.suffix)
@@ -296,19 +254,14 @@ def run(args: argparse.Namespace) -> int:
     predictor, knows_system = resolve_predictor(args.predictor, args.stream)
     names, data = read_trajectories(data_path)
     check_predict_size(data, args.steps)
-    if args.simulate is not None:
-        shortest = min(len(y) for y, _ in data) - 1
-        if not 1 <= args.simulate <= shortest:
-            raise MopError(
-                f"--simulate must be in [1, {shortest}] (the shortest trajectory's T), got {args.simulate}"
-            )
+    context = None if args.simulate is None else simulation_context(args.simulate, data)
     has_inputs = data[0][1] is not None
     family, params = system_of(args.predictor, data_path, len(data), has_inputs) if knows_system else ("", {})
     yhat = predict_all(predictor, data, args.steps, family, params)
-    if args.simulate is not None:
-        sims = simulate_all(predictor, data, args.simulate, family, params)
-        print_simulation_errors(names, data, yhat, sims, args.simulate)
-        write_simulation(out, names, sims, args.simulate)
+    if context is not None:
+        sims = simulate_all(predictor, data, context, family, params)
+        print_simulation_errors(names, data, yhat, sims, context)
+        write_simulation(out, names, sims, context)
         print(f"wrote {out}")
         return 0
     if args.steps is None:

@@ -1,0 +1,115 @@
+"""A predictor applied to a user's records (trajectories of unequal lengths), and the identification field's
+figures of merit.
+
+Data: [(y (T_i+1, m), u (T_i+1, k) | None)] as mop.io.read_trajectories returns it.
+Time convention (every mop predictor): yhat_t predicts y_t from y_<t and u_<t; forecast[t, j] predicts
+y_{t+j} from y_<t and u_<t+j; a simulation after a context of C outputs predicts y_C..y_T from y_0..y_{C-1}
+and the inputs alone.
+
+Figures of merit over the scored steps (missing outputs, NaN in y, left out), per output channel and then
+averaged over the channels:
+    RMSE = sqrt(mean_t (y_t - yhat_t)^2)                       (in the record's units)
+    NRMSE = RMSE / std_t(y_t)                                   (the nonlinear-benchmark convention)
+    fit = 100 (1 - ||y - yhat|| / ||y - mean y||)  [%]          (MATLAB's `compare`; 100 is perfect)
+(NRMSE = 1 - fit / 100 channel by channel; both are printed because both are quoted.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from mop.predictors import forecast, nan_beyond_horizon, simulate
+from mop.systems.base import Trajectories
+
+Data = list[tuple[np.ndarray, np.ndarray | None]]
+BATCH_SIZE = 256  # trajectories per padded batch of unequal lengths
+
+
+def batches(data: Data, family: str, params: dict) -> list[tuple[list[int], Trajectories]]:
+    """(indices into data, Trajectories) batches. All trajectories at once when they share a length (with
+    the system's parameters); otherwise sorted by length, BATCH_SIZE at a time, each padded at the end to
+    the longest of its batch by repeating its last row. Every predictor is causal (yhat_t reads y_<t, u_<t;
+    forecast[t, j] reads y_<t, u_<t+j), so the entries kept (t <= T_i) never read the padding."""
+    lengths = [len(y) for y, _ in data]
+    if len(set(lengths)) == 1:
+        return [(list(range(len(data))), _stack(data, list(range(len(data))), lengths[0], family, params))]
+    order = sorted(range(len(data)), key=lambda i: lengths[i])
+    out = []
+    for start in range(0, len(order), BATCH_SIZE):
+        idx = order[start : start + BATCH_SIZE]
+        rows = {k: v[idx] for k, v in params.items()}
+        out.append((idx, _stack(data, idx, lengths[idx[-1]], family, rows)))
+    return out
+
+
+def _stack(data: Data, idx: list[int], length: int, family: str, params: dict) -> Trajectories:
+    """The trajectories `idx` of data, each padded to `length` steps, as float32 Trajectories."""
+    y = torch.tensor(np.stack([_pad(data[i][0], length) for i in idx]), dtype=torch.float32)
+    u = None
+    if data[idx[0]][1] is not None:
+        u = torch.tensor(np.stack([_pad(data[i][1], length) for i in idx]), dtype=torch.float32)
+    return Trajectories(y=y, u=u, params=params, family=family)
+
+
+def _pad(a: np.ndarray, length: int) -> np.ndarray:
+    """(T_i+1, c) -> (length, c): the last row repeated."""
+    return np.concatenate([a, np.repeat(a[-1:], length - len(a), axis=0)])
+
+
+def predict_all(predictor, data: Data, steps: int | None = None, family: str = "", params=None) -> list:
+    """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps, NaN where t + j > T_i), in the
+    order of data, computed in batches (see batches)."""
+    out: list[np.ndarray | None] = [None] * len(data)
+    for idx, traj in batches(data, family, params or {}):
+        pred = predictor.predict(traj) if steps is None else forecast(predictor, traj, steps)
+        pred = pred.double().cpu()
+        for row, i in enumerate(idx):
+            own = pred[row : row + 1, : len(data[i][0])].clone()  # (1, T_i+1, ...)
+            out[i] = (own if steps is None else nan_beyond_horizon(own))[0].numpy()
+    return out
+
+
+def simulate_all(predictor, data: Data, context: int, family: str = "", params=None) -> list[np.ndarray]:
+    """[(T_i+1-C, m)] free-run simulations after C outputs, in the order of data, computed in batches (see
+    batches: sim[:, j] predicts y_{C+j} from y_<C and u_<C+j, so the kept j <= T_i - C never read padding)."""
+    out: list[np.ndarray | None] = [None] * len(data)
+    for idx, traj in batches(data, family, params or {}):
+        sim = simulate(predictor, traj, context).double().cpu().numpy()
+        for row, i in enumerate(idx):
+            out[i] = sim[row, : len(data[i][0]) - context]
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Scores:
+    """Figures of merit of predictions of one or more records (see the module docstring)."""
+
+    steps: int  # scored time steps
+    rmse: float
+    nrmse: float
+    fit: float  # percent
+    mean_norm: float  # mean over the scored steps of ||y_t - yhat_t|| over the measured channels
+
+
+def scores(y: list[np.ndarray] | np.ndarray, yhat: list[np.ndarray] | np.ndarray) -> Scores:
+    """Scores of predictions yhat of y: arrays (T, m) or lists of them, pooled over the list (NaN in y:
+    missing, left out; a channel constant over the scored steps has NRMSE and fit NaN)."""
+    y = np.concatenate(y) if isinstance(y, list) else y
+    yhat = np.concatenate(yhat) if isinstance(yhat, list) else yhat
+    e = y - yhat  # (T, m)
+    rmse = np.sqrt(np.nanmean(e**2, axis=0))  # (m,)
+    spread = np.sqrt(np.nanmean((y - np.nanmean(y, axis=0)) ** 2, axis=0))  # (m,) population std
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nrmse = np.where(spread > 0, rmse / spread, np.nan)
+    seen = ~np.isnan(e).all(axis=-1)
+    norms = np.sqrt(np.nansum(e[seen] ** 2, axis=-1))
+    return Scores(
+        steps=int(seen.sum()),
+        rmse=float(np.sqrt(np.nanmean(e**2))),
+        nrmse=float(np.mean(nrmse)),
+        fit=float(100 * (1 - np.mean(nrmse))),
+        mean_norm=float(norms.mean()) if len(norms) else float("nan"),
+    )
