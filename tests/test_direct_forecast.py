@@ -10,7 +10,8 @@ import torch
 from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.models import build_model
-from mop.models.predictor import LearnedPredictor, stream
+from mop.models.predict import stream
+from mop.models.predictor import LearnedPredictor
 from mop.systems.base import Trajectories
 from tests.test_rollout import CONTEXT, random_model, random_trajectories
 

@@ -11,7 +11,7 @@ from mop.filters.arx import arx_predict
 from mop.filters.rls import rls_predict
 from mop.models import build_model
 from mop.models.features import SCALE_EPS, rls_next, running_scale
-from mop.models.predictor import stream
+from mop.models.predict import stream
 
 OPTIONS = [
     {"input_scale": "running"},

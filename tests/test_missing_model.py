@@ -138,8 +138,8 @@ def test_masked_model_streams_and_forecasts_with_gaps(masked_run):
     # a missing entry's value is never read: the prediction is the same whatever was there
     other = traj.y.clone()
     other[torch.isnan(other)] = 123.0
-    filled = window._model_inputs(torch.where(torch.isnan(traj.y), float("nan"), other)[:, :-1])
-    assert torch.equal(filled, window._model_inputs(traj.y[:, :-1]))
+    filled = window.model_inputs(torch.where(torch.isnan(traj.y), float("nan"), other)[:, :-1])
+    assert torch.equal(filled, window.model_inputs(traj.y[:, :-1]))
     # with gaps the predictions differ from those on the complete trajectory (the mask is used)
     full = dataclasses.replace(traj, y=linear_traj(num_systems=3, horizon=12).y)
     assert not torch.allclose(window.predict(full), a)

@@ -1,6 +1,8 @@
-"""Fast learned k-step forecasts (mop.models.rollout: prefill + branches, all origins at once) equal the
-definition, LearnedPredictor.reference_forecast (one forward per origin and step), on random models in
-float64, inside the context (T <= C), beyond it (T > C) and with more steps than the context."""
+"""Fast learned k-step forecasts (mop.models.rollout: prefill + branches, all origins at once), the streamed
+and the windowed ones (mop.models.forecast) and simulations (mop.models.simulate) equal the definition,
+tests.reference.reference_forecast / reference_simulate (one predict per origin and step, the predictions
+written over a copy of the outputs), on random models in float64, inside the context (T <= C), beyond it
+(T > C) and with more steps than the context."""
 
 import itertools
 
@@ -8,10 +10,11 @@ import pytest
 import torch
 
 from mop.config import ModelConfig
-from mop.models import build_model, rollout
+from mop.models import build_model, forecast, rollout
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.models.rollout import can_branch
 from mop.systems.base import Trajectories
+from tests.reference import reference_forecast, reference_simulate
 
 CONTEXT = 6
 # (T, K): inside (T < C, T = C), beyond (T > C), and K > C (windows of new inputs only)
@@ -71,7 +74,7 @@ def test_fast_forecast_equals_one_forward_per_origin_and_step(
     assert can_branch(model)
     traj = random_trajectories(3, horizon, inputs)
     predictor = LearnedPredictor(model, chunk_size=2)  # two chunks of systems
-    assert_equal_forecasts(predictor.forecast(traj, steps), predictor.reference_forecast(traj, steps))
+    assert_equal_forecasts(predictor.forecast(traj, steps), reference_forecast(predictor, traj, steps))
 
 
 @pytest.mark.parametrize("position", ["learned", "rope"])
@@ -82,7 +85,7 @@ def test_stream_mode_rolls_out_from_the_stream_predictions(position):
     traj = random_trajectories(2, 13, 2)
     stream = LearnedPredictor(model, mode="stream")
     fast = stream.forecast(traj, 5)
-    assert_equal_forecasts(fast, stream.reference_forecast(traj, 5))
+    assert_equal_forecasts(fast, reference_forecast(stream, traj, 5))
     window = LearnedPredictor(model).forecast(traj, 5)
     assert (fast[:, CONTEXT + 2 :, 0] - window[:, CONTEXT + 2 :, 0]).abs().max() > 1e-3
 
@@ -95,7 +98,7 @@ def test_normalised_model_forecasts_in_data_units(arch):
     traj.y = traj.y * 2.0 + 1.0
     predictor = LearnedPredictor(model, normalization=norm)
     fast = predictor.forecast(traj, 4)
-    assert_equal_forecasts(fast, predictor.reference_forecast(traj, 4))
+    assert_equal_forecasts(fast, reference_forecast(predictor, traj, 4))
     torch.testing.assert_close(fast[:, 0, 0], norm.y_mean.expand(2, 3))
 
 
@@ -106,7 +109,7 @@ def test_float32_model_matches_to_float_rounding():
     predictor = LearnedPredictor(model)
     torch.testing.assert_close(
         predictor.forecast(traj, 6),
-        predictor.reference_forecast(traj, 6),
+        reference_forecast(predictor, traj, 6),
         rtol=1e-4,
         atol=1e-5,
         equal_nan=True,
@@ -182,8 +185,8 @@ def test_a_model_with_input_features_forecasts_as_the_reference(features, horizo
     if features.get("observation_mask"):
         traj.y[0, 2, 1] = float("nan")  # a gap the model reads
     predictor = LearnedPredictor(model)
-    assert_equal_forecasts(predictor.forecast(traj, 3), predictor.reference_forecast(traj, 3))
-    sim, ref = predictor.simulate(traj, 2), predictor.reference_simulate(traj, 2)
+    assert_equal_forecasts(predictor.forecast(traj, 3), reference_forecast(predictor, traj, 3))
+    sim, ref = predictor.simulate(traj, 2), reference_simulate(predictor, traj, 2)
     torch.testing.assert_close(sim, ref, rtol=0, atol=1e-10)
 
 
@@ -192,10 +195,26 @@ def test_streamed_simulation_equals_the_reference(arch):
     model = random_model(arch, "rope", "mean", 2)
     traj = random_trajectories(3, CONTEXT if arch == "gpt" else 3 * CONTEXT, 2)
     predictor = LearnedPredictor(model)
-    assert predictor._streams_exactly(traj.horizon)
+    assert predictor.streams_exactly(traj.horizon)
     for context in (1, 3):
         sim = predictor.simulate(traj, context)
-        torch.testing.assert_close(sim, predictor.reference_simulate(traj, context), rtol=0, atol=1e-10)
+        torch.testing.assert_close(sim, reference_simulate(predictor, traj, context), rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("horizon", [CONTEXT - 1, CONTEXT + 3])
+def test_every_rollout_path_equals_the_reference(arch, horizon):
+    """Each path forecast_path may choose (branch, stream where it is exact, window) gives the reference's
+    forecasts, whichever the chooser picks for this model."""
+    model = random_model(arch, "learned", "gaussian", 2)
+    traj = random_trajectories(2, horizon, 2)
+    predictor = LearnedPredictor(model)
+    expected = reference_forecast(predictor, traj, 4)
+    paths = [forecast.branched_forecast, forecast.windowed_forecast]
+    if predictor.streams_exactly(horizon):
+        paths.append(forecast.streamed_forecast)
+    for path in paths:
+        assert_equal_forecasts(path(predictor, traj, 4), expected)
 
 
 def test_windows_batched_across_prefill_batches(monkeypatch):
@@ -205,4 +224,4 @@ def test_windows_batched_across_prefill_batches(monkeypatch):
     model = random_model("gpt", "rope", "mean", 2)
     traj = random_trajectories(2, 15, 2)
     predictor = LearnedPredictor(model)
-    assert_equal_forecasts(predictor.forecast(traj, 9), predictor.reference_forecast(traj, 9))
+    assert_equal_forecasts(predictor.forecast(traj, 9), reference_forecast(predictor, traj, 9))

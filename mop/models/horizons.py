@@ -13,7 +13,7 @@ without inputs has no F. The one-step read-out is unchanged, so everything that 
 
 The k-step heads predict the conditional mean of y_{t+k} directly: nothing predicted is fed back, and on a
 nonlinear system a k-step forecast is the predictive mean, not the mean path of a roll-out
-(model.forecast_mode = "direct", mop.models.predictor.LearnedPredictor.direct_forecast). This is the
+(model.forecast_mode = "direct", mop.models.forecast.direct_forecast). This is the
 "direct" multi-step strategy of forecasting, beyond the paper (its model has K = 1).
 """
 

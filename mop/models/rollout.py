@@ -1,6 +1,6 @@
 """k-step forecasts of a learned model from every origin at once, at the cost of the new inputs only.
 
-The forecast from origin t (LearnedPredictor.forecast) at step j >= 1 reads
+The forecast from origin t (mop.models.forecast) at step j >= 1 reads
 
     S(t, j) = z_0..z_{t-1}, n_1..n_j,      n_i = [f_{t, i-1}, u_{t+i-1}]
 
@@ -27,8 +27,9 @@ Transformer (transformer_forecast):
 GRU (recurrent_forecast): the hidden state after z_0..z_{t-1} is kept for every origin t (one step per
 input), and all origins advance together, one GRU step per forecast step.
 
-Both equal LearnedPredictor.reference_forecast (one forward of S(t, j) per (t, j)) to float rounding
-(tests/test_rollout.py, float64 models: 1e-10). Entries with t + j > T are NaN.
+Both equal the definition (one forward of S(t, j) per (t, j): mop.models.forecast.windowed_forecast, and
+the tests' own reference) to float rounding (tests/test_rollout.py, float64 models: 1e-10). Entries with
+t + j > T are NaN.
 """
 
 from __future__ import annotations

@@ -1,0 +1,87 @@
+"""Free-run simulation of a learned model, and the two roll-outs on its own predictions that simulation and
+the k-step forecast (mop.models.forecast) share.
+
+simulate(p, traj, c) -> (B, T+1-c, m): out[:, j] predicts y_{c+j} from z_0..z_{c-1} and then the model's own
+predicted outputs with the given inputs, [yhat_c, u_c], .., [yhat_{c+j-1}, u_{c+j-1}] (a forecast from origin
+c). The one chooser, simulation_path, takes
+- "gap" (model.forecast_mode = "gap"): one predict with y_c..y_T read as missing;
+- "stream" where stepping the model's stream cache equals its forward (a recurrent model; a transformer
+  with T <= context): the cache steps once per input (streamed_rollout);
+- "window" otherwise: one forward per simulated step on the last C inputs (windowed_rollout).
+All in data units; the model's normalisation is applied by the predictor (mop.models.predict).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from mop.models.predict import ModelPredictor
+from mop.systems.base import Trajectories
+
+
+def fed_back(pred: Tensor, u: Tensor | None, t: int) -> Tensor:
+    """The model input a roll-out feeds back: [pred, u_t] (B, m + k), or pred (B, m) without inputs."""
+    return pred if u is None else torch.cat([pred, u[:, t]], dim=-1)
+
+
+def windowed_rollout(
+    p: ModelPredictor, hist: Tensor, pred: Tensor, u: Tensor | None, start: int, count: int
+) -> list[Tensor]:
+    """`count` predictions, each one forward on the last C inputs (all of them for a model that is not
+    context-limited) of hist (B, L, m + k) followed by the fed-back [pred, u_start], [pred', u_start+1], ..;
+    pred (B, m) is the prediction of y_start. Returns [yhat_{start+1}, ..] each (B, m), float64, CPU."""
+    limit = p.cfg.context if p.model.context_limited else None
+    preds = []
+    for i in range(count):
+        hist = torch.cat([hist, fed_back(pred, u, start + i)[:, None]], dim=1)
+        pred = p.last_output(hist if limit is None else hist[:, -limit:])
+        preds.append(pred)
+    return preds
+
+
+def streamed_rollout(
+    p: ModelPredictor, cache: Any, pred: Tensor, u: Tensor | None, start: int, count: int
+) -> list[Tensor]:
+    """As windowed_rollout, but stepping the model's stream cache (which has read the history) once per
+    fed-back input; call it under torch.no_grad() with the model evaluating."""
+    preds = []
+    for i in range(count):
+        pred = p.step(fed_back(pred, u, start + i), cache)
+        preds.append(pred)
+    return preds
+
+
+def simulation_path(p: ModelPredictor, horizon: int, context: int) -> str:
+    """ "gap", "stream" or "window" (see the module docstring) for T = horizon and c = context."""
+    if p.cfg.forecast_mode == "gap":
+        return "gap"
+    if context > 0 and p.streams_exactly(horizon):
+        return "stream"
+    return "window"
+
+
+def simulate(p: ModelPredictor, traj: Trajectories, context: int) -> Tensor:
+    """(B, T+1-c, m) free-run simulation from c = context (see the module docstring)."""
+    path = simulation_path(p, traj.horizon, context)
+    if path == "gap":
+        y = traj.y.clone()
+        y[:, context:] = float("nan")
+        return p.predict(Trajectories(y, traj.u))[:, context:]
+    z = traj.model_inputs().double()  # (B, T+1, d_in) in data units
+    u = None if traj.u is None else traj.u.double()
+    count = traj.horizon - context
+    if path == "stream":
+        with torch.no_grad(), p.evaluating():
+            cache = p.model.init_cache(z.shape[0])
+            for t in range(context):
+                pred = p.step(z[:, t], cache)  # after z_{c-1}: the prediction of y_c
+            out = [pred, *streamed_rollout(p, cache, pred, u, context, count)]
+    else:
+        hist = z[:, :context]
+        limit = p.cfg.context if p.model.context_limited else None
+        pred = p.last_output(hist if limit is None else hist[:, -limit:])  # y_c from z_{<c}
+        out = [pred, *windowed_rollout(p, hist, pred, u, context, count)]
+    return torch.stack(out, dim=1).to(traj.y.dtype)
