@@ -27,6 +27,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.systems", "mop.config"),
     ("mop.predictors",),
     ("mop.filters",),
+    ("mop.identify",),  # fitted identifiers: built on the filters' subspace code, loaded by mop predict
     ("mop.models", "mop.runs"),
     ("mop.evaluate",),
     ("mop.train",),

@@ -28,6 +28,8 @@ import torch
 from mop.atomic import atomic_path
 from mop.config import SystemConfig
 from mop.errors import MopError
+from mop.identify import is_fitted
+from mop.identify import load as load_fitted
 from mop.io import read_system, read_trajectories
 from mop.memory import check_allocation
 from mop.predictors import (
@@ -46,8 +48,8 @@ from mop.systems.base import LINEAR_MODEL_ARRAYS, linear_model_from_params
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "predictor",
-        help="run directory of `mop train`, pretrained:NAME (shipped: mop pretrained), or a registered "
-        "predictor name; these need only the data: " + ", ".join(model_free()),
+        help="run directory of `mop train`, model directory of `mop fit`, pretrained:NAME (shipped: mop "
+        "pretrained), or a registered predictor name; these need only the data: " + ", ".join(model_free()),
     )
     parser.add_argument("data", help="trajectories: .csv (trajectory,t,y0..,u0..) or .npz (y, u[, param_*])")
     parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
@@ -68,7 +70,10 @@ def model_free() -> list[str]:
 
 
 def resolve_predictor(spec: str, stream: bool = False):
-    """(predictor, needs_system) for a run directory, pretrained:NAME or a registered (non-learned) name."""
+    """(predictor, needs_system) for a fitted model (mop fit), a run directory, pretrained:NAME or a
+    registered (non-learned) name."""
+    if is_fitted(spec):
+        return load_fitted(spec), False
     if is_pretrained(spec) or Path(spec).is_dir():
         return load_predictor(spec, mode="stream" if stream else "window"), False
     names = PREDICTORS.names()

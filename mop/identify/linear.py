@@ -1,0 +1,194 @@
+"""The one shape every fitted identifier (ARX, N4SID) takes, and the predictor that runs it, fixed once fit.
+
+A fitted model is linear in innovation form, in numpy float64:
+
+    x_{t+1} = A x_t + B u_t + b + K (y_t - yhat_t),     yhat_t = C x_t + d,
+
+x_t (n,) the state before y_t is read, so yhat_t predicts y_t from y_<t and u_<t (the mop convention,
+mop.predictors); u_t acts between y_t and y_{t+1} (no direct term). b, d carry the offsets (ARX's intercept,
+the estimation means N4SID removes). x0 is the state before a record starts (ARX: its lags at the estimation
+means; N4SID: 0, the mean).
+- predict: the recursion above over the record from x_0 = x0 (ARX: x_t holds the measured lags, so K
+  writes y_t into the state; N4SID: the steady-state Kalman predictor).
+- forecast[t, j]: the state after y_<t propagated j steps with the deterministic model (K dropped) and the
+  known inputs u_t..u_{t+j-1}.
+- simulate(traj, C): y_C..y_T from the deterministic model, its state estimated from the context y_<C (see
+  FittedPredictor.context_state); C = 0 simulates the whole record, its initial state fitted to the first
+  outputs (the benchmark protocol: the state is not measured).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from mop.errors import MopError
+from mop.predictors import nan_beyond_horizon
+from mop.registry import Registry
+from mop.systems.base import Trajectories
+
+# name -> the identifier's class: candidates, size, feasible, fit_grid (mop.identify.arx, mop.identify.n4sid)
+IDENTIFIERS: Registry = Registry("fitted identifier")
+
+RCOND = 1e-8  # least-squares state estimates ignore directions the outputs see this weakly (unobservable)
+
+
+@dataclass(frozen=True)
+class LinearModel:
+    """x_{t+1} = A x_t + B u_t + b + K (y_t - C x_t - d), yhat_t = C x_t + d; x0 the state before the record.
+    Shapes: A (n, n), B (n, k), C (m, n), K (n, m), b (n,), d (m,), x0 (n,)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    K: np.ndarray
+    b: np.ndarray
+    d: np.ndarray
+    x0: np.ndarray
+
+    @property
+    def state_dim(self) -> int:
+        return self.A.shape[0]
+
+    def predictor_states(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """X (B, T+1, n): X[:, t] the state after reading y_<t, u_<t from x0; y (B, T+1, m), u (B, T+1, k)."""
+        F = self.A - self.K @ self.C  # (n, n)
+        x = np.broadcast_to(self.x0, (y.shape[0], self.state_dim)).copy()
+        X = np.empty((*y.shape[:2], self.state_dim))
+        for t in range(y.shape[1]):
+            X[:, t] = x
+            x = x @ F.T + y[:, t] @ self.K.T + u[:, t] @ self.B.T + (self.b - self.K @ self.d)
+        return X
+
+    def rollout(self, x: np.ndarray, u: np.ndarray, steps: int) -> np.ndarray:
+        """(B, steps, m): yhat_j = C x_j + d from x_0 = x (B, n), x_{j+1} = A x_j + B u_j + b, with the
+        inputs u (B, >= steps - 1, k)."""
+        out = np.empty((x.shape[0], steps, self.C.shape[0]))
+        with np.errstate(over="ignore", invalid="ignore"):  # an unstable model diverges: inf / NaN, scored so
+            for j in range(steps):
+                out[:, j] = x @ self.C.T + self.d
+                if j + 1 < steps:
+                    x = x @ self.A.T + u[:, j] @ self.B.T + self.b
+        return out
+
+    def fit_state(self, y: np.ndarray, u: np.ndarray, prior: np.ndarray) -> np.ndarray:
+        """(B, n): the state x_s at the first of the outputs y (B, L, m) that best explains them by least
+        squares under the deterministic model with the inputs u (B, L, k): x_s = prior + z, z the minimum-norm
+        solution of y_{s+l} - rollout(prior)_l = C A^l z (directions the L outputs do not see stay at
+        prior)."""
+        L, n = y.shape[1], self.state_dim
+        free = self.rollout(np.broadcast_to(prior, (y.shape[0], n)), u, L)  # (B, L, m)
+        rows, AL = [], np.eye(n)
+        for _ in range(L):
+            rows.append(self.C @ AL)
+            AL = self.A @ AL
+        O = np.concatenate(rows)  # (L m, n): the observability matrix over the window
+        resid = (y - free).reshape(y.shape[0], -1)  # (B, L m)
+        if not np.isfinite(O).all() or not np.isfinite(resid).all():
+            return np.broadcast_to(prior, (y.shape[0], n)).copy()
+        z = np.linalg.lstsq(O, resid.T, rcond=RCOND)[0]  # (n, B)
+        return prior + z.T
+
+    def to_json(self) -> dict[str, Any]:
+        return {k: getattr(self, k).tolist() for k in ("A", "B", "C", "K", "b", "d", "x0")}
+
+
+def arrays_of(traj: Trajectories, m: int, k: int, who: str) -> tuple[np.ndarray, np.ndarray]:
+    """(y (B, T+1, m), u (B, T+1, k)) float64 numpy of traj; MopError if the dimensions differ from the fit's
+    or an output is missing (a fixed linear model reads every output)."""
+    y = traj.y.detach().cpu().double().numpy()
+    u = np.zeros((*y.shape[:2], 0)) if traj.u is None else traj.u.detach().cpu().double().numpy()
+    if y.shape[-1] != m or u.shape[-1] != k:
+        raise MopError(
+            f"{who} was fitted on {m} output(s) and {k} input(s); these data have {y.shape[-1]} and "
+            f"{u.shape[-1]}: give data with the estimation record's columns"
+        )
+    if np.isnan(y).any():
+        raise MopError(
+            f"{who} needs every output, and these data have {int(np.isnan(y).sum())} missing; fill the gaps"
+        )
+    return y, u
+
+
+@dataclass
+class FittedPredictor:
+    """A fitted identifier as a mop Predictor: predict / forecast / simulate with the model fixed.
+
+    kind: "arx" or "n4sid"; orders: e.g. {"p": 2, "q": 2} or {"n": 3}; info: what the fit recorded (the
+    estimation file, the selection criterion and the held-out scores of the order grid)."""
+
+    kind: str
+    orders: dict[str, int]
+    model: LinearModel
+    output_dim: int
+    input_dim: int
+    info: dict[str, Any] = field(default_factory=dict)
+    lag_state: bool = False
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        self.name = self.name or f"fitted-{self.kind}"
+
+    def _arrays(self, traj: Trajectories) -> tuple[np.ndarray, np.ndarray]:
+        return arrays_of(traj, self.output_dim, self.input_dim, self.name)
+
+    def predict(self, traj: Trajectories) -> Tensor:
+        """(B, T+1, m): yhat_t = C x_t + d, x_t the predictor state after y_<t, u_<t."""
+        y, u = self._arrays(traj)
+        X = self.model.predictor_states(y, u)
+        return torch.from_numpy(X @ self.model.C.T + self.model.d).to(traj.y.dtype)
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): forecast[:, t, j], the deterministic model run j steps from the state after
+        y_<t."""
+        y, u = self._arrays(traj)
+        M = self.model
+        X = M.predictor_states(y, u)  # (B, T+1, n)
+        T1 = y.shape[1]
+        u_ahead = np.concatenate([u, np.repeat(u[:, -1:], steps, axis=1)], axis=1)  # inputs past T: unused
+        out = np.empty((*y.shape[:2], steps, y.shape[-1]))
+        with np.errstate(over="ignore", invalid="ignore"):
+            for j in range(steps):
+                out[:, :, j] = X @ M.C.T + M.d
+                X = X @ M.A.T + u_ahead[:, j : j + T1] @ M.B.T + M.b
+        return nan_beyond_horizon(torch.from_numpy(out)).to(traj.y.dtype)
+
+    def context_state(self, y: np.ndarray, u: np.ndarray, context: int) -> tuple[np.ndarray, int]:
+        """(x_s (B, n), s): a state of the deterministic model at s <= context estimated from y_<context.
+
+        lag_state (ARX, context >= 1): the state is the measured lags, x_context read from the context (lags
+        before the record's start at the estimation means). Otherwise the last L = min(context, W) context
+        outputs fit x_{context-L} by least squares (fit_state, around x0), W = max(10, 2 n); context 0: the
+        first min(T+1, W) outputs fit x_0 (the only outputs there are)."""
+        if self.lag_state and context >= 1:
+            X = self.model.predictor_states(y[:, : context + 1], u[:, : context + 1])  # X[:, C] reads y_<C
+            return X[:, context], context
+        n, T1 = self.model.state_dim, y.shape[1]
+        window = max(10, 2 * n)
+        s = 0 if context == 0 else context - min(context, window)
+        L = min(T1, window) if context == 0 else context - s
+        return self.model.fit_state(y[:, s : s + L], u[:, s : s + L], self.model.x0), s
+
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m): out[:, j] predicts y_{c+j} from y_<c and the inputs (c = context >= 0)."""
+        y, u = self._arrays(traj)
+        T1 = y.shape[1]
+        if not 0 <= context < T1:
+            raise MopError(f"simulation context must be in [0, T = {T1 - 1}], got {context}")
+        x, s = self.context_state(y, u, context)
+        sim = self.model.rollout(x, u[:, s:], T1 - s)  # (B, T+1-s, m): y_s..y_T
+        return torch.from_numpy(sim[:, context - s :]).to(traj.y.dtype)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "orders": self.orders,
+            "output_dim": self.output_dim,
+            "input_dim": self.input_dim,
+            "model": self.model.to_json(),
+            **self.info,
+        }
