@@ -58,8 +58,8 @@ def traj(y, u):
 
 
 def test_arx_fit_equals_a_plain_numpy_least_squares_fit():
-    """Coefficients and one-step predictions against the normal equations, written out over t and
-    trajectories."""
+    """Coefficients, one-step predictions and a free-run simulation against the normal equations and the
+    recursion written out over t and trajectories."""
     data, _, _ = arx_record(0, np.random.default_rng(0), lengths=[120, 80, 95])
     p, q = 3, 2
     rows, targets = [], []
@@ -77,6 +77,10 @@ def test_arx_fit_equals_a_plain_numpy_least_squares_fit():
     for t in range(3, len(y)):
         phi = np.concatenate([y[t - 1], y[t - 2], y[t - 3], u[t - 1], u[t - 2], [1.0]])
         np.testing.assert_allclose(yhat[t], theta.T @ phi, atol=1e-10)
+    context, sim = 10, y.copy()  # free run: the model's own outputs replace y from the context on
+    for t in range(context, len(y)):
+        sim[t] = theta.T @ np.concatenate([sim[t - 1], sim[t - 2], sim[t - 3], u[t - 1], u[t - 2], [1.0]])
+    np.testing.assert_allclose(fitted.simulate(traj(y, u), context)[0].numpy(), sim[context:], atol=1e-10)
 
 
 def test_arx_recovers_a_known_systems_coefficients_within_its_standard_errors():
