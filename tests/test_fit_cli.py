@@ -40,7 +40,7 @@ def test_fit_then_predict_end_to_end(kind, tmp_path, capsys):
     assert "held-out rmse" in out and "chosen" in out and (model / "fitted.json").is_file()
     sim_path = tmp_path / "sim.csv"
     assert main(["predict", str(model), str(val), "--simulate", "20", "--out", str(sim_path)]) == 0
-    assert "simulation" in capsys.readouterr().out
+    assert "sim rmse" in capsys.readouterr().out
     y, u = read_column(val, "y0"), read_column(val, "u0")
     tr = Trajectories(y=torch.from_numpy(y)[None, :, None], u=torch.from_numpy(u)[None, :, None])
     expected = load(model).simulate(tr, 20)[0, :, 0].numpy()
