@@ -201,7 +201,12 @@ def test_predict_by_name_window_stream_and_steps(tmp_path):
 
 @pytest.mark.parametrize(
     "name, outputs, inputs, word",
-    [("linear", 2, 0, "output_dim=2"), ("quadrotor", 3, 0, "0 inputs u"), ("linear", 5, 2, "2 inputs u")],
+    [
+        ("linear", 2, 0, "output_dim=2"),
+        ("quadrotor", 3, 0, "0 inputs u"),
+        ("linear", 5, 2, "2 inputs u"),
+        ("linear-inputs", 5, 0, "0 inputs u"),
+    ],
 )
 def test_predict_refuses_other_dimensions_in_one_line(name, outputs, inputs, word, tmp_path, capsys):
     rng = np.random.default_rng(0)
@@ -214,6 +219,31 @@ def test_predict_refuses_other_dimensions_in_one_line(name, outputs, inputs, wor
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and word in err and f"pretrained:{name}" in err
     assert not (tmp_path / "d_pred.npz").exists()
+    fits = [n for n in SHIPPED if _dims_of(n) == (outputs, inputs)]  # from each shipped config, by hand
+    named = ", ".join(f"pretrained:{n}" for n in fits)
+    hint = f"shipped models for m={outputs}, k={inputs}: {named}"
+    hint = hint if fits else "mop train --data FILE --out DIR"
+    assert err.rstrip().endswith(hint)
+
+
+def _dims_of(name: str) -> tuple[int, int]:
+    model = json.loads((pretrained.ROOT / name / "config.json").read_text())["model"]
+    mask = model["output_dim"] if model.get("observation_mask") else 0
+    return model["output_dim"], model["input_dim"] - model["output_dim"] - mask
+
+
+def test_fitting_names_the_models_of_given_dimensions(tmp_path):
+    for name, model in {
+        "a": {"output_dim": 1, "input_dim": 2},
+        "b": {"output_dim": 1, "input_dim": 3, "observation_mask": True},
+        "c": {"output_dim": 2, "input_dim": 2},
+    }.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "config.json").write_text(json.dumps({"model": model}))
+        (tmp_path / name / "card.json").write_text("{}")
+    assert pretrained.fitting(1, 1, tmp_path) == ["pretrained:a", "pretrained:b"]
+    assert pretrained.fitting(2, 0, tmp_path) == ["pretrained:c"]
+    assert pretrained.fitting(3, 0, tmp_path) == []
 
 
 # --- listing, reproduce, experiment files --------------------------------------------------------------
@@ -224,6 +254,8 @@ def test_mop_pretrained_lists_every_model_and_shows_its_card(capsys):
     out = capsys.readouterr().out
     for name in SHIPPED:
         assert f"pretrained:{name}:" in out and str(pretrained.ROOT / name / "CARD.md") in out
+        m, k = _dims_of(name)
+        assert f"pretrained:{name}: m={m} outputs, k={k} inputs, class " in out
     assert f"{len(SHIPPED)} models" in out
     assert main(["pretrained", "show", "quadrotor"]) == 0
     assert capsys.readouterr().out == (pretrained.ROOT / "quadrotor" / "CARD.md").read_text()

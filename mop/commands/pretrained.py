@@ -11,7 +11,7 @@ from pathlib import Path
 
 from mop.commands import OverridesAnywhere
 from mop.errors import MopError
-from mop.pretrained import PREFIX, ROOT, read_card, shipped_dir, shipped_names
+from mop.pretrained import PREFIX, ROOT, dimensions, read_card, shipped_dir, shipped_names
 from mop.pretrained.build import build
 
 EPILOG = """examples:
@@ -44,10 +44,10 @@ def summary_line(name: str, card: dict) -> str:
     ev = card["evaluation"]
     late = next(w for w in ev["ratio_to_reference"] if w.startswith("[20,"))
     r = ev["ratio_to_reference"][late]
-    model = card["model"]
+    m, k = dimensions(card["model"])
     return (
-        f"{PREFIX}{name}: {card['family']['family']}, y {model['output_dim']} / input "
-        f"{model['input_dim'] - model['output_dim']}, {card['num_parameters']} params "
+        f"{PREFIX}{name}: m={m} outputs, k={k} inputs, class {card['family']['family']}, "
+        f"{card['num_parameters']} params "
         f"({card['size_bytes'] / 1e3:.0f} kB); MOP/{ev['reference']} MSE t in {late} {r['ratio']:.3f} "
         f"[{r['low']:.3f}, {r['high']:.3f}] on {ev['num_systems']} systems. {card['summary']}"
     )

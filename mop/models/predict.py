@@ -32,6 +32,7 @@ from mop.missing import masked_inputs
 from mop.models.interface import LearnedModel
 from mop.models.normalization import InputStats, Normalization, out_of_range
 from mop.models.registry import predictor_names
+from mop.pretrained import fitting_hint
 from mop.systems.base import Trajectories
 
 
@@ -80,8 +81,8 @@ class ModelPredictor:
             k_model = self.cfg.input_dim - self.cfg.output_dim - mask
             raise MopError(
                 f"the data has output_dim={traj.output_dim} and {k_data} inputs u, but {model} was trained "
-                f"with output_dim={self.cfg.output_dim} and {k_model} inputs u; use a model trained on data "
-                "like yours"
+                f"with output_dim={self.cfg.output_dim} and {k_model} inputs u; "
+                + fitting_hint(traj.output_dim, k_data)
             )
         if not self.cfg.observation_mask and traj.observed is not None:
             raise MopError(

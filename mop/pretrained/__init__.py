@@ -92,6 +92,38 @@ def resolve_run_dir(spec: str | os.PathLike) -> Path:
     return Path(spec)
 
 
+def dimensions(model: dict[str, Any]) -> tuple[int, int]:
+    """(m outputs, k inputs) a saved model config (config.json's "model") reads: d_in = m + k (+ m mask)."""
+    m = int(model.get("output_dim", 0))
+    mask = m if model.get("observation_mask") else 0
+    return m, int(model.get("input_dim", 0)) - m - mask
+
+
+def fitting(outputs: int, inputs: int, root: Path | None = None) -> list[str]:
+    """`pretrained:NAME` of the shipped models that read m = outputs outputs and k = inputs inputs."""
+    root = ROOT if root is None else root
+    found = []
+    for name in shipped_names(root):
+        try:
+            model = json.loads((root / name / "config.json").read_text()).get("model", {})
+        except (OSError, json.JSONDecodeError):
+            continue  # a damaged one is refused when loaded by name
+        if dimensions(model) == (outputs, inputs):
+            found.append(PREFIX + name)
+    return found
+
+
+def fitting_hint(outputs: int, inputs: int) -> str:
+    """What to use for data of m outputs and k inputs: the shipped models that fit, or how to train one."""
+    found = fitting(outputs, inputs)
+    if found:
+        return f"shipped models for m={outputs}, k={inputs}: {', '.join(found)}"
+    return (
+        f"no shipped model reads m={outputs}, k={inputs} (see: mop pretrained); train one on your data: "
+        "mop train --data FILE --out DIR"
+    )
+
+
 def find_shipped(config: dict[str, Any], root: Path | None = None) -> str | None:
     """`pretrained:NAME` of a shipped model trained on the data distribution of `config` (a RunConfig as a
     dict: the same system config, model architecture and read-out, no recorded data), else None."""
