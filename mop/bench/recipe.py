@@ -216,7 +216,9 @@ def measure(
 def _aggregate(name: str, budget: float, unit: str, per_seed: list[dict]) -> dict:
     """Mean over seeds of steps, seconds, loss and ratio; its range; ci_*: the union of the seeds' CIs."""
     mean = lambda key: sum(r[key] for r in per_seed) / len(per_seed)  # noqa: E731
-    ratios = [r["ratio"] for r in per_seed]
+    ratios, k_step = [r["ratio"] for r in per_seed], {}
+    if "k_step" in per_seed[0]:  # --forecast: the mean over seeds of each k's error
+        k_step = {"k_step": [sum(c) / len(c) for c in zip(*(r["k_step"] for r in per_seed), strict=True)]}
     return {
         "recipe": name,
         "budget": budget,
@@ -231,16 +233,8 @@ def _aggregate(name: str, budget: float, unit: str, per_seed: list[dict]) -> dic
         "ci_low": min(r["ci_low"] for r in per_seed),
         "ci_high": max(r["ci_high"] for r in per_seed),
         "seeds": per_seed,
-        **_k_step_mean(per_seed),
+        **k_step,
     }
-
-
-def _k_step_mean(per_seed: list[dict]) -> dict:
-    """{"k_step": mean over seeds of each k's error} where the seeds have k-step errors (--forecast)."""
-    if "k_step" not in per_seed[0]:
-        return {}
-    columns = zip(*(r["k_step"] for r in per_seed), strict=True)
-    return {"k_step": [sum(col) / len(col) for col in columns]}
 
 
 def _line(r: dict) -> str:
@@ -349,5 +343,4 @@ def _check_names(args: argparse.Namespace) -> None:
     if args.family not in FAMILIES.names():
         raise MopError(f"unknown --family {args.family!r}; choose one of {', '.join(FAMILIES.names())}")
     for name in (args.reference, *args.compare):
-        if name not in PREDICTORS.names():
-            raise MopError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS.names())}")
+        PREDICTORS.get(name)  # MopError "unknown predictor ...; choose one of ..."

@@ -113,31 +113,22 @@ def pf_forecast(
     j >= 1, not rolled out) change nothing else. Entries with t + j > T are NaN. Variances: the
     diagonal of C Cov_i(X^i) C^T + R over the prior particles of x_t.
     """
-    ahead_gen = torch.Generator(device=y.device)
     generator = torch.Generator(device=y.device).manual_seed(seed)
     proj = model.project if project and model.project is not None else (lambda x: x)
     y, u = y.double(), None if u is None else u.double()
-    B, n = model.m0.shape
-    eye = 1e-12 * torch.eye(n, dtype=y.dtype, device=y.device)
-    L_Q, L_0 = torch.linalg.cholesky(model.Q + eye), torch.linalg.cholesky(model.P0 + eye)
-    eps = torch.randn((B, num_particles, n), generator=generator, device=generator.device, dtype=y.dtype)
-    X = proj(model.m0[:, None] + eps @ L_0.mT)  # (B, N, n)
+    L_Q, X = _start(model, y, num_particles, generator, proj)
     R_inv = torch.linalg.inv(model.R)  # (B, m, m)
-    T1 = y.shape[1]
+    B, T1, m = y.shape[0], y.shape[1], model.R.shape[-1]
     seen = ~torch.isnan(y)  # (B, T+1, m)
     observed = None if bool(seen.all()) else seen
-    out = y.new_full((B, T1, steps, model.R.shape[-1]), float("nan"))
-    var = y.new_empty(B, T1, model.R.shape[-1])
+    out = y.new_full((B, T1, steps, m), float("nan"))
+    var = y.new_empty(B, T1, m)
+    roll = Rollout(model, u, L_Q, proj, torch.Generator(device=y.device), seed)
     for t in range(T1):
         C = model.output_matrix(t)
         out[:, t, 0] = (C @ X.mean(1)[..., None])[..., 0]  # (B, m)
         var[:, t] = (X @ C.mT).var(1, unbiased=False) + model.R.diagonal(dim1=-2, dim2=-1)
-        Xj = X
-        ahead_gen.manual_seed(rollout_seed(seed, t))
-        for j in range(1, min(steps, T1 - t) if t >= start else 1):
-            f = lambda x, v, s=t + j - 1: model.f(x, v, s)  # noqa: E731
-            Xj = proj(_predict(Xj, None if u is None else u[:, t + j - 1], f, L_Q, ahead_gen))
-            out[:, t, j] = (model.output_matrix(t + j) @ Xj.mean(1)[..., None])[..., 0]
+        roll.ahead(X, t, min(steps, T1 - t) if t >= start else 1, out)
         if observed is None:
             X = _condition_on(X, y[:, t], C, R_inv, generator)
         else:
@@ -145,6 +136,49 @@ def pf_forecast(
         f = lambda x, v, t=t: model.f(x, v, t)  # noqa: E731
         X = proj(_predict(X, None if u is None else u[:, t], f, L_Q, generator))
     return nan_beyond_horizon(out), var
+
+
+def _start(
+    model: StateSpace, y: Tensor, num_particles: int, generator: torch.Generator, proj: Callable
+) -> tuple[Tensor, Tensor]:
+    """(L_Q (B, n, n) with L_Q L_Q^T = Q, the initial particles X_0 (B, N, n) ~ N(m_0, P_0), projected)."""
+    B, n = model.m0.shape
+    eye = 1e-12 * torch.eye(n, dtype=y.dtype, device=y.device)
+    L_Q, L_0 = torch.linalg.cholesky(model.Q + eye), torch.linalg.cholesky(model.P0 + eye)
+    eps = torch.randn((B, num_particles, n), generator=generator, device=generator.device, dtype=y.dtype)
+    return L_Q, proj(model.m0[:, None] + eps @ L_0.mT)  # (B, N, n)
+
+
+class Rollout:
+    """The k-step roll-outs of pf_forecast: from origin t, the prior particles propagated without
+    measurements, with draws from a generator seeded by rollout_seed(seed, t)."""
+
+    def __init__(
+        self,
+        model: StateSpace,
+        u: Tensor | None,
+        L_Q: Tensor,
+        proj: Callable,
+        generator: torch.Generator,
+        seed: int,
+    ) -> None:
+        self.model, self.u, self.L_Q, self.proj, self.generator, self.seed = (
+            model,
+            u,
+            L_Q,
+            proj,
+            generator,
+            seed,
+        )
+
+    def ahead(self, X: Tensor, t: int, steps: int, out: Tensor) -> None:
+        """out[:, t, j] = C_{t+j} mean_i X_{t+j}^i (j = 1..steps-1) from X (B, N, n), the priors at t."""
+        self.generator.manual_seed(rollout_seed(self.seed, t))
+        for j in range(1, steps):
+            f = lambda x, v, s=t + j - 1: self.model.f(x, v, s)  # noqa: E731
+            v = None if self.u is None else self.u[:, t + j - 1]
+            X = self.proj(_predict(X, v, f, self.L_Q, self.generator))
+            out[:, t, j] = (self.model.output_matrix(t + j) @ X.mean(1)[..., None])[..., 0]
 
 
 @PREDICTORS.register("pf", needs_system=True, gaussian=True)

@@ -19,6 +19,7 @@ Markov parameters C A^j B it identifies.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -166,31 +167,62 @@ def n4sid_kalman_forecast(
         fallback_k = arx_forecast(y, u, 2, 2, steps, origin)
     fallback = fallback_k[:, :, 0]  # (B, T, m) = rls_predict(y, 2) (arx_predict(y, u, 2, 2))
     out = fallback_k.clone()
-    A = Bm = C = K = state = stable = None
+    fit = None
     score = y.new_zeros(B)  # sum over past steps of (model error^2 - RLS error^2)
     for t in range(start, T if origin is None else min(origin + 1, T)):
         if (t - start) % every == 0:
-            if u is None:
-                A, C, K = identify(y[:, :t], order, i)
-            else:
-                A, Bm, C, K = identify_with_inputs(y[:, :t], u[:, :t], order, i)
-            stable = torch.linalg.eigvals(A - K @ C).abs().amax(-1) < 1  # (B,) usable predictor
-            state = _run_predictor(A, C, K, y[:, :t], Bm, None if u is None else u[:, :t])
-        kf = (C @ state[..., None])[..., 0]  # (B, m)
-        model = torch.where(stable[:, None], kf, fallback[:, t])
-        use = score < 0 if select else torch.ones_like(stable)
+            fit = Identified.from_prefix(y, u, t, order, i)
+        kf = (fit.C @ fit.state[..., None])[..., 0]  # (B, m)
+        model = torch.where(fit.stable[:, None], kf, fallback[:, t])
+        use = score < 0 if select else torch.ones_like(fit.stable)
         out[:, t, 0] = torch.where(use[:, None], model, fallback[:, t])
-        ahead, use_kf = state, (use & stable)[:, None]
-        for j in range(1, min(steps, T - t) if origin in (None, t) else 1):
-            ahead = (A @ ahead[..., None])[..., 0]
-            if Bm is not None:
-                ahead = ahead + (Bm @ u[:, t + j - 1, :, None])[..., 0]
-            out[:, t, j] = torch.where(use_kf, (C @ ahead[..., None])[..., 0], fallback_k[:, t, j])
+        if origin in (None, t):
+            fit.roll_out(u, t, min(steps, T - t), (use & fit.stable)[:, None], fallback_k, out)
         score = score + ((model - y[:, t]) ** 2).sum(-1) - ((fallback[:, t] - y[:, t]) ** 2).sum(-1)
-        state = (A @ state[..., None] + K @ (y[:, t] - kf)[..., None])[..., 0]
-        if Bm is not None:
-            state = state + (Bm @ u[:, t, :, None])[..., 0]
+        fit.update(y[:, t], kf, None if u is None else u[:, t])
     return nan_beyond_horizon(out)
+
+
+@dataclass
+class Identified:
+    """The innovation model identified from y_<t (A (B, n, n), C (B, m, n), K (B, n, m), B (B, n, k) or
+    None), whether its predictor A - K C is stable (B,), and its predictor state m_t (B, n)."""
+
+    A: Tensor
+    B: Tensor | None
+    C: Tensor
+    K: Tensor
+    stable: Tensor
+    state: Tensor
+
+    @classmethod
+    def from_prefix(cls, y: Tensor, u: Tensor | None, t: int, order: int, i: int) -> Identified:
+        """Identify from y_0..y_{t-1} (and u_0..u_{t-1}) and run its predictor to m_t."""
+        if u is None:
+            (A, C, K), Bm = identify(y[:, :t], order, i), None
+        else:
+            A, Bm, C, K = identify_with_inputs(y[:, :t], u[:, :t], order, i)
+        stable = torch.linalg.eigvals(A - K @ C).abs().amax(-1) < 1  # (B,) usable predictor
+        state = _run_predictor(A, C, K, y[:, :t], Bm, None if u is None else u[:, :t])
+        return cls(A, Bm, C, K, stable, state)
+
+    def roll_out(
+        self, u: Tensor | None, t: int, steps: int, use: Tensor, fallback_k: Tensor, out: Tensor
+    ) -> None:
+        """out[:, t, j] = C A^j m_t (with the known inputs), j = 1..steps-1, where `use` (B, 1), else the
+        fallback's forecast fallback_k[:, t, j]."""
+        ahead = self.state
+        for j in range(1, steps):
+            ahead = (self.A @ ahead[..., None])[..., 0]
+            if self.B is not None:
+                ahead = ahead + (self.B @ u[:, t + j - 1, :, None])[..., 0]
+            out[:, t, j] = torch.where(use, (self.C @ ahead[..., None])[..., 0], fallback_k[:, t, j])
+
+    def update(self, y_t: Tensor, yhat_t: Tensor, u_t: Tensor | None) -> None:
+        """m_{t+1} = A m_t + K (y_t - yhat_t) (+ B u_t)."""
+        self.state = (self.A @ self.state[..., None] + self.K @ (y_t - yhat_t)[..., None])[..., 0]
+        if self.B is not None:
+            self.state = self.state + (self.B @ u_t[..., None])[..., 0]
 
 
 def refuse_gaps(traj: Trajectories) -> Tensor:
