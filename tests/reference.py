@@ -35,6 +35,27 @@ def filterpy_predict(A, C, Q, R, y, x0, P0, B=None, u=None):
     return out
 
 
+def filterpy_forecast(A, C, Q, R, y, x0, P0, steps, B=None, u=None):
+    """k-step forecasts (B, T, K, m) by filterpy: at each t, a copy of the filter before its update at t is
+    advanced j times by KalmanFilter.predict(u=u_{t+i}) (no measurement); [:, t, j] = H x then, NaN where
+    t + j >= T. Arrays (B, ...)."""
+    Bn, T, m = y.shape
+    out = np.full((Bn, T, steps, m), np.nan)
+    for b in range(Bn):
+        kf = KalmanFilter(dim_x=A.shape[-1], dim_z=C.shape[1], dim_u=0 if B is None else B.shape[-1])
+        kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = A[b], C[b], Q[b], R[b], x0[b].copy(), P0[b].copy()
+        if B is not None:
+            kf.B = B[b]
+        for t in range(T):
+            ahead = copy.deepcopy(kf)
+            for j in range(min(steps, T - t)):
+                out[b, t, j] = C[b] @ ahead.x
+                ahead.predict(u=None if u is None else u[b, t + j])
+            kf.update(y[b, t])
+            kf.predict(u=None if u is None else u[b, t])
+    return out
+
+
 def gaussian_conditioning_predict(A, C, Q, R, y, x0, P0, B, u):
     """E[y_t | y_<t] by conditioning the joint Gaussian of (y_0..y_{T-1}) directly (no recursion), one system:
     y = M z + d with z = [x_0 - x0, w_0..w_{T-2}, v_0..v_{T-1}] ~ N(0, blockdiag(P0, Q.., R..)) and d the

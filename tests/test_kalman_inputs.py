@@ -12,7 +12,7 @@ from mop.filters.gaussian import gaussian_filter, kalman_step
 from mop.filters.kalman import kalman_filter, kalman_predict
 from mop.predictors import forecast, make_predictor
 from mop.systems import FAMILIES, generator, make_family, state_space_of
-from tests.reference import filterpy_predict, gaussian_conditioning_predict
+from tests.reference import filterpy_forecast, filterpy_predict, gaussian_conditioning_predict
 from tests.test_kalman import random_spd, random_system
 
 
@@ -71,13 +71,52 @@ def test_there_is_a_linear_family_with_inputs():
     assert "linear-inputs" in linear_input_families()
 
 
-@pytest.mark.parametrize("family", linear_input_families())
-def test_kalman_equals_ekf_on_linear_families_with_inputs(family):
-    traj = make_family(SystemConfig(family=family), torch.float64).generate(6, 30, generator=generator(3))
-    assert traj.u is not None
-    kf, ekf = make_predictor("kalman"), make_predictor("ekf")
-    np.testing.assert_allclose(kf.predict(traj), ekf.predict(traj), rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(forecast(kf, traj, 4), forecast(ekf, traj, 4), rtol=1e-10, atol=1e-12)
+def linear_inputs_matrices(traj):
+    """linear-inputs: x' = A x + B u + w, y = C x + v, x_0 ~ N(0, P0), from the sampled params."""
+    p = {k: v.numpy() for k, v in traj.params.items()}
+    return p["A"], p["B"], p["C"], p["Q"], p["R"], np.zeros(p["A"].shape[:2]), p["P0"]
+
+
+def lti_siso_matrices(traj):
+    """lti-siso (its state_space docstring): the normalized output of [x; 1], A_aug = blockdiag(A, 1),
+    B_aug = [B; 0], C_aug = [C, -mean] / (std + 1e-6), x_0 = [0; 1], Q = P0 = 1e-10 I,
+    R = noise_std^2 + 1e-10."""
+    p = {k: v.numpy() for k, v in traj.params.items()}
+    Bn, n = p["A"].shape[:2]
+    A = np.zeros((Bn, n + 1, n + 1))
+    A[:, :n, :n], A[:, n, n] = p["A"], 1.0
+    B = np.concatenate([p["B"], np.zeros((Bn, 1, p["B"].shape[-1]))], axis=1)
+    C = np.concatenate([p["C"], -p["y_mean"][:, None, None]], axis=-1) / (p["y_std"] + 1e-6)[:, None, None]
+    Q = np.broadcast_to(1e-10 * np.eye(n + 1), (Bn, n + 1, n + 1)).copy()
+    R = (p["noise_std"] ** 2 + 1e-10)[:, None, None]
+    x0 = np.zeros((Bn, n + 1))
+    x0[:, n] = 1.0
+    return A, B, C, Q, R, x0, Q.copy()
+
+
+MATRICES = {"linear-inputs": linear_inputs_matrices, "lti-siso": lti_siso_matrices}
+
+
+def test_every_linear_family_with_inputs_has_its_reference_matrices():
+    assert set(linear_input_families()) == set(MATRICES)
+
+
+@pytest.mark.parametrize("family", sorted(MATRICES))
+@pytest.mark.parametrize("name", ["kalman", "ekf"])
+def test_kalman_and_ekf_with_inputs_match_filterpy(family, name):
+    """The KF and the EKF on every linear family with inputs, against filterpy's KalmanFilter with B and u
+    on the family's matrices built here from its params (not from mop's state-space function): one-step
+    predictions and 4-step forecasts."""
+    traj = make_family(SystemConfig(family=family), torch.float64).generate(4, 30, generator=generator(3))
+    A, B, C, Q, R, x0, P0 = MATRICES[family](traj)
+    y, u = traj.y.numpy(), traj.u.numpy()
+    predictor = make_predictor(name)
+    ref = filterpy_predict(A, C, Q, R, y, x0, P0, B, u)
+    scale = np.abs(ref).max()
+    np.testing.assert_allclose(predictor.predict(traj).numpy(), ref, rtol=1e-8, atol=1e-8 * scale)
+    ref = filterpy_forecast(A, C, Q, R, y, x0, P0, 4, B, u)
+    fc = forecast(predictor, traj, 4).numpy()
+    np.testing.assert_allclose(fc, ref, rtol=1e-8, atol=1e-8 * scale, equal_nan=True)
 
 
 def test_kalman_predictor_on_linear_inputs_matches_filterpy():
