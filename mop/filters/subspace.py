@@ -19,12 +19,13 @@ Markov parameters C A^j B it identifies.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from mop.errors import MopError
+from mop.errors import MopError, MopWarning
 from mop.filters.arx import arx_forecast
 from mop.filters.rls import rls_forecast
 from mop.predictors import PREDICTORS, nan_beyond_horizon
@@ -151,11 +152,30 @@ def n4sid_kalman_forecast(
     u: Tensor | None = None,
     origin: int | None = None,
 ) -> Tensor:
-    """k-step forecasts (B, T, K, m): where n4sid_kalman_predict uses the identified model at t, its state m_t
-    is propagated with no measurement, yhat_{t+j} = C A^j m_t (with inputs: m <- A m + B u, the known
-    future inputs); where it uses RLS-AR(2) (ARX(2, 2)), that model's iterated recursion. j = 0 is
-    n4sid_kalman_predict; entries with t + j >= T are NaN. origin: roll out only from that t (one-step
-    predictions elsewhere; what free-run simulation needs), and stop there."""
+    """k-step forecasts (B, T, K, m) of n4sid_kalman_run (see there)."""
+    args = (order, num_block_rows, min_prefix, every, min_columns, select, u, origin)
+    return n4sid_kalman_run(y, steps, *args)[0]
+
+
+def n4sid_kalman_run(
+    y: Tensor,
+    steps: int,
+    order: int = 4,
+    num_block_rows: int | None = None,
+    min_prefix: int = 20,
+    every: int = 1,
+    min_columns: int | None = None,
+    select: bool = True,
+    u: Tensor | None = None,
+    origin: int | None = None,
+) -> tuple[Tensor, Tensor, int]:
+    """(forecasts (B, T, K, m), used (B, T) bool, t_0). used[:, t]: the identified model made yhat_t (and
+    the forecasts from t); False where the fallback did: before t_0 (the start-up) and where the model was
+    unstable or had not beaten the fallback (select). Forecasts: where n4sid_kalman_predict uses the
+    identified model at t, its state m_t is propagated with no measurement, yhat_{t+j} = C A^j m_t (with
+    inputs: m <- A m + B u, the known future inputs); where it uses RLS-AR(2) (ARX(2, 2)), that model's
+    iterated recursion. j = 0 is n4sid_kalman_predict; entries with t + j >= T are NaN. origin: roll out
+    only from that t (one-step predictions elsewhere; what free-run simulation needs), and stop there."""
     B, T, m = y.shape
     k = 0 if u is None else u.shape[-1]
     i = num_block_rows or max(2, math.ceil(order / m) + 1)
@@ -166,7 +186,7 @@ def n4sid_kalman_forecast(
     else:
         fallback_k = arx_forecast(y, u, 2, 2, steps, origin)
     fallback = fallback_k[:, :, 0]  # (B, T, m) = rls_predict(y, 2) (arx_predict(y, u, 2, 2))
-    out = fallback_k.clone()
+    out, used = fallback_k.clone(), torch.zeros(B, T, dtype=torch.bool, device=y.device)
     fit = None
     score = y.new_zeros(B)  # sum over past steps of (model error^2 - RLS error^2)
     for t in range(start, T if origin is None else min(origin + 1, T)):
@@ -176,11 +196,12 @@ def n4sid_kalman_forecast(
         model = torch.where(fit.stable[:, None], kf, fallback[:, t])
         use = score < 0 if select else torch.ones_like(fit.stable)
         out[:, t, 0] = torch.where(use[:, None], model, fallback[:, t])
+        used[:, t] = use & fit.stable
         if origin in (None, t):
             fit.roll_out(u, t, min(steps, T - t), (use & fit.stable)[:, None], fallback_k, out)
         score = score + ((model - y[:, t]) ** 2).sum(-1) - ((fallback[:, t] - y[:, t]) ** 2).sum(-1)
         fit.update(y[:, t], kf, None if u is None else u[:, t])
-    return nan_beyond_horizon(out)
+    return nan_beyond_horizon(out), used, start
 
 
 @dataclass
@@ -271,31 +292,42 @@ class N4SIDKalmanPredictor:
         )
         self.min_columns, self.select = min_columns, select
 
+    def _run(self, traj: Trajectories, steps: int, origin: int | None = None) -> Tensor:
+        """n4sid_kalman_run on traj (the inputs where it has them); keeps its mask as self.model_used and
+        says where the fallback made most predictions (warn_fallback)."""
+        u = None if traj.u is None else traj.u.double()
+        args = (self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select)
+        out, self.model_used, start = n4sid_kalman_run(refuse_gaps(traj), steps, *args, u=u, origin=origin)
+        warn_fallback(self.name, self.model_used, start, origin, "RLS-AR(2)" if u is None else "ARX(2, 2)")
+        return out.to(traj.y.dtype)
+
     def predict(self, traj: Trajectories) -> Tensor:
         """(B, T+1, m); uses the inputs where traj has them (the model with inputs)."""
-        y, u = refuse_gaps(traj), None if traj.u is None else traj.u.double()
-        args = (self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select)
-        return n4sid_kalman_predict(y, *args, u=u).to(traj.y.dtype)
+        return self._run(traj, 1)[:, :, 0]
 
     def simulate(self, traj: Trajectories, context: int) -> Tensor:
         """(B, T+1-c, m): forecast[:, c] alone (n4sid_kalman_forecast with origin c)."""
-        u = None if traj.u is None else traj.u.double()
-        args = (self.order, self.num_block_rows, self.min_prefix, self.every, self.min_columns, self.select)
-        steps = traj.horizon + 1 - context
-        out = n4sid_kalman_forecast(refuse_gaps(traj), steps, *args, u=u, origin=context)
-        return out[:, context].to(traj.y.dtype)
+        return self._run(traj, traj.horizon + 1 - context, origin=context)[:, context]
 
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): the identified model propagated with no measurement (n4sid_kalman_forecast)."""
-        out = n4sid_kalman_forecast(
-            refuse_gaps(traj),
-            steps,
-            self.order,
-            self.num_block_rows,
-            self.min_prefix,
-            self.every,
-            self.min_columns,
-            self.select,
-            None if traj.u is None else traj.u.double(),
+        return self._run(traj, steps)
+
+
+def warn_fallback(name: str, used: Tensor, start: int, origin: int | None, fallback: str) -> None:
+    """A MopWarning when the fallback made at least half of the predictions that could come from an identified
+    model (t >= t_0; with an origin, the simulations from it): the numbers are then mostly the fallback's
+    (n4sid-kf once printed exactly arx's numbers, and nothing said so). used (B, T) from n4sid_kalman_run."""
+    steps = used[:, start:] if origin is None else used[:, origin : origin + 1]
+    share = 1 - steps.double().mean().item() if steps.numel() else 1.0
+    what = "simulations" if origin is not None else f"predictions from t_0 = {start} on"
+    if share >= 0.5:
+        warnings.warn(
+            MopWarning(
+                f"{name}: its {fallback} fallback made {share:.0%} of the {what} (before t_0 there is too "
+                "little data to identify; after it the fallback stands in where the identified model is "
+                f"unstable or has not beaten it): these numbers are mostly {fallback}'s; the predictor's "
+                "model_used holds the per-step mask"
+            ),
+            stacklevel=3,
         )
-        return out.to(traj.y.dtype)
