@@ -120,6 +120,7 @@ MODEL_CHOICES: dict[str, tuple[str, ...]] = {
     "readout": ("mean", "gaussian"),
     "position": ("learned", "rope"),
     "input_scale": ("none", "running"),
+    "features": ("given", "auto"),
     "forecast_mode": ("rollout", "gap", "direct"),
     "horizon_loss": ("mean", "balanced"),
 }
@@ -145,6 +146,10 @@ class ModelConfig:
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
+    # "given": input_scale / rls_order / arx_order as set; "auto": chosen from the family's shapes and data,
+    # with train.steps scaled by the chosen feature's step cost (mop.train.auto; resolved before training,
+    # so a saved config holds the choice and "given")
+    features: str = "given"
     # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
     # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
     observation_mask: bool = False

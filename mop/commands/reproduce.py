@@ -314,5 +314,8 @@ def _unit(
         print(f"mop reproduce {exp.name}: skipped ({err})", flush=True)  # raised before any work
         return None
     suffix = ", pretrained" if pretrained else f", seed {train_seed}"
+    data = json.loads((seed_out / "eval.json").read_text())
+    features = data.get("settings", {}).get("features", "")  # what model.features=auto chose, with the steps
+    suffix += f", features {features}" if features else ""
     print(f"mop reproduce {exp.name} ({preset}{suffix}): report at {report}", flush=True)
-    return json.loads((seed_out / "eval.json").read_text())
+    return data

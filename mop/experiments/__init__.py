@@ -19,6 +19,7 @@ from mop.experiments.paper import PAPER_EXPERIMENTS
 from mop.experiments.presets import PRESETS, Preset, get_preset
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.registry import Registry
+from mop.train.auto import FEATURE_KEYS, resolve_features
 
 TEST_SEED_OFFSET = 7_000_001  # test systems: generator seed + this, apart from training (seed) and validation
 
@@ -49,7 +50,10 @@ def run_config(
     A "data.path" key trains on that file of recorded trajectories instead of simulating the family.
     Layers, later wins: the preset's model and train settings < the experiment's `train` < its per-preset
     overrides < the condition's `train` < `overrides` (key=value strings from the command line).
-    The model's context is the training horizon unless a layer sets it.
+    The model's context is the training horizon unless a layer sets it. model.features=auto (the small
+    preset's) is resolved here (mop.train.auto), so the RunConfig, its hash and its saved config hold the
+    chosen keys; a layer that names a feature key (model.rls_order, ...) without model.features sets them
+    itself (features "given", _features_setting).
     """
     p = get_preset(preset)
     base = RunConfig(
@@ -58,13 +62,32 @@ def run_config(
     layers = {**exp.train, **exp.presets.get(preset, {}), **(condition.train if condition else {})}
     if "data.path" in layers:  # trained on recorded trajectories (mop train --data)
         base = dataclasses.replace(base, data=DataConfig(path=layers["data.path"]))
-    settings = {**layers, **parse_overrides(list(overrides))}
+    given = parse_overrides(list(overrides))
+    settings = {**layers, **given}
+    features = _features_setting(
+        (exp.train, exp.presets.get(preset, {}), condition.train if condition else {}, given)
+    )
+    if features:
+        settings["model.features"] = features
     config = apply_settings(base, settings)  # one merge of the layers' dicts, no key=value strings
     if "model.context" not in settings:
         config = dataclasses.replace(
             config, model=dataclasses.replace(config.model, context=config.train.horizon)
         )
-    return config
+    return resolve_features(config)
+
+
+def _features_setting(layers: tuple[dict, ...]) -> str:
+    """model.features after the layers (later wins): a layer's own model.features, else "given" where the
+    layer names a feature key (model.rls_order, ...), so explicit keys are not overwritten by an earlier
+    layer's (or the preset's) auto; "" where no layer says anything."""
+    features = ""
+    for layer in layers:
+        if "model.features" in layer:
+            features = layer["model.features"]
+        elif any(f"model.{key}" in layer for key in FEATURE_KEYS):
+            features = "given"
+    return features
 
 
 __all__ = [

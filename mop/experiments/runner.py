@@ -50,7 +50,7 @@ from mop.pretrained import find_shipped, shipped_names
 from mop.report import build_report, claim_line, summary_section
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
-from mop.train import train_model
+from mop.train import describe_features, for_arch, train_model
 
 
 @dataclasses.dataclass
@@ -86,8 +86,7 @@ def wanted(session: Session, condition: Condition) -> list[str]:
 
 
 def _with_arch(trained: RunConfig, name: str) -> RunConfig:
-    arch = PREDICTORS.meta(name)["arch"]
-    return dataclasses.replace(trained, model=dataclasses.replace(trained.model, arch=arch))
+    return for_arch(trained, PREDICTORS.meta(name)["arch"])  # the GRU: no input features
 
 
 def given_run(session: Session, name: str, condition: Condition, trained: RunConfig) -> str:
@@ -401,8 +400,10 @@ def _write_outputs(session: Session, results: dict, claims: list[dict], out: Pat
 
 def _settings(session: Session) -> dict:
     exp = session.exp
+    trained = run_config(exp, session.preset, session.train_seed, overrides=session.overrides)
     return {
-        "train": to_dict(run_config(exp, session.preset, session.train_seed, overrides=session.overrides)),
+        "train": to_dict(trained),
+        "features": f"{describe_features(trained.model)}, {trained.train.steps} steps",
         "overrides": session.overrides,
         "conditions": [dataclasses.asdict(c) for c in exp.conditions_for(session.preset)],
         "num_test_systems": get_preset(session.preset).num_test_systems,

@@ -14,6 +14,7 @@ from mop.models.registry import (
     check_arch,
     model_names,
     predictor_names,
+    reads_features,
     register_model,
     skip_presets,
 )
@@ -24,6 +25,7 @@ __all__ = [
     "check_arch",
     "model_names",
     "predictor_names",
+    "reads_features",
     "register_model",
     "skip_presets",
 ]

@@ -11,6 +11,7 @@ module registers it.
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 
 from mop.config import ModelConfig
@@ -50,6 +51,13 @@ def predictor_names() -> dict[str, str]:
 def skip_presets(arch: str) -> tuple[str, ...]:
     """The presets under which architecture `arch` is trained only when asked."""
     return _SKIP_PRESETS.get(arch, ())
+
+
+def reads_features(arch: str) -> bool:
+    """Whether architecture `arch` can read the input features (model.input_scale, rls_order, arx_order):
+    its class does not declare reads_features = False (the transformer's is a property of its config)."""
+    check_arch(arch)
+    return inspect.getattr_static(_MODELS[arch], "reads_features") is not False
 
 
 def model_names() -> list[str]:

@@ -34,6 +34,7 @@ from mop.errors import MopError
 from mop.models import check_arch
 from mop.runs import read_run_json, retrain_hint
 from mop.systems import make_family
+from mop.train.auto import resolve_features
 from mop.train.records import recorded_data
 
 TRAINING_FILES = ("model.safetensors", "checkpoint.safetensors", "metrics.jsonl", "done.json", "inputs.json")
@@ -42,8 +43,10 @@ TRAINING_FILES = ("model.safetensors", "checkpoint.safetensors", "metrics.jsonl"
 def resolve_config(config: RunConfig) -> RunConfig:
     """Fill model.input_dim / output_dim (0 = from the system family or the data file): d_in = m + k
     (+ m with model.observation_mask, which training with drop-outs sets), d_out = m; for recorded data
-    also the normalisation fitted on the training split (data.y_mean, ...)."""
+    also the normalisation fitted on the training split (data.y_mean, ...); model.features=auto resolved
+    (mop.train.auto)."""
     check_arch(config.model.arch)
+    config = resolve_features(config)
     if config.train.drops_outputs and not config.model.observation_mask:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model, observation_mask=True))
     if config.data is not None:

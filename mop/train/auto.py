@@ -1,0 +1,163 @@
+"""model.features = "auto": the online-identifier input feature chosen from the family's shapes and data.
+
+    config = resolve_features(config)      # auto -> the explicit keys (input_scale, rls_order, arx_order)
+    describe_features(config.model)        # "ARX(1, 2)", "running scale + RLS-AR(3)", "none"
+
+The rule (choose_features), read off N = AUTO_SYSTEMS trajectories of the family simulated with a fixed
+seed (AUTO_SEED, apart from every training and test stream), y (N, T+1, m) and u (N, T+1, k):
+- the identifier: ARX(p, q) (mop.filters.arx) where there are inputs (k > 0), RLS-AR(p) (mop.filters.rls)
+  where there are none; none where training drops outputs (the feature reads y_t, which a gap zero-fills);
+- its orders: the (p, q) of ORDERS_ARX (p of ORDERS_AR) whose online one-step predictions have the lowest
+  MSE over t in [ORDER_WINDOW_START, T] on those trajectories (best_orders): the order a user would pick by
+  running the identifiers on a sample of the family;
+- the running output scale (mop.models.features) where the outputs are far from unit scale: the per-system
+  RMS of y, s_i = sqrt(mean_t ||y_t||^2 / m), has a median outside [1 / SCALE_FAR, SCALE_FAR] or a ratio of
+  its 90% to its 10% quantile above SCALE_SPREAD (scale_far_from_unit).
+Measured on the built-in families (256 systems, T = 50): q90 / q10 of s is 2.3 (quadrotor) to 3.7
+(linear-inputs) for every family whose plain model reads y as is, and 6.3 on upper-triangular, the one
+whose model needed the scale (MOP/KF 4.29 plain, 3.45 with it); medians 0.6 (rlc-circuit) to 5.0
+(quadrotor). The chosen orders (ratio of the identifier's MSE to the KF's over t in [20, 50]): linear
+AR(1) 1.062 (AR(2) 1.084), colored-noise AR(2), upper-triangular AR(3) 1.382 (AR(2) 1.431),
+linear-inputs ARX(1, 2) 1.307 (ARX(2, 2) 1.407), quadrotor ARX(3, 1), rlc-circuit ARX(2, 2) 1.324.
+
+The step budget follows the step cost: with a feature on, train.steps becomes steps / cost rounded to two
+significant digits, cost the product of the STEP_COST factors of the features chosen, so the training
+takes the plain model's time (as the quadrotor's 2100 steps for its 2500 did by hand).
+Recorded data (data.path) and architectures that read no features (the GRU) keep the given keys.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+
+import torch
+from torch import Tensor
+
+from mop.config import ModelConfig, RunConfig, SystemConfig, from_dict
+from mop.filters.arx import arx_predict
+from mop.filters.rls import rls_predict
+from mop.models import reads_features
+from mop.systems import generator, make_family
+
+AUTO_SEED = 4_000_037  # the trajectories the rule reads: apart from training (seed), validation and test
+AUTO_SYSTEMS = 256
+ORDER_WINDOW_START = 20  # the orders' error window starts here (at T // 2 for T < 40)
+ORDERS_AR = (1, 2, 3, 4)
+ORDERS_ARX = tuple((p, q) for p in (1, 2, 3, 4) for q in range(1, 7))  # q up to 6: input dead time
+SCALE_FAR = 10.0  # median per-system RMS of y outside [1 / 10, 10]: far from unit scale
+SCALE_SPREAD = 5.0  # q90 / q10 of the per-system RMS above 5: sizes too different for one network scale
+# Training-step cost of a feature relative to the plain model's (small preset, one torch thread), measured
+# side by side on the idle 2-core AMD EPYC: the running scale 77 against 74 ms (linear); the identifier
+# 97.8 against 83.7 ms (quadrotor, ARX(2, 2)). One factor serves RLS-AR and ARX: both run the same recursion
+# (mop.filters.rls.rls_loop), whose own time (4.2 to 12 ms a batch for d = 2 to 15 regressors, T = 50,
+# batch 64) is small against the step.
+STEP_COST = {"scale": 77 / 74, "identifier": 97.8 / 83.7}
+FEATURE_KEYS = ("input_scale", "rls_order", "arx_order", "rls_offset")
+
+
+@dataclasses.dataclass(frozen=True)
+class FeatureChoice:
+    """What auto picks: the running scale on or off, the identifier's output order p (0 = none) and input
+    order q (0 = output-only RLS-AR(p))."""
+
+    scale: bool = False
+    order: int = 0
+    input_order: int = 0
+
+    @property
+    def cost(self) -> float:
+        """The step cost relative to the plain model's (STEP_COST)."""
+        return (STEP_COST["scale"] if self.scale else 1.0) * (STEP_COST["identifier"] if self.order else 1.0)
+
+
+def scale_far_from_unit(y: Tensor) -> bool:
+    """Whether outputs y (N, T+1, m) are far from unit scale (the module docstring's rule)."""
+    rms = y.double().pow(2).mean((1, 2)).sqrt()  # (N,)
+    q10, q50, q90 = torch.quantile(rms, torch.tensor([0.1, 0.5, 0.9], dtype=rms.dtype)).tolist()
+    return not (1 / SCALE_FAR <= q50 <= SCALE_FAR) or q90 > SCALE_SPREAD * max(q10, 1e-12)
+
+
+def identifier_error(y: Tensor, u: Tensor | None, p: int, q: int, start: int) -> float:
+    """MSE of the online RLS-AR(p) (q = 0) or ARX(p, q) one-step predictions of y_t over t >= start."""
+    yhat = rls_predict(y, p) if q == 0 else arx_predict(y, u, p, q)
+    return float((yhat[:, start:] - y[:, start:]).pow(2).sum(-1).mean())
+
+
+def best_orders(y: Tensor, u: Tensor | None) -> tuple[int, int]:
+    """(p, q) of the identifier with the lowest error over t >= ORDER_WINDOW_START on y (N, T+1, m) and
+    u (N, T+1, k) or None (q = 0: RLS-AR(p)); the first of the grid on a tie."""
+    start = min(ORDER_WINDOW_START, y.shape[1] // 2)
+    grid = [(p, 0) for p in ORDERS_AR] if u is None else list(ORDERS_ARX)
+    errors = [identifier_error(y.double(), None if u is None else u.double(), p, q, start) for p, q in grid]
+    return grid[min(range(len(grid)), key=errors.__getitem__)]
+
+
+def choose_features(y: Tensor, u: Tensor | None, drops_outputs: bool = False) -> FeatureChoice:
+    """The rule: y (N, T+1, m), u (N, T+1, k) or None (no inputs) -> FeatureChoice."""
+    scale = scale_far_from_unit(y)
+    if drops_outputs:
+        return FeatureChoice(scale=scale)
+    p, q = best_orders(y, u)
+    return FeatureChoice(scale, p, q)
+
+
+@functools.lru_cache(maxsize=32)
+def _family_choice(system_json: str, horizon: int, drops_outputs: bool) -> FeatureChoice:
+    family = make_family(from_dict(SystemConfig, json.loads(system_json)), dtype=torch.float64)
+    traj = family.generate(AUTO_SYSTEMS, horizon, generator=generator(AUTO_SEED))
+    return choose_features(traj.y, traj.u, drops_outputs)
+
+
+def family_choice(config: RunConfig) -> FeatureChoice:
+    """choose_features on AUTO_SYSTEMS trajectories of config's family (cached per system config)."""
+    system = json.dumps(dataclasses.asdict(config.system), sort_keys=True)
+    return _family_choice(system, config.train.horizon, config.train.drops_outputs)
+
+
+def steps_for(steps: int, cost: float) -> int:
+    """steps / cost to two significant digits (2500 / 1.17 -> 2100), at least 1; steps when cost is 1."""
+    return steps if cost == 1.0 else max(1, int(float(f"{steps / cost:.2g}")))
+
+
+def apply_choice(config: RunConfig, choice: FeatureChoice) -> RunConfig:
+    """config with model.features = "given", the choice's keys and train.steps for its step cost."""
+    model = dataclasses.replace(
+        config.model,
+        features="given",
+        input_scale="running" if choice.scale else "none",
+        rls_order=choice.order,
+        arx_order=choice.input_order,
+        rls_offset=False,
+    )
+    train = dataclasses.replace(config.train, steps=steps_for(config.train.steps, choice.cost))
+    return dataclasses.replace(config, model=model, train=train)
+
+
+def resolve_features(config: RunConfig) -> RunConfig:
+    """config with model.features = "auto" resolved (the module docstring); others unchanged."""
+    if config.model.features != "auto":
+        return config
+    if config.data is not None or not reads_features(config.model.arch):
+        return dataclasses.replace(config, model=dataclasses.replace(config.model, features="given"))
+    return apply_choice(config, family_choice(config))
+
+
+def for_arch(config: RunConfig, arch: str) -> RunConfig:
+    """config trained as architecture `arch`: one that reads no features gets the feature keys off."""
+    model = dataclasses.replace(config.model, arch=arch)
+    if not reads_features(arch):
+        off = {key: ModelConfig.__dataclass_fields__[key].default for key in FEATURE_KEYS}
+        model = dataclasses.replace(model, **off)
+    return dataclasses.replace(config, model=model)
+
+
+def describe_features(model: ModelConfig) -> str:
+    """The model's input features in words: "running scale + ARX(1, 2)", "RLS-AR(3)", "none"."""
+    parts = ["running scale"] if model.input_scale == "running" else []
+    if model.rls_order and model.arx_order:
+        parts.append(f"ARX({model.rls_order}, {model.arx_order})")
+    elif model.rls_order:
+        parts.append(f"RLS-AR({model.rls_order})")
+    return " + ".join(parts) or "none"
