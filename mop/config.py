@@ -121,6 +121,7 @@ MODEL_CHOICES: dict[str, tuple[str, ...]] = {
     "position": ("learned", "rope"),
     "input_scale": ("none", "running"),
     "features": ("given", "auto"),
+    "record_norm": ("none", "causal"),
     "forecast_mode": ("rollout", "gap", "direct"),
     "horizon_loss": ("mean", "balanced"),
 }
@@ -143,6 +144,7 @@ class ModelConfig:
         "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact relative streaming)
     )
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
+    record_norm: str = "none"  # "causal": each channel by its running mean and std (mop.models.recordnorm)
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
@@ -270,14 +272,7 @@ class TrainConfig:
             "train.score_dropped=true scores the outputs training drops: it needs train.missing_rate or "
             f"train.missing_burst_rate > 0 (got score_dropped={self.score_dropped!r})",
         )
-        for name in (
-            "steps",
-            "batch_size",
-            "horizon",
-            "log_every",
-            "checkpoint_every",
-            "missing_burst_length",
-        ):
+        for name in "steps batch_size horizon log_every checkpoint_every missing_burst_length".split():
             check_int(f"train.{name}", getattr(self, name), 1)
         check(
             self.num_source_systems >= 0,

@@ -19,6 +19,12 @@ model.rls_order = p > 0 (the RLS feature):
     model.rls_offset = true adds a constant regressor (mop.filters.arx's offset, an intercept), for outputs
     with an offset such as the sysid benchmarks' per-sequence mean removal.
 
+model.record_norm = "causal" (mop.models.recordnorm): every output and input channel normalised by its
+    causal running mean and std, the read-out mapped back: yhat_{t+1} = b_t + std_t(y) out_t, b_t the running
+    mean of y (or the RLS feature, which the network then reads normalised alike); no extra channel.
+With model.observation_mask the RLS feature reads the missing outputs as missing (mop.filters.arx's gaps:
+filled with its own predictions, no update), so across a gap of outputs it is the ARX simulation.
+
 In a sliding window (trajectories longer than model.context, LearnedPredictor mode "window") both features
 restart with each window, exactly as the network's attention does. Streaming (FeatureState) keeps them over
 the whole stream: equal to the forward inside the context, beyond it the running sums and the RLS fit cover
@@ -34,11 +40,12 @@ from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.filters.arx import arx_predict
 from mop.filters.rls import regressors, rls_predict, rls_update
+from mop.models.recordnorm import RecordStats, normalise, running_moments
 
 SCALE_EPS = 1e-4  # floor of s_t^2: a trajectory of zeros gets s = 0.01, not a division by zero
 
 
-def extra_input_dim(cfg: ModelConfig) -> int:
+def extra_input_dim(cfg: ModelConfig) -> int:  # record_norm adds none
     """Channels added to the model's input: 1 (log s_t) with the running scale, m with the RLS feature."""
     return (1 if cfg.input_scale == "running" else 0) + (cfg.output_dim if cfg.rls_order > 0 else 0)
 
@@ -59,6 +66,26 @@ def check_features(cfg: ModelConfig) -> None:
     """One-line errors for feature options the model's inputs cannot serve."""
     if cfg.arx_order > 0 and input_count(cfg) <= 0:
         raise MopError("model.arx_order reads input lags, but the model has no inputs u; use rls_order alone")
+    if cfg.record_norm != "none" and (cfg.input_scale != "none" or cfg.readout != "mean"):
+        raise MopError(
+            "model.record_norm normalises each record itself: use it with model.input_scale='none' and "
+            "model.readout='mean' (a channel constant so far predicts its value, with no variance)"
+        )
+
+
+def reads_features(cfg: ModelConfig) -> bool:
+    """True when the network's inputs are functions of the whole window (running statistics, RLS)."""
+    return extra_input_dim(cfg) > 0 or cfg.record_norm != "none"
+
+
+def observed_outputs(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None]:
+    """(y (B, T, m) with NaN where missing, seen (B, T, m) bool|None) from the model's inputs (the mask
+    layout [y zero-filled, u, observed] with model.observation_mask)."""
+    y = inputs[..., : cfg.output_dim]
+    if not cfg.observation_mask:
+        return y, None
+    seen = inputs[..., cfg.input_dim - cfg.output_dim :] > 0.5
+    return torch.where(seen, y, torch.full_like(y, float("nan"))), seen
 
 
 def rls_next(
@@ -76,13 +103,58 @@ def rls_next(
 
 def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Tensor | None]:
     """inputs (B, T, d_in) -> (network inputs (B, T, d_in + extra), scale s (B, T, 1)|None, base r|None)."""
-    m = cfg.output_dim
-    y = inputs[..., :m]  # (B, T, m)
-    scale = running_scale(y) if cfg.input_scale == "running" else None
-    k = input_count(cfg)
+    m, k = cfg.output_dim, input_count(cfg)
+    y, seen = observed_outputs(inputs, cfg)  # (B, T, m), NaN where missing
     u = inputs[..., m : m + k] if cfg.arx_order > 0 else None
+    if cfg.record_norm == "causal":
+        mask = None if seen is None else torch.cat([seen, torch.ones_like(inputs[..., m : m + k] > 0)], -1)
+        mean, std = running_moments(inputs[..., : m + k], mask)  # (B, T, m + k) each
+        base = _framed_feature(y, u, mean, std, cfg) if cfg.rls_order > 0 else None
+        return _record_assemble(inputs, mean, std, base, seen, m)
     base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset) if cfg.rls_order > 0 else None
+    scale = running_scale(inputs[..., :m]) if cfg.input_scale == "running" else None
     return _assemble(inputs, scale, base, m), scale, base
+
+
+def feature_start(cfg: ModelConfig) -> int:
+    """r = max(p, q): the RLS / ARX feature predicts the last value up to step r, then regresses."""
+    return max(cfg.rls_order, cfg.arx_order)
+
+
+def feature_frame(mean: Tensor, std: Tensor) -> tuple[Tensor, Tensor]:
+    """record_norm: the fixed frame (shift, scale) (B, m + k) the RLS / ARX feature runs in: each channel's
+    mean and std over steps 0..r (feature_start; std 0 -> 1). Known at step r, before the first fit, so
+    causal; a fixed affine map of each channel, so the feature (its ridge prior P_0 = I included) is
+    equivariant to the record's units."""
+    return mean, torch.where(std > 0, std, torch.ones_like(std))
+
+
+def _framed_feature(y: Tensor, u: Tensor | None, mean: Tensor, std: Tensor, cfg: ModelConfig) -> Tensor:
+    """The RLS / ARX feature (B, T, m) of y (B, T, m), u (B, T, k)|None run in feature_frame, in y's units."""
+    m, r = cfg.output_dim, min(feature_start(cfg), y.shape[1] - 1)
+    shift, scale = feature_frame(mean[:, r : r + 1], std[:, r : r + 1])  # (B, 1, m + k) each
+    ys = (y.double() - shift[..., :m]) / scale[..., :m]
+    us = None if u is None else (u.double() - shift[..., m:]) / scale[..., m:]
+    rs = rls_next(ys, cfg.rls_order, us, cfg.arx_order, cfg.rls_offset)
+    return (rs * scale[..., :m] + shift[..., :m]).to(y.dtype)
+
+
+def _record_assemble(
+    inputs: Tensor, mean: Tensor, std: Tensor, base: Tensor | None, seen: Tensor | None, m: int
+) -> tuple[Tensor, Tensor, Tensor]:
+    """record_norm: (network inputs [zn, any mask channels, rn], std_t(y) (B, T, m), b (B, T, m)): zn the
+    normalised [y, u] (B, T, m + k), 0 where an output is missing; rn the normalised RLS feature; b the
+    feature, else the running mean of y."""
+    d = mean.shape[-1]  # m + k
+    zn = normalise(inputs[..., :d], mean, std)
+    if seen is not None:
+        zn = torch.cat([torch.where(seen, zn[..., :m], torch.zeros_like(zn[..., :m])), zn[..., m:]], dim=-1)
+    mean_y, std_y = mean[..., :m], std[..., :m]
+    parts = [zn, inputs[..., d:]]
+    if base is not None:
+        parts.append(normalise(base, mean_y, std_y))
+    b = mean_y if base is None else base.double()
+    return torch.cat(parts, dim=-1), std_y.to(inputs.dtype), b.to(inputs.dtype)
 
 
 def _assemble(inputs: Tensor, scale: Tensor | None, base: Tensor | None, m: int) -> Tensor:
@@ -121,19 +193,57 @@ class FeatureState:
             self.P = torch.eye(d, **f64).repeat(batch_size, 1, 1)
             self.recent = torch.zeros(batch_size, p + 1, self.m, **f64)
             self.recent_u = torch.zeros(batch_size, q + 1, self.k if q > 0 else 0, **f64)
+        # with an observation mask the RLS feature skips pairs next to gaps (mop.filters.rls._rls_run_gaps):
+        # the stream recomputes it over the inputs so far (O(t) per step), exactly the forward's
+        self.history = [] if cfg.observation_mask and p > 0 else None
+        if cfg.record_norm == "causal":
+            self.stats = RecordStats(batch_size, self.m + self.k, device)
 
     def step(self, z: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """z_t (B, d_in) -> network input (B, 1, d_in + extra), s_t (B, 1, 1)|None, r_{t+1} (B, 1, m)|None."""
-        y = z[:, : self.m]
+        if self.history is not None:  # the RLS feature over gaps: the forward's features at the last input
+            self.history.append(z)
+            self.t += 1
+            net, scale, base = augment(torch.stack(self.history, dim=1), self.cfg)
+            return net[:, -1:], *(None if a is None else a[:, -1:] for a in (scale, base))
+        y, seen = observed_outputs(z, self.cfg)
         scale = base = None
         if self.cfg.input_scale == "running":
             self.sum_sq = self.sum_sq + (y**2).mean(-1, keepdim=True)
             scale = (self.sum_sq / (self.t + 1) + SCALE_EPS).sqrt()[:, None]  # (B, 1, 1)
+        if self.cfg.record_norm == "causal":
+            return self._record_step(z, seen)
         if self.cfg.rls_order > 0:
             u = z[:, self.m : self.m + self.k] if self.cfg.arx_order > 0 else z[:, :0]
             base = self._rls_step(y.double(), u.double()).to(z.dtype)[:, None]  # (B, 1, m)
         self.t += 1
         return _assemble(z[:, None], scale, base, self.m), scale, base
+
+    def _record_step(self, z: Tensor, seen: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
+        """step with record_norm: the running moments, and the RLS feature in its frame from step r on."""
+        m, k, r = self.m, self.k, feature_start(self.cfg)
+        mask = None if seen is None else torch.cat([seen, torch.ones_like(z[:, m : m + k] > 0)], -1)
+        mean, std = self.stats.update(z[:, : m + k], mask)  # (B, m + k) each
+        base = None
+        if self.cfg.rls_order > 0:
+            if self.t == r:  # the frame is fixed now; the buffers move into it
+                self._enter_frame(*feature_frame(mean, std))
+            zs = z[:, : m + k].double()
+            zs = zs if self.t < r else (zs - self.shift) / self.scale
+            rs = self._rls_step(zs[:, :m], zs[:, m : m + k] if self.cfg.arx_order > 0 else zs[:, :0])
+            if self.t >= r:
+                rs = rs * self.scale[:, :m] + self.shift[:, :m]
+            base = rs.to(z.dtype)[:, None]  # (B, 1, m)
+        self.t += 1
+        rows = (z[:, None], mean[:, None], std[:, None], base, None if seen is None else seen[:, None])
+        return _record_assemble(*rows, m)
+
+    def _enter_frame(self, shift: Tensor, scale: Tensor) -> None:
+        """Fix the RLS feature's frame (B, m + k) and move the buffered past outputs and inputs into it."""
+        m, q = self.m, self.recent_u.shape[-1]
+        self.shift, self.scale = shift, scale
+        self.recent = (self.recent - shift[:, None, :m]) / scale[:, None, :m]
+        self.recent_u = (self.recent_u - shift[:, None, m : m + q]) / scale[:, None, m : m + q]
 
     def _rls_step(self, y: Tensor, u: Tensor) -> Tensor:
         """As rls_predict (arx_predict with q = arx_order > 0): fit the pair (phi_{t-1}, y_t) once t >= r =

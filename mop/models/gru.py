@@ -46,8 +46,10 @@ class GRUModel(LearnedModel):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__(cfg)
         check_dims(cfg)
-        if cfg.input_scale != "none" or cfg.rls_order > 0 or cfg.arx_order > 0:
-            raise MopError("model.input_scale and model.rls_order are options of arch 'gpt', not of the GRU")
+        if cfg.input_scale != "none" or cfg.rls_order > 0 or cfg.arx_order > 0 or cfg.record_norm != "none":
+            raise MopError(
+                "model.input_scale, record_norm and rls_order are options of arch 'gpt', not of the GRU"
+            )
         self.read_in = nn.Linear(cfg.input_dim, cfg.width)
         self.gru = nn.GRU(
             cfg.width,

@@ -38,7 +38,14 @@ from torch import Tensor, nn
 from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.models.attention import CausalSelfAttention, rope_angles
-from mop.models.features import FeatureState, augment, check_features, extra_input_dim, restore
+from mop.models.features import (
+    FeatureState,
+    augment,
+    check_features,
+    extra_input_dim,
+    reads_features,
+    restore,
+)
 from mop.models.heads import check_dims, require_gaussian
 from mop.models.horizons import (
     add_future_inputs,
@@ -154,8 +161,8 @@ class Transformer(LearnedModel):
 
     @property
     def reads_features(self) -> bool:
-        """The running scale or the RLS / ARX feature is on (model.input_scale / rls_order)."""
-        return extra_input_dim(self.cfg) > 0
+        """The running scale, record normalisation or RLS / ARX feature is on (mop.models.features)."""
+        return reads_features(self.cfg)
 
     def _init_weights(self, module: nn.Module, residual: bool) -> None:
         """GPT-2 init: N(0, 0.02), residual projections N(0, 0.02 / sqrt(2 L)), zero biases."""

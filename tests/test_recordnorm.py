@@ -1,0 +1,141 @@
+"""Per-record causal normalisation (model.record_norm = "causal", mop.models.recordnorm): the running moments
+against numpy, predictions equivariant to each record's units, streamed equal to the forward, causal."""
+
+import numpy as np
+import pytest
+import torch
+
+from mop.config import ModelConfig
+from mop.errors import MopError
+from mop.filters.arx import arx_forecast
+from mop.missing import masked_inputs
+from mop.models import build_model
+from mop.models.predict import stream
+from mop.models.predictor import LearnedPredictor
+from mop.models.recordnorm import RecordStats, running_moments
+from mop.systems.base import Trajectories
+
+
+def tiny(**kw) -> ModelConfig:
+    base = dict(num_layers=2, num_heads=2, width=16, context=20, input_dim=2, output_dim=1)
+    return ModelConfig(**{**base, "record_norm": "causal", **kw})
+
+
+def record(B=3, T=20, seed=0) -> torch.Tensor:
+    """(B, T, 2) [y, u]: a random walk output and a white input, float64."""
+    g = torch.Generator().manual_seed(seed)
+    return torch.cat(
+        [torch.randn(B, T, 1, generator=g).cumsum(1), torch.randn(B, T, 1, generator=g)], -1
+    ).double()
+
+
+def trained_like(cfg: ModelConfig, seed: int = 0):
+    """A float64 model with every weight random (the zero-initialised RLS read-out too)."""
+    torch.manual_seed(seed)
+    model = build_model(cfg).double().eval()
+    with torch.no_grad():
+        for p in model.parameters():
+            p.normal_(0, 0.3)
+    return model
+
+
+def test_running_moments_are_numpy_mean_and_std_per_prefix():
+    z = record() * 100 + 1e4  # an offset far above the spread
+    seen = torch.rand(z.shape, generator=torch.Generator().manual_seed(1)) > 0.3
+    seen[:, 0] = True
+    for mask in (None, seen):
+        mean, std = running_moments(z, mask)
+        stats = RecordStats(z.shape[0], z.shape[-1], z.device)
+        for t in (0, 1, 7, 19):
+            for b in range(z.shape[0]):
+                for c in range(z.shape[-1]):
+                    keep = np.ones(t + 1, bool) if mask is None else mask[b, : t + 1, c].numpy()
+                    x = z[b, : t + 1, c].numpy()[keep]
+                    assert mean[b, t, c] == pytest.approx(x.mean(), rel=1e-12)
+                    assert std[b, t, c] == pytest.approx(x.std(), rel=1e-8, abs=1e-9)
+        streamed = [stats.update(z[:, t], None if mask is None else mask[:, t]) for t in range(z.shape[1])]
+        torch.testing.assert_close(torch.stack([s[0] for s in streamed], 1), mean, rtol=1e-12, atol=1e-9)
+        torch.testing.assert_close(torch.stack([s[1] for s in streamed], 1), std, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "a, b, c, d", [(1000.0, -5.0, 0.01, 3.0), (1e-3, 1e4, 50.0, -2.0), (1.0, 0.0, 1.0, 7.0)]
+)
+def test_predictions_are_equivariant_to_the_records_units(a, b, c, d):
+    """y -> a y + b, u -> c u + d (a, c > 0): predictions a yhat + b, every position (one forward)."""
+    model = trained_like(tiny())
+    z = record()
+    w = torch.cat([a * z[..., :1] + b, c * z[..., 1:] + d], -1)
+    with torch.no_grad():
+        torch.testing.assert_close(model(w), a * model(z) + b, rtol=1e-9, atol=1e-9 * (a + abs(b)))
+
+
+@pytest.mark.parametrize("options", [{}, {"rls_order": 3, "arx_order": 2, "rls_offset": True}])
+def test_equivariant_through_the_predictor_beyond_the_context_window_and_stream(options):
+    """T = 50 > context 20: the sliding window (each window normalised by its own statistics) and the stream
+    are both equivariant, and the stream equals the forward inside the context."""
+    model = trained_like(tiny(**options))
+    z = record(T=51)
+    traj = Trajectories(z[..., :1], z[..., 1:])
+    moved = Trajectories(300 * z[..., :1] - 40, 0.2 * z[..., 1:] + 9)
+    for mode in ("window", "stream"):
+        p = LearnedPredictor(model, mode=mode)
+        got, want = p.predict(moved)[:, 1:], 300 * p.predict(traj)[:, 1:] - 40
+        torch.testing.assert_close(got, want, rtol=1e-9, atol=1e-6)
+    with torch.no_grad():
+        torch.testing.assert_close(stream(model, z[:, :20])[0], model(z[:, :20]), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("options", [{}, {"rls_order": 2, "arx_order": 2, "rls_offset": True}])
+def test_stream_equals_forward_and_is_causal(options):
+    model = trained_like(tiny(**options))
+    z = record()
+    z2 = z.clone()
+    z2[:, 9:] += 5.0
+    with torch.no_grad():
+        torch.testing.assert_close(stream(model, z)[0], model(z), rtol=1e-9, atol=1e-9)
+        out, out2 = model(z), model(z2)
+    assert torch.equal(out[:, :9], out2[:, :9]) and (out[:, 9] - out2[:, 9]).abs().max() > 1e-6
+
+
+def test_with_the_arx_feature_equivariant_and_a_constant_record_predicts_itself():
+    """The ARX feature runs in the frame of the first r + 1 steps, so its ridge prior (P_0 = I) scales with
+    the record too: 10 y - 3, 10 u - 3 gives 10 yhat - 3. A record constant so far has std 0: the untrained
+    model (any weights) predicts the running mean."""
+    model = trained_like(tiny(rls_order=2, arx_order=2, rls_offset=True))
+    z = record()
+    with torch.no_grad():
+        torch.testing.assert_close(model(10 * z - 3), 10 * model(z) - 3, rtol=1e-9, atol=1e-8)
+        const = torch.full((2, 6, 2), 4.0, dtype=torch.float64)
+        untrained = build_model(tiny()).double().eval()
+        torch.testing.assert_close(untrained(const), const[..., :1])  # the running mean, whatever the weights
+
+
+def test_bad_combinations_are_refused_in_one_line():
+    with pytest.raises(MopError, match="record_norm"):
+        tiny(record_norm="bogus")
+    for kw in ({"input_scale": "running"}, {"readout": "gaussian"}):
+        with pytest.raises(MopError, match="record_norm"):
+            build_model(tiny(**kw))
+    with pytest.raises(MopError, match="arch 'gpt'"):
+        build_model(tiny(arch="gru"))
+
+
+@pytest.mark.parametrize("norm", ["none", "causal"])
+def test_masked_arx_feature_across_a_gap_is_the_arx_simulation(norm):
+    """With an observation mask, outputs y_c.. missing: the untrained model (zero read-out: the feature) is
+    mop.filters.arx's free-run simulation from origin c, in the record's frame (record_norm) or as is."""
+    options = dict(input_dim=3, observation_mask=True, rls_order=2, arx_order=2, rls_offset=True, context=30)
+    cfg = tiny(record_norm=norm, **options)
+    model = build_model(cfg).double().eval()
+    z, c = record(T=30), 12
+    y = z[..., :1].clone()
+    y[:, c:] = float("nan")
+    with torch.no_grad():
+        out = model(masked_inputs(torch.cat([y, z[..., 1:]], -1), 1)[:, :-1])  # position t predicts y_{t+1}
+    scale = z[:, : cfg.rls_order + 1].std(1, unbiased=False, keepdim=True) if norm == "causal" else 1.0
+    shift = z[:, : cfg.rls_order + 1].mean(1, keepdim=True) if norm == "causal" else 0.0
+    zs = (z - shift) / scale
+    sim = arx_forecast(zs[..., :1], zs[..., 1:], 2, 2, steps=30 - c, origin=c, offset=True)[:, c]  # (B, K, 1)
+    sim = sim * (scale[..., :1] if norm == "causal" else 1.0) + (shift[..., :1] if norm == "causal" else 0.0)
+    torch.testing.assert_close(out[:, c - 1 :], sim, rtol=1e-9, atol=1e-9)
