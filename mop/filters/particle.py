@@ -224,6 +224,11 @@ class ParticleFilterPredictor:
         )
         return out.to(traj.y.dtype)
 
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m): the roll-out from origin c = context, forecast[:, c] (the same numbers); origins
+        before c are not rolled out: about 1 + 2c / (T+1-c) times fewer propagations than from every one."""
+        return self.forecast(traj, traj.horizon + 1 - context, start=context)[:, context]
+
 
 PREDICTORS.add(
     "pf-noclip", lambda seed=0: ParticleFilterPredictor(seed=seed, project=False), needs_system=True

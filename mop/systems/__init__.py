@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 
 from mop.systems import (  # noqa: F401 (built-ins)
+    cascaded_tanks,
     colored_noise,
     linear,
     linear_inputs,
