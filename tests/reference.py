@@ -56,6 +56,17 @@ def filterpy_forecast(A, C, Q, R, y, x0, P0, steps, B=None, u=None):
     return out
 
 
+def monte_carlo_bias(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """(estimate of the squared bias, its standard error) of a Monte Carlo method from two runs with
+    independent draws, each given minus the exact answer: a, b (S, ...) over S independent systems.
+
+    Where the method is unbiased, a and b are independent errors of mean 0, so E[a b] = 0; a bias d makes
+    E[a b] = d^2 (the Monte Carlo noise cancels, unlike in (a)^2). The standard error comes from the
+    spread of the S per-system means of a b."""
+    per_system = (a * b).reshape(a.shape[0], -1).mean(1)
+    return float(per_system.mean()), float(per_system.std(ddof=1) / np.sqrt(len(per_system)))
+
+
 def gaussian_conditioning_predict(A, C, Q, R, y, x0, P0, B, u):
     """E[y_t | y_<t] by conditioning the joint Gaussian of (y_0..y_{T-1}) directly (no recursion), one system:
     y = M z + d with z = [x_0 - x0, w_0..w_{T-2}, v_0..v_{T-1}] ~ N(0, blockdiag(P0, Q.., R..)) and d the

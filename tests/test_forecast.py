@@ -246,14 +246,3 @@ def test_forecast_from_a_start_origin_equals_the_full_forecast_there(name, tiny_
     assert torch.isnan(part[:, :6]).all()
     assert torch.equal(torch.isnan(part[:, 6:]), torch.isnan(full[:, 6:]))
     torch.testing.assert_close(part[:, 6:], full[:, 6:], rtol=0, atol=0, equal_nan=True)
-
-
-def test_particle_filter_forecast_approaches_the_kalman_forecast():
-    """On a linear-Gaussian system the PF's k-step forecast converges to the KF's (its exact optimum): the
-    Monte Carlo gap shrinks like 1/sqrt(N), 20000 particles within 5% of the KF's own k-step error."""
-    traj = generate("linear", n=4, horizon=12, seed=3, state_dim=3, output_dim=2)
-    kf = forecast(make_predictor("kalman"), traj, K).double()
-    gap = lambda n: (forecast(make_predictor("pf", num_particles=n), traj, K) - kf).abs().nanmean()  # noqa: E731
-    scale = torch.cat([(traj.y[:, j:] - kf[:, : traj.horizon + 1 - j, j]).abs().flatten() for j in range(K)])
-    small, large = gap(100), gap(20000)
-    assert large < 0.05 * scale.mean() and large < small / 3, (small, large, scale.mean())
