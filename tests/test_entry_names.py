@@ -53,6 +53,12 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
     ("mop.pretrained.build", "error"): "the forecast table's errors",
     ("mop.pretrained.card", "error"): "the forecast table's errors",
     ("mop.pretrained.card", "forecast"): "the card's forecast table",
+    (
+        "mop.identify.arx",
+        "arx",
+    ): "the fitted identifier's own name (mop.identify's IDENTIFIERS), not the online predictor",
+    ("mop.identify.select", "simulation"): "the --select criterion of mop fit (held-out simulation RMSE)",
+    ("mop.identify.select", "rmse"): "fitted.json's held-out score key",
 }
 # A benchmark times and checks the very entries it names (against filterpy and per-system loops), as the
 # experiment data names what it runs; each (module, name) is listed, so naming another entry still fails.

@@ -9,7 +9,7 @@ import argparse
 from pathlib import Path
 
 from mop.identify import IDENTIFIERS, fit, save
-from mop.identify.select import CRITERIA, HOLDOUT, TOLERANCE
+from mop.identify.select import CRITERIA, HOLDOUT, SCORE, SIMULATION, TOLERANCE
 from mop.io import read_trajectories
 
 EXAMPLES = """
@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--select",
         choices=CRITERIA,
-        default="simulation",
+        default=SIMULATION,
         help="score the orders on the held-out steps in free-run simulation (default) or one step ahead",
     )
     parser.add_argument("--max-order", type=int, default=10, help="largest order of the grid (10)")
@@ -45,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
         f"on the last {HOLDOUT:.0%} of each trajectory (the smallest within {TOLERANCE:.0%} of the best wins)"
     )
     for row in fitted.info["grid"]:
-        orders = ", ".join(f"{k}={v}" for k, v in row.items() if k != "rmse")
-        rmse = "diverged" if row["rmse"] is None else f"{row['rmse']:.4g}"
+        orders = ", ".join(f"{k}={v}" for k, v in row.items() if k != SCORE)
+        rmse = "diverged" if row[SCORE] is None else f"{row[SCORE]:.4g}"
         print(f"  {orders:>12}  held-out rmse {rmse}")
     chosen = ", ".join(f"{k}={v}" for k, v in fitted.orders.items())
     path = save(fitted, args.out)

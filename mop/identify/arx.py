@@ -107,8 +107,8 @@ class ARX:
         for orders in candidates:
             theta = fit_theta(data, orders["p"], orders["q"])
             model = arx_model(theta, orders["p"], orders["q"], y_mean, u_mean)
-            out.append(FittedPredictor("arx", dict(orders), model, m, k, dict(info), lag_state=True))
+            out.append(FittedPredictor(ARX.kind, dict(orders), model, m, k, dict(info), lag_state=True))
         return out
 
 
-IDENTIFIERS.add("arx", ARX)
+IDENTIFIERS.add(ARX.kind, ARX)

@@ -161,8 +161,8 @@ class N4SID:
             A, B, C, K = realize(centered, S, Vh, cols, orders["n"], i)
             model = n4sid_model(A, B, C, K, y_mean, u_mean, data)
             fitted = {"n": orders["n"], "block_rows": i}
-            out.append(FittedPredictor("n4sid", fitted, model, m, k, dict(info)))
+            out.append(FittedPredictor(N4SID.kind, fitted, model, m, k, dict(info)))
         return out
 
 
-IDENTIFIERS.add("n4sid", N4SID)
+IDENTIFIERS.add(N4SID.kind, N4SID)

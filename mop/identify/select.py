@@ -25,7 +25,9 @@ from mop.systems.base import Trajectories
 
 HOLDOUT = 0.2
 TOLERANCE = 0.01
-CRITERIA = ("simulation", "one-step")
+SIMULATION, ONE_STEP = "simulation", "one-step"  # the --select criteria
+CRITERIA = (SIMULATION, ONE_STEP)
+SCORE = "rmse"  # the held-out score's key in fitted.json's grid
 Data = list[tuple[np.ndarray, np.ndarray]]
 
 
@@ -52,7 +54,7 @@ def score(predictor: FittedPredictor, data: Data, select: str) -> float:
     for y, u in data:
         cut = holdout_cut(len(y))
         traj = Trajectories(y=torch.from_numpy(y)[None], u=torch.from_numpy(u)[None] if u.shape[1] else None)
-        if select == "simulation":
+        if select == SIMULATION:
             pred = predictor.simulate(traj, cut)[0].numpy()
         else:
             pred = predictor.predict(traj)[0, cut:].numpy()
@@ -92,7 +94,7 @@ def check_length(kind: str, identifier: Any, data: Data, est: Data, max_order: i
 
 
 def fit(
-    kind: str, data: RecordData, select: str = "simulation", max_order: int = 10, source: str = "record"
+    kind: str, data: RecordData, select: str = SIMULATION, max_order: int = 10, source: str = "record"
 ) -> FittedPredictor:
     """The fitted `kind` ("arx" or "n4sid") with the orders that scored best on the held-out steps, refitted
     on the whole record. data: [(y (T_i+1, m), u (T_i+1, k) or None)] as mop.io.read_trajectories gives.
@@ -119,5 +121,5 @@ def fit(
     fitted = identifier.fit_grid(record, [best], info, max_order)[0]
     # a diverged order's score is written as null (JSON has no inf)
     rmse = [s if math.isfinite(s) else None for s in scores]
-    fitted.info["grid"] = [{**c, "rmse": s} for c, s in zip(candidates, rmse, strict=True)]
+    fitted.info["grid"] = [{**c, SCORE: s} for c, s in zip(candidates, rmse, strict=True)]
     return fitted
