@@ -2,6 +2,7 @@
 
 Raise :class:`MopError` with a one-line message that names the problem and says what to do.
 The CLI prints it as ``mop: error: <message>`` and exits with status 2, without a traceback.
+A caller that acts on one kind of problem catches its subclass (e.g. NoPretrainedModel), never the text.
 """
 
 import errno
@@ -11,6 +12,11 @@ from typing import Any
 
 class MopError(Exception):
     """A problem the user can fix (bad input, bad config, missing file)."""
+
+
+class NoPretrainedModel(MopError):
+    """No shipped pretrained model fits the request (no such name, or none trained on a condition's family);
+    `mop reproduce all --pretrained` skips the experiments that raise it."""
 
 
 class MopWarning(UserWarning):

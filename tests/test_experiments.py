@@ -11,8 +11,9 @@ from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment, get_preset, run_config
 from mop.experiments.figures import figure_names
 from mop.experiments.files import experiment_from_dict, load_experiment
+from mop.experiments.planning import config_hash
+from mop.experiments.reporting import check_claim
 from mop.experiments.results import ConditionResult
-from mop.experiments.runner import check_claim, config_hash
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 from mop.metrics import mse_ratio_ci
 from mop.predictors import PREDICTORS
@@ -209,7 +210,7 @@ def test_which_learned_baselines_a_preset_trains_is_their_metadata(tmp_path, pre
     """The GRU declares the presets that skip it (skip_presets); --with gru / --without gru override; the
     runner names no predictor. Same choice as the presets' former train_gru
     (paper on, small and smoke off)."""
-    from mop.experiments.runner import Session, wanted
+    from mop.experiments.planning import Session, wanted
 
     exp = get_experiment("linear")
     session = Session(exp, preset, 0, tmp_path, [], False, {} if flag is None else {"gru": flag})

@@ -123,7 +123,7 @@ def test_errors_and_ratios_over_the_measured_outputs_only():
 def test_condition_missing_is_validated_and_seeded():
     import dataclasses as dc
 
-    from mop.experiments.runner import with_missing
+    from mop.experiments.evaluating import with_missing
     from mop.experiments.spec import Condition
 
     with pytest.raises(MopError, match="unknown missing keys"):

@@ -308,7 +308,7 @@ def test_build_writes_measured_numbers_and_is_deterministic(tmp_path, tiny_smoke
     filterpy's KF, a numpy MSE on the card's test systems); a second build from scratch gives the same
     weights bit for bit."""
     import mop.pretrained.build as build
-    from mop.experiments.runner import test_trajectories
+    from mop.experiments.evaluating import test_trajectories
 
     monkeypatch.setattr(build, "NOISE_SHIFT_SYSTEMS", 4)
     common = ["pretrained", "build", "linear", "--preset", "smoke", "--threads", "1", "--quiet"]
@@ -336,3 +336,39 @@ def test_build_reads_overrides_after_the_options():
     argv = ["pretrained", "build", "quadrotor", "--threads", "1", "train.steps=1500", "--quiet"]
     args = build_parser("pretrained").parse_args(argv)
     assert (args.names, args.overrides, args.threads) == (["quadrotor"], ["train.steps=1500"], 1)
+
+
+def test_the_build_measures_a_condition_as_the_report_does(tmp_path, tiny_smoke, monkeypatch):
+    """One evaluation: the card's numbers (mop.pretrained.build.measure) are the report's, bit for bit, on a
+    condition with missing outputs, and both name the experiment's best predictor: its reference when it
+    names none, even where another predictor (here the KF, against `last`) has the lower error."""
+    import dataclasses
+
+    import mop.pretrained.build as build
+    from mop.experiments import Condition, get_experiment
+    from mop.experiments.runner import run_experiment
+    from mop.pretrained.catalog import ShippedModel
+
+    monkeypatch.setattr(build, "NOISE_SHIFT_SYSTEMS", 2)
+    exp = dataclasses.replace(
+        get_experiment("missing-data"),
+        name="one-evaluation",
+        reference="last",
+        conditions=(Condition("p", missing={"rate": 0.3}),),
+        claims=(),
+        figures=(),
+    )
+    monkeypatch.setattr(build, "get_experiment", lambda name: exp)
+    run_experiment(exp, "smoke", tmp_path / "out", runs_dir=tmp_path / "runs", progress=False)
+    report = json.loads((tmp_path / "out" / "eval.json").read_text())["conditions"]["p"]
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    entry = ShippedModel("x", exp.name, "s", "n", preset="smoke")
+    ev = build.measure(entry, run_dir, progress=False)["evaluation"]
+    assert ev["errors"] == {n: p["window_error"] for n, p in report["predictors"].items()}
+    assert (
+        report["predictors"]["kalman"]["window_squared_error"]["all"]
+        < (report["predictors"]["last"]["window_squared_error"]["all"])
+    )
+    assert ev["best"] == report["to_best"]["predictor"] == "last"
+    late = ev["ratio_to_best"][f"[20,{ev['horizon'] + 1})"]
+    assert late == {k: report["to_best"][k] for k in ("ratio", "low", "high")}

@@ -8,7 +8,7 @@ import torch
 
 from mop.config import RunConfig, SystemConfig, apply_overrides, from_dict, to_dict
 from mop.errors import MopError
-from mop.experiments.runner import config_hash
+from mop.experiments.planning import config_hash
 from mop.predictors import PREDICTORS, is_learned, make_predictor, needs_system
 from mop.registry import Registry
 from mop.systems import FAMILIES, generator, make_family, state_space_of

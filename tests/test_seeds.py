@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mop import cli
-from mop.experiments.runner import distance_to_best
+from mop.experiments.evaluating import distance_to_best
 from mop.experiments.seeds import lead_table, seed_summary, seeds_table
 from mop.metrics import mse_ratio_ci
 from mop.train import resolve_config
@@ -51,11 +51,11 @@ def test_seed_summary_mean_range_and_each_ci():
 
 def test_distance_to_best_is_the_bootstrap_ratio_over_the_late_window():
     rng = np.random.default_rng(0)
-    raw = {"mop": {"e": rng.random((40, 51)) + 0.5}, "pf": {"e": rng.random((40, 51)) + 0.4}}
-    d = distance_to_best(raw, "pf", seed=3)
-    assert (d["ratio"], d["low"], d["high"]) == mse_ratio_ci(raw["mop"]["e"], raw["pf"]["e"], 20, 51, seed=3)
+    errors = {"mop": rng.random((40, 51)) + 0.5, "pf": rng.random((40, 51)) + 0.4}
+    d = distance_to_best(errors, "pf", seed=3)
+    assert (d["ratio"], d["low"], d["high"]) == mse_ratio_ci(errors["mop"], errors["pf"], 20, 51, seed=3)
     assert d["predictor"] == "pf" and d["window"] == [20, 51]
-    assert distance_to_best(raw, "kalman", seed=0) is None
+    assert distance_to_best(errors, "kalman", seed=0) is None
 
 
 def test_reproduce_seeds_trains_each_seed_on_the_same_test_systems(tmp_path, tiny_smoke, capsys):
@@ -108,7 +108,8 @@ def test_planned_runs_are_the_runs_the_experiment_trains(tmp_path, one_thread):
     """planned_runs (what --jobs trains ahead) names exactly the run directories run_experiment creates,
     for an experiment that trains five runs over its conditions (scaling), and the configs they train."""
     from mop.experiments import get_experiment
-    from mop.experiments.runner import planned_runs, run_experiment
+    from mop.experiments.planning import planned_runs
+    from mop.experiments.runner import run_experiment
     from mop.runs import load_config
 
     keys = ["train.steps=2", "train.batch_size=4", "train.checkpoint_every=2"]

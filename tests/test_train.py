@@ -183,7 +183,7 @@ def test_handed_over_model_predicts_what_the_reloaded_run_does(tmp_path, monkeyp
     has just trained); its predictions equal, bit for bit, those of the run reloaded from disk."""
     import mop.runs
     from mop.experiments import get_experiment
-    from mop.experiments.runner import Session, learned_predictor
+    from mop.experiments.planning import Session, learned_predictor
     from mop.predictors import make_predictor
     from mop.systems import generator, make_family
 

@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-import mop.experiments.runner
+import mop.experiments.planning
 import mop.train
 from mop.cli import main
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
@@ -86,7 +86,7 @@ def no_training(monkeypatch):
         raise AssertionError("trained before the experiment was validated")
 
     monkeypatch.setattr(mop.train, "train", tripwire)
-    monkeypatch.setattr(mop.experiments.runner, "train_model", tripwire)
+    monkeypatch.setattr(mop.experiments.planning, "train_model", tripwire)
 
 
 def _fails_before_training(tmp_path, data, capsys, words):

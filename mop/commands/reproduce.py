@@ -31,7 +31,8 @@ from mop.config import RunConfig, from_dict, to_dict
 from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, PRESETS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
-from mop.experiments.runner import planned_runs, run_experiment
+from mop.experiments.planning import planned_runs
+from mop.experiments.runner import run_experiment
 from mop.experiments.seeds import lead_table, seed_summary, seeds_table
 from mop.experiments.validate import validate_experiment
 from mop.predictors import PREDICTORS

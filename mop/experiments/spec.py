@@ -229,7 +229,8 @@ class Experiment:
         e.g. {"mop": "pretrained:linear"} (a condition's `runs` wins over the experiment's).
     best: the best predictor there is for the test systems, which the report measures MOP's distance to:
         the exact optimum where one exists (KF, kalman-colored), else the best filter that knows the system
-        (the particle filter on the quadrotor); "" = the reference.
+        (the particle filter on the quadrotor); "" = the reference. The one definition of "best": the
+        report's distance (mop.experiments.evaluating) and the pretrained cards both read best_predictor.
     authors: the authors' number to show beside it (text), e.g. "1.025 (their 12 x 256 model, H100)".
     """
 

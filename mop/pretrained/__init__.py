@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from mop.errors import MopError
+from mop.errors import MopError, NoPretrainedModel
 
 PREFIX = "pretrained:"
 ROOT = Path(__file__).resolve().parent
@@ -39,12 +39,14 @@ def shipped_names(root: Path | None = None) -> list[str]:
 
 
 def shipped_dir(name: str, root: Path | None = None) -> Path:
-    """The directory of shipped model `name`; MopError naming the shipped ones when there is none."""
+    """The directory of shipped model `name`; NoPretrainedModel naming the shipped ones when there is none."""
     root = ROOT if root is None else root
     path = root / name
     if not name or "/" in name or not (path / "card.json").is_file():
         known = ", ".join(f"{PREFIX}{n}" for n in shipped_names(root)) or "none"
-        raise MopError(f"no pretrained model {name!r} is shipped; shipped: {known} (see: mop pretrained)")
+        raise NoPretrainedModel(
+            f"no pretrained model {name!r} is shipped; shipped: {known} (see: mop pretrained)"
+        )
     return path
 
 

@@ -29,13 +29,16 @@ import torch
 from mop.atomic import write_json, write_text
 from mop.config import RunConfig
 from mop.errors import MopError
-from mop.evaluate import evaluate, summarize, windows
+from mop.evaluate import evaluate, windows
 from mop.experiments import TEST_SEED_OFFSET, get_experiment, get_preset, run_config
 from mop.experiments.analyses import horizon_errors
-from mop.experiments.runner import config_hash, test_system, test_trajectories
+from mop.experiments.evaluating import evaluate_condition, test_system, test_trajectories
+from mop.experiments.planning import classical_predictor, config_hash
+from mop.experiments.results import ConditionResult
 from mop.experiments.spec import Condition
+from mop.experiments.validate import evaluated
 from mop.metrics import mse_ratio_ci
-from mop.predictors import PREDICTORS, forecast, is_learned, make_predictor
+from mop.predictors import forecast, is_learned
 from mop.pretrained import PREFIX, ROOT, file_digests
 from mop.pretrained.card import render_card
 from mop.pretrained.catalog import CATALOG, ShippedModel, catalog_entry
@@ -121,46 +124,55 @@ def _ratios(e_num: np.ndarray, e_den: np.ndarray, seed: int) -> dict[str, dict[s
 def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[str, Any]:
     """The card's measured sections (evaluation, forecast, noise_shift) for the model in `run_dir`.
 
-    The test systems and predictors are those of `mop reproduce EXPERIMENT --preset PRESET` for the entry's
-    condition (same test seed, same predictor options), so the card's numbers are that report's.
+    The condition is evaluated by the runner's own function (mop.experiments.evaluating.evaluate_condition:
+    the same test data, `missing` and `data` included, the same test seed and predictor options as
+    `mop reproduce EXPERIMENT --preset PRESET`), so the card's numbers are that report's; "best" is the
+    experiment's best_predictor, as in the report.
     """
-    exp, condition, preset = get_experiment(entry.experiment), condition_of(entry), get_preset(entry.preset)
+    exp, condition = get_experiment(entry.experiment), condition_of(entry)
     config = load_config(run_dir)
     model = load_predictor(run_dir)  # named by its architecture's registry entry (the paper's model: mop)
-    names = [n for n in (condition.predictors or exp.predictors) if not is_learned(n)]
-    per_preset = {n: PREDICTORS.meta(n).get("preset_options", {}).get(entry.preset, {}) for n in names}
-    others = [make_predictor(n, shared={"seed": entry.seed}, **per_preset[n]) for n in names]
-    system = test_system(config, condition)
-    horizon = condition.horizon or config.train.horizon
-    traj = test_trajectories(system, preset.num_test_systems, horizon, entry.seed)
-    raw = evaluate([model, *others], traj, progress)
-    summary = summarize(raw, reference=exp.reference, seed=entry.seed)
-    late = _late(horizon)
-    sq = {n: p["window_squared_error"][late] for n, p in summary["predictors"].items() if n != model.name}
-    best = exp.best if exp.best in sq else min(sq, key=sq.get)  # the experiment's, as its report's distance
-    evaluation = {
-        "num_systems": int(traj.y.shape[0]),
-        "test_seed": entry.seed + TEST_SEED_OFFSET,
-        "horizon": horizon,
-        "reference": exp.reference,
+    names = [n for n in evaluated(exp, entry.preset, condition) if not is_learned(n)]
+    best, reference = exp.best_predictor, exp.reference
+    if best not in names:
+        raise MopError(f"experiment {exp.name}: its best predictor {best} is not evaluated; list it")
+    predictors = [model, *(classical_predictor(n, entry.preset, entry.seed) for n in names)]
+    result = evaluate_condition(
+        exp, condition, predictors, config, preset=entry.preset, seed=entry.seed, progress=progress
+    )
+    shown = [p for p in predictors if p.name in (model.name, reference, best)]
+    ref = next(p for p in predictors if p.name == reference)
+    system, horizon = test_system(config, condition), result.traj.y.shape[1] - 1
+    return {
+        "evaluation": _evaluation(result, model.name, reference, best, entry.seed),
+        "forecast": _forecast(result.traj, shown),
+        "noise_shift": noise_shift(model, ref, system, horizon, entry.seed),
+    }
+
+
+def _evaluation(result: ConditionResult, model: str, reference: str, best: str, seed: int) -> dict[str, Any]:
+    """The card's evaluation: errors per window, MOP's MSE ratios to the reference and the best."""
+    summary = result.summary
+    return {
+        "num_systems": int(result.traj.y.shape[0]),
+        "test_seed": seed + TEST_SEED_OFFSET,
+        "horizon": result.traj.y.shape[1] - 1,
+        "reference": reference,
         "best": best,
         "errors": {n: p["window_error"] for n, p in summary["predictors"].items()},
-        "ratio_to_reference": summary["ratios_to_reference"]["ratios"][model.name],
-        "ratio_to_best": _ratios(raw[model.name]["e"], raw[best]["e"], entry.seed),
+        "ratio_to_reference": summary["ratios_to_reference"]["ratios"][model],
+        "ratio_to_best": _ratios(result.errors[model], result.errors[best], seed),
     }
-    shown = [p for p in [model, *others] if p.name in dict.fromkeys((model.name, exp.reference, best))]
+
+
+def _forecast(traj, shown: list) -> dict[str, Any]:
+    """The card's forecast table: mean error k = 1..FORECAST_STEPS steps ahead from t >= FORECAST_START."""
     table = {
         p.name: horizon_errors(traj.y, forecast(p, traj, FORECAST_STEPS), FORECAST_START)
         for p in shown
         if callable(getattr(p, "forecast", None))
     }
-    fc = {"k": list(range(1, FORECAST_STEPS + 1)), "start": FORECAST_START, "error": table}
-    reference = next(p for p in others if p.name == exp.reference)
-    return {
-        "evaluation": evaluation,
-        "forecast": fc,
-        "noise_shift": noise_shift(model, reference, system, horizon, entry.seed),
-    }
+    return {"k": list(range(1, FORECAST_STEPS + 1)), "start": FORECAST_START, "error": table}
 
 
 def noise_shift(model, reference, system, horizon: int, seed: int) -> dict[str, Any] | None:

@@ -77,17 +77,10 @@ def _features(model: dict[str, Any]) -> str:
     return f", reads {' and '.join(parts)}" if parts else ""
 
 
-def render_card(card: dict[str, Any]) -> str:
-    """The CARD.md text of `card` (card.json's content)."""
-    ev, recipe, machine = card["evaluation"], card["recipe"], card["machine"] or {}
-    model = card["model"]
-    lines = [
-        f"# pretrained:{card['name']}",
-        "",
-        card["summary"] + ".",
-        "",
-        "## Trained on",
-        "",
+def _trained_on(card: dict[str, Any]) -> list[str]:
+    """The card's "Trained on" list: family, model, recipe, seed and steps, machine."""
+    recipe, machine, model = card["recipe"], card["machine"] or {}, card["model"]
+    return [
         f"- family: {card['family']['family']} ({_settings(card['family'])})",
         f"- model: {model['arch']} {model['num_layers']} layers x {model['width']} wide, "
         f"{model['num_heads']} heads, context {model['context']}, read-out {model['readout']}, input "
@@ -101,14 +94,35 @@ def render_card(card: dict[str, Any]) -> str:
         f"- machine: {machine.get('cpu', 'unknown')}, {machine.get('cores', '?')} cores, torch "
         f"{machine.get('torch', '?')} with {machine.get('torch_threads', '?')} threads, Python "
         f"{machine.get('python', '?')}",
+    ]
+
+
+def _measured(ev: dict[str, Any]) -> str:
+    """The sentence above the card's ratio table: the test systems, the reference and the best predictor."""
+    return (
+        f"{ev['num_systems']} fresh test systems (test seed {ev['test_seed']}, horizon {ev['horizon']}); "
+        f"reference `{ev['reference']}`, best predictor `{ev['best']}` (the experiment's: the optimum where "
+        "one exists, else the best filter that knows the system; otherwise the reference); "
+        "errors are means of ||yhat_t - y_t||, ratios are MSE ratios with paired bootstrap 95% intervals "
+        "over systems."
+    )
+
+
+def render_card(card: dict[str, Any]) -> str:
+    """The CARD.md text of `card` (card.json's content)."""
+    ev = card["evaluation"]
+    lines = [
+        f"# pretrained:{card['name']}",
+        "",
+        card["summary"] + ".",
+        "",
+        "## Trained on",
+        "",
+        *_trained_on(card),
         "",
         "## Measured",
         "",
-        f"{ev['num_systems']} fresh test systems (test seed {ev['test_seed']}, horizon {ev['horizon']}); "
-        f"reference `{ev['reference']}`, best predictor `{ev['best']}` (the experiment's: the optimum where "
-        "one exists, else the best filter that knows the system; otherwise the lowest MSE over t >= 20); "
-        "errors are means of ||yhat_t - y_t||, ratios are MSE ratios with paired bootstrap 95% intervals "
-        "over systems.",
+        _measured(ev),
         "",
         *_ratio_table(ev),
         "",
