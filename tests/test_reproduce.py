@@ -67,8 +67,11 @@ def test_reproduce_rejects_unknown_experiment(capsys):
 def test_with_and_without_name_predictors_from_the_registry(tmp_path, capsys):
     """--with / --without PREDICTOR; --gru / --no-gru are generated from the GRU's skip_presets metadata.
     An unknown name or one given both ways stops before anything is written."""
-    from mop.commands.reproduce import choices
     from mop.errors import MopError
+    from mop.experiments.reproduce import choices as chosen
+
+    def choices(args):
+        return chosen(args.with_, args.without)
 
     def parse(*flags):
         return cli.build_parser("reproduce").parse_args(["reproduce", "linear", *flags])
