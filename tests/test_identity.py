@@ -10,7 +10,7 @@ import pytest
 import mop.pretrained as pretrained
 from mop.config import DataConfig, ModelConfig, RunConfig, TrainConfig, from_dict, to_dict
 from mop.experiments import get_experiment, run_config
-from mop.experiments.runner import config_hash
+from mop.experiments.planning import config_hash
 from mop.pretrained import find_shipped
 from mop.runs import load_config
 from mop.systems import FAMILIES

@@ -15,12 +15,11 @@ import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
-import torch
-
 from mop.atomic import write_json, write_text
 from mop.errors import MopError
 from mop.experiments import EXPERIMENTS, get_experiment
 from mop.experiments.files import is_experiment_file, load_experiment
+from mop.experiments.presets import default_preset
 from mop.experiments.schedule import UnitSettings, run_units
 from mop.experiments.seeds import lead_table, seed_summary, seeds_table
 from mop.experiments.spec import Experiment
@@ -75,8 +74,7 @@ class Reproduction:
 
     @property
     def resolved_preset(self) -> str:
-        default = "small" if self.pretrained else ("paper" if torch.cuda.is_available() else "small")
-        return self.preset or default
+        return self.preset or ("small" if self.pretrained else default_preset())
 
     @property
     def chosen(self) -> dict[str, bool]:
