@@ -12,7 +12,7 @@ from mop.checkpoint import load_tensors
 from mop.config import RunConfig, apply_overrides, to_dict
 from mop.errors import MopError
 from mop.experiments import get_experiment, run_config
-from mop.experiments.runner import config_hash
+from mop.experiments.planning import config_hash
 from mop.train import auto, train
 
 
