@@ -1,8 +1,11 @@
 import json
+from pathlib import Path
 
 import pytest
 
 from mop.atomic import atomic_path, write_json
+
+ROOT = Path(__file__).resolve().parents[1]  # the child imports this checkout of mop
 
 
 def test_failed_write_keeps_previous_file(tmp_path):
@@ -82,3 +85,46 @@ def test_full_disk_keeps_the_previous_file_and_no_temporary(tmp_path, monkeypatc
     assert err.value.errno == errno.ENOSPC and err.value.filename == str(target)  # names the destination
     assert json.loads(target.read_text()) == {"version": 1}
     assert list(tmp_path.iterdir()) == [target]
+
+
+def test_a_reader_of_the_old_file_keeps_the_whole_old_file(tmp_path):
+    """The new file is moved over the old one (a new file under the name), never written into it: a reader
+    that opened the old file before the write still reads all of it afterwards, and never a mix."""
+    target = tmp_path / "eval.json"
+    old = {"version": 1, "payload": "x" * 100_000}
+    write_json(target, old)
+    with open(target) as reader:
+        first = reader.read(10)
+        write_json(target, {"version": 2, "payload": "y" * 50})
+        assert json.loads(first + reader.read()) == old
+    assert json.loads(target.read_text())["version"] == 2
+
+
+KILLED_MID_WRITE = """
+import os, signal, sys
+from mop.atomic import atomic_write
+def write(tmp):
+    with open(tmp, "w") as f:
+        f.write('{"version": 2, "payload": "')
+        f.flush()
+        os.kill(os.getpid(), signal.SIGKILL)  # killed half-way through writing the new file
+atomic_write(sys.argv[1], write)
+"""
+
+
+def test_a_process_killed_mid_write_leaves_the_old_file_whole(tmp_path):
+    """A real SIGKILL while the new contents are written: the destination is still the old file, whole;
+    the dead process's temporary is removed by the next write of that name."""
+    import subprocess
+    import sys
+
+    target = tmp_path / "eval.json"
+    write_json(target, {"version": 1})
+    child = subprocess.run(
+        [sys.executable, "-c", KILLED_MID_WRITE, str(target)], capture_output=True, cwd=ROOT
+    )
+    assert child.returncode == -9, child.stderr
+    assert json.loads(target.read_text()) == {"version": 1}
+    (orphan,) = [p for p in tmp_path.iterdir() if p != target]
+    write_json(target, {"version": 3})
+    assert not orphan.exists() and json.loads(target.read_text()) == {"version": 3}

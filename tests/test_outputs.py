@@ -3,11 +3,14 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from mop.errors import MopError
 from mop.outputs import MARKER, is_complete, read_results, staged_output
+
+ROOT = Path(__file__).resolve().parents[1]  # the child imports this checkout of mop
 
 
 def _write(stage, **files):
@@ -98,3 +101,67 @@ def test_reproduce_on_a_full_disk_then_with_a_damaged_shared_run(tmp_path, tiny_
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "sha256" in err and "--fresh" in err, err
     assert (out / "eval.json").read_bytes() == before and is_complete(out)
+
+
+def test_the_previous_marker_is_gone_before_any_file_moves(tmp_path, monkeypatch):
+    """At every move of a new file into the folder the previous run's marker is already removed, so a
+    command stopped between two moves leaves a folder that readers refuse (a failure point is injected at
+    the second move)."""
+    import os
+
+    import mop.outputs
+
+    with staged_output(tmp_path) as stage:
+        _write(stage, **{"eval.json": '{"seed": 0}', "report.md": "r0"})
+    seen, real_replace = [], os.replace
+
+    def replace_then_stop(src, dst):
+        seen.append((tmp_path / MARKER).exists())
+        if len(seen) == 2:
+            raise KeyboardInterrupt  # stopped between the first and the second move
+        real_replace(src, dst)
+
+    monkeypatch.setattr(mop.outputs.os, "replace", replace_then_stop)
+    with pytest.raises(KeyboardInterrupt), staged_output(tmp_path) as stage:
+        _write(stage, **{"eval.json": '{"seed": 1}', "fig.png": "f1", "report.md": "r1"})
+    assert seen == [False, False]
+    assert not is_complete(tmp_path)
+    with pytest.raises(MopError, match="incomplete"):
+        read_results(tmp_path)
+
+
+KILLED_MID_MOVE = """
+import os, signal, sys
+import mop.outputs
+from mop.outputs import staged_output
+real, calls = os.replace, []
+def replace(src, dst):
+    calls.append(dst)
+    if len(calls) == 2:
+        os.kill(os.getpid(), signal.SIGKILL)  # killed between the first and the second move
+    real(src, dst)
+mop.outputs.os.replace = replace
+with staged_output(sys.argv[1]) as stage:
+    for name in ("eval.json", "fig.png", "report.md"):
+        (stage / name).write_text('{"seed": 1}')
+"""
+
+
+def test_a_process_killed_between_moves_leaves_a_folder_readers_refuse(tmp_path):
+    """A real SIGKILL between two moves (no finally, no cleanup): no marker, so read_results refuses the
+    half-moved folder; the next run removes the dead process's staging folder and completes."""
+    with staged_output(tmp_path) as stage:
+        _write(stage, **{"eval.json": '{"seed": 0}', "fig.png": "f0", "report.md": "r0"})
+    child = subprocess.run(
+        [sys.executable, "-c", KILLED_MID_MOVE, str(tmp_path)], capture_output=True, cwd=ROOT
+    )
+    assert child.returncode == -9, child.stderr
+    assert json.loads((tmp_path / "eval.json").read_text()) == {"seed": 1}  # the first file had moved
+    assert (tmp_path / "fig.png").read_text() == "f0" and not is_complete(tmp_path)
+    with pytest.raises(MopError, match="incomplete"):
+        read_results(tmp_path)
+    assert [p for p in tmp_path.iterdir() if p.name.startswith(".output.")]  # its staging folder
+    with staged_output(tmp_path) as stage:
+        _write(stage, **{"eval.json": '{"seed": 2}'})
+    assert read_results(tmp_path) == {"seed": 2}
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
