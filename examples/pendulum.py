@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import check
-from mop.systems import StateSpace, SystemConfig, SystemFamily, Trajectories, register_family
+from mop.systems import StateSpace, SystemConfig, SystemFamily, SystemParams, Trajectories, register_family
 from mop.systems.base import normal, scaled_eye, uniform
 
 TAU, GRAVITY = 0.1, 9.81
@@ -46,48 +46,59 @@ def step(x: Tensor, u: Tensor, length: Tensor, damping: Tensor, gain: Tensor) ->
     return torch.stack([theta + TAU * omega_next, omega_next], dim=-1)  # damped swing decays (det 1 - tau b)
 
 
+@dataclass(frozen=True)
+class PendulumParams(SystemParams):
+    """length, damping, gain (B,): (l, b, k); C (B, 2, 2); Q, R, P0 (B, 2, 2); x0_mean (B, 2)."""
+
+    length: Tensor
+    damping: Tensor
+    gain: Tensor
+    C: Tensor
+    Q: Tensor
+    R: Tensor
+    P0: Tensor
+    x0_mean: Tensor
+
+
 @register_family("pendulum", PendulumConfig)
 class PendulumFamily(SystemFamily):
-    """params: "length", "damping", "gain" (B,), "C" (B, 2, 2), "Q", "R", "P0" (B, 2, 2), "x0_mean" (B, 2)."""
+    """params: PendulumParams."""
 
+    Params = PendulumParams
     state_dim, output_dim, input_dim = 2, 2, 1
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> PendulumParams:
         B, dev, cfg = num_systems, generator.device, self.config
         length = uniform((B,), 0.5, 2.0, generator)
         damping = uniform((B,), 0.1, 0.5, generator)
         gain = uniform((B,), 0.5, 2.0, generator)
-        return {
-            "length": length,
-            "damping": damping,
-            "gain": gain,
-            "C": uniform((B, 2, 2), 0.0, 1.0, generator),
-            "Q": scaled_eye(B, 2, cfg.noise_var_w, dev),
-            "R": scaled_eye(B, 2, cfg.noise_var_v, dev),
-            "P0": scaled_eye(B, 2, cfg.x0_std**2, dev),
-            "x0_mean": torch.zeros(B, 2, dtype=torch.float64, device=dev),
-        }
+        return PendulumParams(
+            length=length,
+            damping=damping,
+            gain=gain,
+            C=uniform((B, 2, 2), 0.0, 1.0, generator),
+            Q=scaled_eye(B, 2, cfg.noise_var_w, dev),
+            R=scaled_eye(B, 2, cfg.noise_var_v, dev),
+            P0=scaled_eye(B, 2, cfg.x0_std**2, dev),
+            x0_mean=torch.zeros(B, 2, dtype=torch.float64, device=dev),
+        )
 
-    def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
-    ) -> Trajectories:
-        p, cfg = {k: v.to(self.dtype) for k, v in params.items()}, self.config
-        B = p["C"].shape[0]
+    def simulate(self, params: PendulumParams, horizon: int, *, generator: torch.Generator) -> Trajectories:
+        p, cfg = params.map(lambda v: v.to(self.dtype)), self.config
+        B = p.C.shape[0]
         u = uniform((B, horizon + 1, 1), -1.0, 1.0, generator, self.dtype)  # (B, T+1, 1)
         w = normal((B, horizon, 2), generator, self.dtype) * cfg.noise_var_w**0.5
         v = normal((B, horizon + 1, 2), generator, self.dtype) * cfg.noise_var_v**0.5
-        x = p["x0_mean"] + normal((B, 2), generator, self.dtype) * cfg.x0_std
+        x = p.x0_mean + normal((B, 2), generator, self.dtype) * cfg.x0_std
         xs = [x]
         for t in range(horizon):
-            x = step(x, u[:, t], p["length"], p["damping"], p["gain"]) + w[:, t]
+            x = step(x, u[:, t], p.length, p.damping, p.gain) + w[:, t]
             xs.append(x)
         x = torch.stack(xs, dim=1)  # (B, T+1, 2)
-        return Trajectories(y=x @ p["C"].mT + v, u=u, x=x, params=dict(params), family=self.name)
+        return Trajectories(y=x @ p.C.mT + v, u=u, x=x, params=params, family=self.name)
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
-        p = {k: v.double() for k, v in params.items()}
-        lbk = tuple(p[k][:, None] for k in ("length", "damping", "gain"))  # (B, 1): broadcast over point sets
-        return StateSpace(
-            f=lambda x, u, t: step(x, u, *lbk), C=p["C"], Q=p["Q"], R=p["R"], m0=p["x0_mean"], P0=p["P0"]
-        )
+    def state_space(params: PendulumParams) -> StateSpace:
+        p = params.map(Tensor.double)
+        lbk = tuple(q[:, None] for q in (p.length, p.damping, p.gain))  # (B, 1): broadcast over point sets
+        return StateSpace(f=lambda x, u, t: step(x, u, *lbk), C=p.C, Q=p.Q, R=p.R, m0=p.x0_mean, P0=p.P0)

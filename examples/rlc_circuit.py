@@ -41,7 +41,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import check
-from mop.systems import SystemConfig, SystemFamily, Trajectories, register_family
+from mop.systems import SystemConfig, SystemFamily, SystemParams, Trajectories, register_family
 from mop.systems.base import StateSpace, linear_state_space, normal, uniform
 from mop.systems.linear import simulate_linear
 
@@ -129,18 +129,35 @@ def log_uniform(shape: tuple[int, ...], bounds: tuple[float, float], generator: 
     return uniform(shape, low, high, generator).exp()
 
 
+@dataclass(frozen=True)
+class RLCParams(SystemParams):
+    """resistance, inductance, capacitance (B,); the exact discrete model A (B, 2, 2), B (B, 2, 1),
+    C (B, m, 2), Q (B, 2, 2), R (B, m, m), P0 (B, 2, 2), x0_mean (B, 2); float64."""
+
+    resistance: Tensor
+    inductance: Tensor
+    capacitance: Tensor
+    A: Tensor
+    B: Tensor
+    C: Tensor
+    Q: Tensor
+    R: Tensor
+    P0: Tensor
+    x0_mean: Tensor
+
+
 @register_family("rlc-circuit", RLCConfig)
 class RLCFamily(SystemFamily):
-    """params: "resistance", "inductance", "capacitance" (B,); the exact discrete model "A" (B, 2, 2),
-    "B" (B, 2, 1), "C" (B, m, 2), "Q" (B, 2, 2), "R" (B, m, m), "P0" (B, 2, 2), "x0_mean" (B, 2); float64."""
+    """params: RLCParams."""
 
+    Params = RLCParams
     state_dim, input_dim = 2, 1
 
     def __init__(self, config: RLCConfig, dtype: torch.dtype = torch.float32) -> None:
         super().__init__(config, dtype)
         self.output_dim = OUTPUTS[config.output]
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> RLCParams:
         cfg, B, m = self.config, num_systems, self.output_dim
         R = log_uniform((B,), cfg.bounds("resistance"), generator)
         L = log_uniform((B,), cfg.bounds("inductance"), generator)
@@ -152,36 +169,34 @@ class RLCFamily(SystemFamily):
         out[:, 0, 0], out[:, 1, 1] = 1.0, R  # y = (v_C, R i_L)
         P0 = torch.diag_embed(torch.stack([torch.ones_like(R), C / L], -1)) * cfg.initial_voltage_std**2
         eye = torch.eye(m, dtype=torch.float64, device=R.device)
-        return {
-            "resistance": R,
-            "inductance": L,
-            "capacitance": C,
-            "A": A,
-            "B": Bd,
-            "C": out[:, :m],
-            "Q": Q,
-            "R": (cfg.output_std**2 * eye).expand(B, m, m).clone(),
-            "P0": P0,
-            "x0_mean": torch.zeros(B, 2, dtype=torch.float64, device=R.device),
-        }
+        return RLCParams(
+            resistance=R,
+            inductance=L,
+            capacitance=C,
+            A=A,
+            B=Bd,
+            C=out[:, :m],
+            Q=Q,
+            R=(cfg.output_std**2 * eye).expand(B, m, m).clone(),
+            P0=P0,
+            x0_mean=torch.zeros(B, 2, dtype=torch.float64, device=R.device),
+        )
 
-    def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
-    ) -> Trajectories:
-        cfg, m = self.config, self.output_dim
-        A, Bd, C = (params[k].to(self.dtype) for k in "ABC")
+    def simulate(self, params: RLCParams, horizon: int, *, generator: torch.Generator) -> Trajectories:
+        cfg, m, p = self.config, self.output_dim, params
+        A, Bd, C = (M.to(self.dtype) for M in (p.A, p.B, p.C))
         num = A.shape[0]
-        w_root = psd_sqrt(params["Q"]).to(self.dtype)  # (B, 2, 2), w_root w_root^T = Q
-        p0_root = params["P0"].sqrt().to(self.dtype)  # P0 is diagonal
-        x0 = params["x0_mean"].to(self.dtype) + (p0_root @ normal((num, 2, 1), generator, self.dtype))[..., 0]
+        w_root = psd_sqrt(p.Q).to(self.dtype)  # (B, 2, 2), w_root w_root^T = Q
+        p0_root = p.P0.sqrt().to(self.dtype)  # P0 is diagonal
+        x0 = p.x0_mean.to(self.dtype) + (p0_root @ normal((num, 2, 1), generator, self.dtype))[..., 0]
         u = normal((num, horizon + 1, 1), generator, self.dtype) * cfg.input_std  # (B, T+1, 1)
         w = normal((num, horizon + 1, 2), generator, self.dtype) @ w_root.mT  # (B, T+1, 2), w_T unused
         v = normal((num, horizon + 1, m), generator, self.dtype) * cfg.output_std
         x, y = simulate_linear(A, C, x0, w + u @ Bd.mT, v)  # the source enters as the known forcing B u_t
-        return Trajectories(y=y, u=u, x=x, params=dict(params), family=self.name)
+        return Trajectories(y=y, u=u, x=x, params=params, family=self.name)
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
+    def state_space(params: RLCParams) -> StateSpace:
         """x_{t+1} = A x_t + B u_t + w_t, y_t = C x_t + v_t, x_0 ~ N(x0_mean, P0)."""
         p = params
-        return linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"], B=p["B"], m0=p["x0_mean"])
+        return linear_state_space(p.A, p.C, p.Q, p.R, p.P0, B=p.B, m0=p.x0_mean)

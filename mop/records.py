@@ -22,13 +22,13 @@ import numpy as np
 import torch
 
 from mop.predictors import forecast, nan_beyond_horizon, simulate
-from mop.systems.base import Trajectories
+from mop.systems.base import SystemParams, Trajectories
 
 Data = list[tuple[np.ndarray, np.ndarray | None]]
 BATCH_SIZE = 256  # trajectories per padded batch of unequal lengths
 
 
-def batches(data: Data, family: str, params: dict) -> list[tuple[list[int], Trajectories]]:
+def batches(data: Data, family: str, params: SystemParams | None) -> list[tuple[list[int], Trajectories]]:
     """(indices into data, Trajectories) batches. All trajectories at once when they share a length (with
     the system's parameters); otherwise sorted by length, BATCH_SIZE at a time, each padded at the end to
     the longest of its batch by repeating its last row. Every predictor is causal (yhat_t reads y_<t, u_<t;
@@ -40,12 +40,12 @@ def batches(data: Data, family: str, params: dict) -> list[tuple[list[int], Traj
     out = []
     for start in range(0, len(order), BATCH_SIZE):
         idx = order[start : start + BATCH_SIZE]
-        rows = {k: v[idx] for k, v in params.items()}
+        rows = None if params is None else params.select(idx)
         out.append((idx, _stack(data, idx, lengths[idx[-1]], family, rows)))
     return out
 
 
-def _stack(data: Data, idx: list[int], length: int, family: str, params: dict) -> Trajectories:
+def _stack(data: Data, idx: list[int], length: int, family: str, params: SystemParams | None) -> Trajectories:
     """The trajectories `idx` of data, each padded to `length` steps, as float32 Trajectories."""
     y = torch.tensor(np.stack([_pad(data[i][0], length) for i in idx]), dtype=torch.float32)
     u = None
@@ -63,7 +63,7 @@ def predict_all(predictor, data: Data, steps: int | None = None, family: str = "
     """[(T_i+1, m)] predictions (or [(T_i+1, K, m)] forecasts with steps, NaN where t + j > T_i), in the
     order of data, computed in batches (see batches)."""
     out: list[np.ndarray | None] = [None] * len(data)
-    for idx, traj in batches(data, family, params or {}):
+    for idx, traj in batches(data, family, params):
         pred = predictor.predict(traj) if steps is None else forecast(predictor, traj, steps)
         pred = pred.double().cpu()
         for row, i in enumerate(idx):
@@ -76,7 +76,7 @@ def simulate_all(predictor, data: Data, context: int, family: str = "", params=N
     """[(T_i+1-C, m)] free-run simulations after C outputs, in the order of data, computed in batches (see
     batches: sim[:, j] predicts y_{C+j} from y_<C and u_<C+j, so the kept j <= T_i - C never read padding)."""
     out: list[np.ndarray | None] = [None] * len(data)
-    for idx, traj in batches(data, family, params or {}):
+    for idx, traj in batches(data, family, params):
         sim = simulate(predictor, traj, context).double().cpu().numpy()
         for row, i in enumerate(idx):
             out[i] = sim[row, : len(data[i][0]) - context]

@@ -31,7 +31,7 @@ HORIZON, WINDOW, NOISE_DRAWS = 50, (20, 50), 3
 
 def simulate(params, horizon, gen, *, x0_shared=False, v_shared=False, sigma=0.1, x0_std=1.0):
     """QuadrotorFamily.simulate (same draws, same order) with quirks (b) and (c) switchable."""
-    B = params["C"].shape[0]
+    B = params.C.shape[0]
     u = uniform((B, horizon + 1, 2), *ACTION_RANGE, gen)  # (B, T+1, 2)
     w = normal((B, horizon, 6), gen) * sigma
     v = normal((B, horizon + 1, 3), gen) * sigma
@@ -40,19 +40,19 @@ def simulate(params, horizon, gen, *, x0_shared=False, v_shared=False, sigma=0.1
         e0 = e0[:, :1].expand(B, 6)  # one draw copied into all six coordinates
     if v_shared:
         v = v[..., :1].expand(B, horizon + 1, 3)  # one draw shared by the three outputs
-    x = clip_state(params["x0_mean"] + e0 * x0_std)
+    x = clip_state(params.x0_mean + e0 * x0_std)
     xs = [x]
     for t in range(horizon):
-        x = clip_state(dynamics(x, u[:, t], params["mass"], params["length"], params["inertia"]) + w[:, t])
+        x = clip_state(dynamics(x, u[:, t], params.mass, params.length, params.inertia) + w[:, t])
         xs.append(x)
     x = torch.stack(xs, dim=1)  # (B, T+1, 6)
-    return x @ params["C"].mT + v, u
+    return x @ params.C.mT + v, u
 
 
 def ekf_with_noisy_mean(params, y, u, gen, sigma=0.1):
     """mop's EKF with quirk (a): m <- clip(f(clip(m), u) + w), w ~ N(0, sigma^2 I) drawn by the filter."""
     model = QuadrotorFamily.state_space(params)
-    C, Q, R, P = (params[k] for k in ("C", "Q", "R", "P0"))
+    C, Q, R, P = params.C, params.Q, params.R, params.P0
     m, preds = clip_state(model.m0), []
     for t in range(y.shape[1]):
         preds.append((C @ m[..., None])[..., 0])

@@ -96,10 +96,10 @@ def gaussian_conditioning_predict(A, C, Q, R, y, x0, P0, B, u):
 
 def filterpy_on(traj) -> np.ndarray:
     """filterpy_predict on a linear family's Trajectories (x_0 mean 0)."""
-    p = {k: v.numpy() for k, v in traj.params.items()}
+    p = traj.params.map(torch.Tensor.numpy)
     y = traj.y.numpy()
-    x0 = np.zeros((y.shape[0], p["A"].shape[-1]))
-    return filterpy_predict(p["A"], p["C"], p["Q"], p["R"], y, x0, p["P0"])
+    x0 = np.zeros((y.shape[0], p.A.shape[-1]))
+    return filterpy_predict(p.A, p.C, p.Q, p.R, y, x0, p.P0)
 
 
 def numpy_quadrotor_step(s, u, mass, length, inertia, tau=0.1, g=10.0):

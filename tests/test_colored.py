@@ -23,9 +23,9 @@ def family(window, n=2, m=1):
 def test_window_one_is_the_plain_kalman_filter():
     traj = family(1, n=4, m=2).generate(20, 30, generator=generator(3))
     p = traj.params
-    assert int(p["color_window"][0]) == 1
-    yhat, S = colored_kalman_filter(p["A"], p["C"], p["noise_var_w"], p["noise_var_v"], 1, traj.y, p["P0"])
-    ref = kalman_filter(p["A"], p["C"], p["Q"], p["R"], traj.y, P0=p["P0"])
+    assert int(p.color_window[0]) == 1
+    yhat, S = colored_kalman_filter(p.A, p.C, p.noise_var_w, p.noise_var_v, 1, traj.y, p.P0)
+    ref = kalman_filter(p.A, p.C, p.Q, p.R, traj.y, P0=p.P0)
     torch.testing.assert_close(yhat, ref.yhat, atol=1e-10, rtol=0)
     torch.testing.assert_close(S, ref.S, atol=1e-10, rtol=0)
 
@@ -80,10 +80,10 @@ def brute_force(A, C, P0, q, r, W, y):
 def test_equals_brute_force_gaussian_conditioning(W):
     traj = family(W).generate(3, 6, generator=generator(11 + W))  # n = 2, m = 1, y_0..y_6
     p = traj.params
-    yhat, S = colored_kalman_filter(p["A"], p["C"], p["noise_var_w"], p["noise_var_v"], W, traj.y, p["P0"])
+    yhat, S = colored_kalman_filter(p.A, p.C, p.noise_var_w, p.noise_var_v, W, traj.y, p.P0)
     for s in range(3):
         mean, cov = brute_force(
-            p["A"][s].numpy(), p["C"][s].numpy(), p["P0"][s].numpy(), 0.01, 0.02, W, traj.y[s].numpy()
+            p.A[s].numpy(), p.C[s].numpy(), p.P0[s].numpy(), 0.01, 0.02, W, traj.y[s].numpy()
         )
         np.testing.assert_allclose(yhat[s].numpy(), mean, atol=1e-8)
         np.testing.assert_allclose(S[s].numpy(), cov, atol=1e-8)
@@ -96,7 +96,7 @@ def test_empirical_error_matches_its_covariance_and_beats_the_white_kf():
     variances and is ~2x worse at these settings)."""
     traj = family(5, n=3, m=2).generate(1000, 20, generator=generator(21))
     p = traj.params
-    yhat, S = colored_kalman_filter(p["A"], p["C"], p["noise_var_w"], p["noise_var_v"], 5, traj.y, p["P0"])
+    yhat, S = colored_kalman_filter(p.A, p.C, p.noise_var_w, p.noise_var_v, 5, traj.y, p.P0)
     mse = ((yhat - traj.y) ** 2).sum(-1).mean()
     expected = S.diagonal(dim1=-2, dim2=-1).sum(-1).mean()
     assert abs(mse / expected - 1) < 0.05, (mse, expected)
@@ -115,9 +115,9 @@ def test_shift_register_filter_equals_the_dense_augmented_filter(window, n, m, m
     monkeypatch.setattr(colored, "CHUNK", 3)
     traj = family(window, n=n, m=m).generate(7, 100, generator=generator(window))
     p = traj.params
-    args = (p["A"], p["C"], p["noise_var_w"], p["noise_var_v"], window)
-    ref_yhat, ref_S = colored_kalman_filter(*args, traj.y, p["P0"])
-    means, S = colored_filter(*args, traj.y, p["P0"], steps=1)
+    args = (p.A, p.C, p.noise_var_w, p.noise_var_v, window)
+    ref_yhat, ref_S = colored_kalman_filter(*args, traj.y, p.P0)
+    means, S = colored_filter(*args, traj.y, p.P0, steps=1)
     torch.testing.assert_close(means[:, :, 0], ref_yhat, atol=1e-10, rtol=0)
     torch.testing.assert_close(S, ref_S, atol=1e-10, rtol=0)
     predictor = make_predictor("kalman-colored")

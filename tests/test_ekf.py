@@ -1,5 +1,7 @@
 """EKF, UKF and particle filter: on a linear-Gaussian system they must match the Kalman filter (filterpy)."""
 
+import dataclasses
+
 import numpy as np
 import torch
 
@@ -57,8 +59,8 @@ def test_quadrotor_filters_run_and_beat_the_prior():
         50, 30, generator=generator(4)
     )
     prior_err = (traj.y - traj.y.mean()).norm(dim=-1)[:, 5:].mean()
-    C, P0 = traj.params["C"], traj.params["P0"]
-    prior_mean = (C @ traj.params["x0_mean"][..., None])[..., 0]  # (B, m), yhat_0 uses no data
+    C, P0 = traj.params.C, traj.params.P0
+    prior_mean = (C @ traj.params.x0_mean[..., None])[..., 0]  # (B, m), yhat_0 uses no data
     pf_sd = (
         torch.diagonal(C @ P0 @ C.mT, dim1=-2, dim2=-1).sqrt() / 300**0.5
     )  # Monte Carlo sd of the PF's mean
@@ -79,13 +81,15 @@ def test_ekf_step_clips_like_the_authors_ekf():
     ekf: yhat_0 = C clip(m_0), yhat_1 = C clip(f(clip(m_0), u_0));
     ekf-noclip: yhat_0 = C m_0, yhat_1 = C f(m_0, u_0)."""
     traj = quad_traj(5, 2, 5)
-    p = dict(traj.params)
-    p["P0"] = p["P0"] * 0 + 1e-12 * torch.eye(6, dtype=torch.float64)  # x_0 known = x0_mean
-    p["x0_mean"] = torch.tensor([[25.0, -1.0, 1.2, 0.5, -2.5, 1.0]], dtype=torch.float64).expand(5, 6)
-    f = lambda x: quadrotor.dynamics(x, traj.u[:, 0], p["mass"], p["length"], p["inertia"])  # noqa: E731
-    C = lambda x: (p["C"] @ x[..., None])[..., 0]  # noqa: E731
+    p = dataclasses.replace(
+        traj.params,
+        P0=traj.params.P0 * 0 + 1e-12 * torch.eye(6, dtype=torch.float64),  # x_0 known = x0_mean
+        x0_mean=torch.tensor([[25.0, -1.0, 1.2, 0.5, -2.5, 1.0]], dtype=torch.float64).expand(5, 6),
+    )
+    f = lambda x: quadrotor.dynamics(x, traj.u[:, 0], p.mass, p.length, p.inertia)  # noqa: E731
+    C = lambda x: (p.C @ x[..., None])[..., 0]  # noqa: E731
     clip = quadrotor.clip_state
-    m0 = p["x0_mean"]
+    m0 = p.x0_mean
     model = quadrotor.QuadrotorFamily.state_space(p)
     yhat = ekf_predict(model, traj.y, traj.u)
     torch.testing.assert_close(yhat[:, 0], C(clip(m0)))
@@ -102,7 +106,7 @@ def test_ekf_time_update_clips_the_posterior_mean_before_the_step():
     traj = quad_traj(4, 2, 10)
     model = quadrotor.QuadrotorFamily.state_space(traj.params)
     m = torch.tensor([[1.0, -25.0, -1.3, 2.4, -2.6, 0.9]], dtype=torch.float64).expand(4, 6)  # out of bounds
-    P, Q, u = traj.params["P0"], traj.params["Q"], traj.u[:, 0]
+    P, Q, u = traj.params.P0, traj.params.Q, traj.u[:, 0]
     F = model.jacobian(m, u, 0)
     f = lambda x: model.f(x[:, None], u[:, None], 0)[:, 0]  # noqa: E731
     m_next, P_next = ekf_step(model, m, P, u, 0, quadrotor.clip_state)

@@ -22,7 +22,7 @@ class ScaledPredictor:
 def _traj(num_systems=40, horizon=30, output_dim=2, seed=0):
     g = torch.Generator().manual_seed(seed)
     y = torch.randn(num_systems, horizon + 1, output_dim, generator=g, dtype=torch.float64)
-    return Trajectories(y=y, u=None, x=None, params={}, family="linear")
+    return Trajectories(y=y, u=None, x=None, family="linear")
 
 
 def test_evaluate_errors_match_numpy():

@@ -1,5 +1,7 @@
 """k-step-ahead forecasts: forecast[:, t, j] predicts y_{t+j} from y_{<t}; j = 0 is predict; NaN past T."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -57,7 +59,7 @@ def numpy_switching_forecast(p, b, y, s, K):
     """Independent forecasts of one switching system b: a numpy KF with the time-varying model
     (A_t, C_t) = (A, C) for t < s, (A2, C2) from s on; mean[t, k] = C_{t+k} A_{t+k-1} ... A_t m_t from the
     prior m_t given y_<t (NaN past T)."""
-    A1, C1, A2, C2, Q, R, P0 = (p[k][b].double().numpy() for k in ("A", "C", "A2", "C2", "Q", "R", "P0"))
+    A1, C1, A2, C2, Q, R, P0 = (M[b].double().numpy() for M in (p.A, p.C, p.A2, p.C2, p.Q, p.R, p.P0))
     A_at, C_at = (lambda t: A2 if t >= s else A1), (lambda t: C2 if t >= s else C1)
     T1, m, P = len(y), np.zeros(A1.shape[0]), P0.copy()
     out = np.full((T1, K, C1.shape[0]), np.nan)
@@ -80,7 +82,8 @@ def test_kalman_forecast_equals_C_A_power_prior_and_its_covariance():
     mean, var = make_predictor("kalman").forecast_distribution(traj, K)
     T = traj.horizon
     for b in range(traj.num_systems):
-        A, C, Q, R, P0 = (traj.params[k][b].double().numpy() for k in ("A", "C", "Q", "R", "P0"))
+        p = traj.params
+        A, C, Q, R, P0 = (M[b].double().numpy() for M in (p.A, p.C, p.Q, p.R, p.P0))
         means, covs = numpy_kalman_priors(A, C, Q, R, P0, traj.y[b].double().numpy())
         for t in (0, 1, 7, T - 2):
             for k in range(K):
@@ -102,9 +105,10 @@ def test_rollout_of_a_perfect_one_step_predictor_is_exact():
     """Noiseless linear system, KF with Q = R ~ 0: once x is known the k-step forecast is exact."""
     traj = generate("linear", n=2, horizon=30, noise_var_w=0.0, noise_var_v=0.0)
     p = traj.params
-    B, n = p["A"].shape[:2]
-    p["Q"] = 1e-12 * torch.eye(n, dtype=p["Q"].dtype).expand(B, n, n).clone()
-    p["R"] = 1e-10 * torch.eye(p["C"].shape[1], dtype=p["R"].dtype).expand_as(p["R"]).clone()
+    B, n = p.A.shape[:2]
+    Q = 1e-12 * torch.eye(n, dtype=p.Q.dtype).expand(B, n, n).clone()
+    R = 1e-10 * torch.eye(p.C.shape[1], dtype=p.R.dtype).expand_as(p.R).clone()
+    traj = dataclasses.replace(traj, params=dataclasses.replace(p, Q=Q, R=R))
     f = forecast(make_predictor("kalman"), traj, 6)
     for j in range(6):
         err = (f[:, 10 : traj.horizon + 1 - j, j] - traj.y[:, 10 + j :]).abs().max()

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from mop.predictors import make_predictor, simulate
+from mop.systems import FAMILIES
 from mop.systems.base import Trajectories
 from tests.reference import load_example, run_example_smoke
 
@@ -55,11 +56,12 @@ def test_simulation_file_is_the_free_run_of_the_filter(example, smoke):
     """The written simulation of kalman equals mop.predictors.simulate on the same held-out trajectories."""
     out, _ = smoke
     data = np.load(out / "heldout.npz")
-    params = {k[len("param_") :]: torch.from_numpy(data[k]) for k in data.files if k.startswith("param_")}
+    arrays = {k[len("param_") :]: data[k] for k in data.files if k.startswith("param_")}
+    params = FAMILIES.get(str(data["family"])).Params.from_arrays(arrays, by="the test", where="heldout.npz")
     traj = Trajectories(
         y=torch.from_numpy(data["y"]).double(),
         u=torch.from_numpy(data["u"]).double(),
-        params={k: v.double() for k, v in params.items()},
+        params=params.map(torch.Tensor.double),
         family=str(data["family"]),
     )
     expect = simulate(make_predictor("kalman"), traj, example.CONTEXT).numpy()

@@ -17,6 +17,7 @@ from mop.filters.kalman import (
 )
 from mop.predictors import make_predictor
 from mop.systems.base import Trajectories
+from mop.systems.switching import SwitchingParams
 from tests.reference import filterpy_predict
 
 
@@ -108,9 +109,16 @@ def _switching_traj(rng, B=4, n=3, m=2, T=30, s=12):
     A, C, Q, R = random_system(rng, B, n, m)
     A2, C2, _, _ = random_system(rng, B, n, m)
     y = simulate(rng, A, C, Q, R, T + 1)
-    params = {k: torch.from_numpy(v) for k, v in dict(A=A, C=C, Q=Q, R=R, A2=A2, C2=C2).items()}
-    params["P0"] = torch.eye(n, dtype=torch.float64).expand(B, n, n)
-    params["switch_time"] = torch.full((B,), s, dtype=torch.long)
+    arrays = {k: torch.from_numpy(v) for k, v in dict(A=A, C=C, Q=Q, R=R, A2=A2, C2=C2).items()}
+    per_system = torch.ones(B, dtype=torch.float64)  # the per-draw variances: not read by the filters here
+    params = SwitchingParams(
+        **arrays,
+        P0=torch.eye(n, dtype=torch.float64).expand(B, n, n),
+        noise_var_w=per_system,
+        noise_var_v=per_system,
+        color_window=torch.ones(B, dtype=torch.long),
+        switch_time=torch.full((B,), s, dtype=torch.long),
+    )
     return Trajectories(y=torch.from_numpy(y), params=params, family="switching")
 
 
@@ -118,27 +126,27 @@ def test_switch_aware_kalman_equals_kf_with_system2_after_switch():
     """Before s: a KF on system 1. From s: a KF on system 2 whose prior is system 1's prediction of x_s."""
     rng, s = np.random.default_rng(5), 12
     traj = _switching_traj(rng, s=s)
-    p = {k: v.numpy() for k, v in traj.params.items()}
+    p = traj.params.map(torch.Tensor.numpy)
     y = traj.y.numpy()
     yhat = make_predictor("kalman").predict(traj).numpy()  # the switching family's model knows the switch
     keep = make_predictor("kalman-system1").predict(traj).numpy()  # the authors' baseline keeps system 1
     np.testing.assert_allclose(
         yhat[:, :s],
-        filterpy_predict(p["A"], p["C"], p["Q"], p["R"], y[:, :s], np.zeros((4, 3)), p["P0"]),
+        filterpy_predict(p.A, p.C, p.Q, p.R, y[:, :s], np.zeros((4, 3)), p.P0),
         atol=1e-6,
     )
     np.testing.assert_allclose(
-        keep, filterpy_predict(p["A"], p["C"], p["Q"], p["R"], y, np.zeros((4, 3)), p["P0"]), atol=1e-6
+        keep, filterpy_predict(p.A, p.C, p.Q, p.R, y, np.zeros((4, 3)), p.P0), atol=1e-6
     )
     # system 1's prior for x_s, built with filterpy on the first s outputs
     x_s, P_s = np.zeros((4, 3)), np.zeros((4, 3, 3))
     for b in range(4):
         kf = KalmanFilter(dim_x=3, dim_z=2)
         kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = (
-            p["A"][b],
-            p["C"][b],
-            p["Q"][b],
-            p["R"][b],
+            p.A[b],
+            p.C[b],
+            p.Q[b],
+            p.R[b],
             np.zeros(3),
             np.eye(3),
         )
@@ -146,7 +154,7 @@ def test_switch_aware_kalman_equals_kf_with_system2_after_switch():
             kf.update(y[b, t])
             kf.predict()
         x_s[b], P_s[b] = kf.x, kf.P
-    ref = filterpy_predict(p["A2"], p["C2"], p["Q"], p["R"], y[:, s:], x_s, P_s)
+    ref = filterpy_predict(p.A2, p.C2, p.Q, p.R, y[:, s:], x_s, P_s)
     np.testing.assert_allclose(yhat[:, s:], ref, atol=1e-6)
 
 
@@ -190,8 +198,8 @@ def test_optimal_mse_curve_matches_the_empirical_kf_error():
 
     traj = make_family(SystemConfig(), dtype=torch.float64).generate(2000, 50, generator=generator(99))
     p = traj.params
-    curve = optimal_mse_curve(p["A"], p["C"], p["Q"], p["R"], horizon=50, P0=p["P0"])  # (N, 51)
-    err = kalman_predict(p["A"], p["C"], p["Q"], p["R"], traj.y, P0=p["P0"]) - traj.y
+    curve = optimal_mse_curve(p.A, p.C, p.Q, p.R, horizon=50, P0=p.P0)  # (N, 51)
+    err = kalman_predict(p.A, p.C, p.Q, p.R, traj.y, P0=p.P0) - traj.y
     mse, expected = (err**2).sum(-1).mean(0), curve.mean(0)  # (51,)
     for t in (0, 1, 2, 5, 10):
         assert abs(mse[t] / expected[t] - 1) < 0.06, (t, mse[t], expected[t])
@@ -215,10 +223,10 @@ def test_expected_norm_is_the_chi_mean_and_matches_the_kf_mean_error():
         assert abs(value / chi - 1) < 0.01, (m, value, chi)
     traj = make_family(SystemConfig(), dtype=torch.float64).generate(2000, 50, generator=generator(5))
     p = traj.params
-    S = optimal_covariances(p["A"], p["C"], p["Q"], p["R"], horizon=50, P0=p["P0"])  # (N, 51, m, m)
-    curve = optimal_mse_curve(p["A"], p["C"], p["Q"], p["R"], horizon=50, P0=p["P0"])
+    S = optimal_covariances(p.A, p.C, p.Q, p.R, horizon=50, P0=p.P0)  # (N, 51, m, m)
+    curve = optimal_mse_curve(p.A, p.C, p.Q, p.R, horizon=50, P0=p.P0)
     torch.testing.assert_close(S.diagonal(dim1=-2, dim2=-1).sum(-1), curve, rtol=0, atol=0)
     norm = expected_norm(S, num_samples=300).mean(0)  # (51,)
-    err = (kalman_predict(p["A"], p["C"], p["Q"], p["R"], traj.y, P0=p["P0"]) - traj.y).norm(dim=-1)
+    err = (kalman_predict(p.A, p.C, p.Q, p.R, traj.y, P0=p.P0) - traj.y).norm(dim=-1)
     assert abs(err[:, 20:].mean() / norm[20:].mean() - 1) < 0.02
     assert (norm < curve.mean(0).sqrt()).all()  # below the RMS (Jensen): the old line sat above the KF

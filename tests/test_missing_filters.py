@@ -83,7 +83,8 @@ def gappy_systems(case: str):
     config = SystemConfig(family="linear", state_dim=2, output_dim=2, noise_var_w=0.1, noise_var_v=0.1)
     traj = make_family(config, torch.float64).generate(100, 12, generator=generator(5))
     R = 0.2 * torch.tensor([[1.0, 0.9], [0.9, 1.0]], dtype=torch.float64)
-    return with_gaps(dataclasses.replace(traj, params={**traj.params, "R": R.expand(100, 2, 2).clone()}), 0.4)
+    params = dataclasses.replace(traj.params, R=R.expand(100, 2, 2).clone())
+    return with_gaps(dataclasses.replace(traj, params=params), 0.4)
 
 
 @pytest.mark.parametrize("case", ["scalar", "correlated"])

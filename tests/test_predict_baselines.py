@@ -9,6 +9,7 @@ import torch
 
 from mop.cli import main
 from mop.predictors import forecast, make_predictor
+from mop.systems import FAMILIES
 from mop.systems.base import Trajectories
 from tests.reference import read_long_csv, write_long_csv
 
@@ -30,7 +31,8 @@ def _simulate(tmp_path, family="linear", extra=()):
     argv = ["simulate", family, "--systems", "3", "--horizon", "30", "--out", str(path), *extra]
     assert main(argv) == 0
     d = np.load(path)
-    params = {k[6:]: torch.from_numpy(d[k]) for k in d.files if k.startswith("param_")}
+    arrays = {k[6:]: d[k] for k in d.files if k.startswith("param_")}
+    params = FAMILIES.get(family).Params.from_arrays(arrays, by="the test", where=str(path))
     u = torch.from_numpy(d["u"]) if "u" in d.files else None
     return path, Trajectories(y=torch.from_numpy(d["y"]), u=u, params=params, family=str(d["family"]))
 

@@ -22,14 +22,14 @@ def test_dynamics_matches_numpy_on_random_states():
 
 def test_noise_free_trajectory_matches_numpy_loop():
     traj = quad_traj(10, 40, 0, noise_var_w=0.0, noise_var_v=0.0)
-    p = {k: v.numpy() for k, v in traj.params.items()}
+    p = traj.params.map(torch.Tensor.numpy)
     u, x, y = traj.u.numpy(), traj.x.numpy(), traj.y.numpy()
     for b in range(10):
         s = x[b, 0]
         for t in range(41):
             np.testing.assert_allclose(x[b, t], s, atol=1e-10)
-            np.testing.assert_allclose(y[b, t], p["C"][b] @ s, atol=1e-10)
-            s = numpy_clip(numpy_quadrotor_step(s, u[b, t], p["mass"][b], p["length"][b], p["inertia"][b]))
+            np.testing.assert_allclose(y[b, t], p.C[b] @ s, atol=1e-10)
+            s = numpy_clip(numpy_quadrotor_step(s, u[b, t], p.mass[b], p.length[b], p.inertia[b]))
 
 
 def test_angular_rate_accumulates_in_simulated_trajectories():
@@ -37,7 +37,7 @@ def test_angular_rate_accumulates_in_simulated_trajectories():
     is inactive. Without phidot_t the residual would be phidot_t itself (std ~0.5)."""
     traj = quad_traj(500, 50, 6)
     p, x, u = traj.params, traj.x, traj.u
-    drive = (u[:, :-1, 0] - u[:, :-1, 1]) * (p["length"] * 0.1 / p["inertia"])[:, None]  # (B, T)
+    drive = (u[:, :-1, 0] - u[:, :-1, 1]) * (p.length * 0.1 / p.inertia)[:, None]  # (B, T)
     resid = x[:, 1:, 5] - (x[:, :-1, 5] + drive)
     inside = x[:, 1:, 5].abs() < BOUNDS[5] - 1e-9
     assert inside.float().mean() > 0.3
@@ -61,8 +61,8 @@ def test_initial_state_is_clipped_unit_normal_per_coordinate():
         assert abs(x0[:, i].std() - math.sqrt(second)) < 0.03, (i, x0[:, i].std())
     corr = np.corrcoef(x0.T)[np.triu_indices(6, 1)]
     assert np.abs(corr).max() < 0.05  # independent (the authors' code copies one draw into all six)
-    np.testing.assert_allclose(params["P0"][0].numpy(), np.eye(6))
-    assert (params["x0_mean"] == 0).all()
+    np.testing.assert_allclose(params.P0[0].numpy(), np.eye(6))
+    assert (params.x0_mean == 0).all()
 
 
 def test_x0_std_scales_the_initial_state():
@@ -70,25 +70,24 @@ def test_x0_std_scales_the_initial_state():
     params = fam.sample(5000, generator=generator(9))
     x0 = fam.simulate(params, 1, generator=generator(10)).x[:, 0]
     np.testing.assert_allclose(x0.std(0).numpy(), 0.2, rtol=0.05)  # bounds >= pi/4 = 3.9 sd barely bite
-    np.testing.assert_allclose(params["P0"][0].numpy(), 0.04 * np.eye(6))
+    np.testing.assert_allclose(params.P0[0].numpy(), 0.04 * np.eye(6))
 
 
 def test_parameter_and_input_ranges_and_clipping():
     traj = quad_traj(500, 50, 1)
-    for name in ("mass", "length", "inertia"):
-        v = traj.params[name]
+    for v in (traj.params.mass, traj.params.length, traj.params.inertia):
         assert v.min() >= 0.5 and v.max() <= 2.0 and v.max() - v.min() > 1.3
     assert traj.u.abs().max() <= 0.5 and traj.u.shape == (500, 51, 2)
-    assert ((traj.params["C"] >= 0) & (traj.params["C"] <= 1)).all()
+    assert ((traj.params.C >= 0) & (traj.params.C <= 1)).all()
     bound = torch.tensor(BOUNDS, dtype=torch.float64)
     assert (traj.x.abs() <= bound).all()
     assert (traj.x.abs() >= bound * 0.999).any()  # the clip is actually hit (the drone falls: thrust < g)
-    np.testing.assert_allclose(traj.params["R"][0].numpy(), 0.01 * np.eye(3))
+    np.testing.assert_allclose(traj.params.R[0].numpy(), 0.01 * np.eye(3))
 
 
 def test_observation_noise_std_and_independence():
     traj = quad_traj(1000, 20, 2)
-    v = (traj.y - traj.x @ traj.params["C"].mT).reshape(-1, 3).numpy()
+    v = (traj.y - traj.x @ traj.params.C.mT).reshape(-1, 3).numpy()
     np.testing.assert_allclose(v.std(0), 0.1, rtol=0.02)
     corr = np.corrcoef(v.T)[np.triu_indices(3, 1)]
     assert np.abs(corr).max() < 0.02  # one draw per output (the authors' code shares one among the three)

@@ -20,7 +20,7 @@ class Scaled:
 
 def _summary():
     y = torch.randn(20, 51, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
-    traj = Trajectories(y=y, u=None, x=None, params={}, family="linear")
+    traj = Trajectories(y=y, u=None, x=None, family="linear")
     return summarize(evaluate([Scaled("mop", 0.5), Scaled("kalman", 0.6)], traj, progress=False), "kalman")
 
 

@@ -45,25 +45,29 @@ def test_zero_order_hold_matches_scipy(rlc, output):
     p = family.sample(64, generator=generator(5))
     dt = family.config.dt
     for b in range(64):
-        R, L, C = (float(p[k][b]) for k in ("resistance", "inductance", "capacitance"))
+        R, L, C = (float(v[b]) for v in (p.resistance, p.inductance, p.capacitance))
         A_c, b_c = continuous(R, L, C)
         A, B, *_ = cont2discrete((A_c, b_c, np.eye(2), np.zeros((2, 1))), dt, method="zoh")
-        np.testing.assert_allclose(p["A"][b].numpy(), A, rtol=0, atol=1e-10)
-        np.testing.assert_allclose(p["B"][b].numpy(), B, rtol=0, atol=1e-10 * np.abs(B).max())
+        np.testing.assert_allclose(p.A[b].numpy(), A, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(p.B[b].numpy(), B, rtol=0, atol=1e-10 * np.abs(B).max())
         out = np.array([[1.0, 0.0], [0.0, R]])[: family.output_dim]  # y = (v_C, R i_L) or v_C alone
-        np.testing.assert_allclose(p["C"][b].numpy(), out, rtol=1e-12)
-    assert torch.linalg.eigvals(p["A"]).abs().max() < 0.99  # stable, as the docstring promises
+        np.testing.assert_allclose(p.C[b].numpy(), out, rtol=1e-12)
+    assert torch.linalg.eigvals(p.A).abs().max() < 0.99  # stable, as the docstring promises
     R = family.config.output_std**2 * np.eye(family.output_dim)
-    np.testing.assert_allclose(p["R"].numpy(), np.broadcast_to(R, p["R"].shape), rtol=1e-15)
+    np.testing.assert_allclose(p.R.numpy(), np.broadcast_to(R, p.R.shape), rtol=1e-15)
 
 
 def test_parameters_lie_in_their_ranges(rlc):
     family = rlc()
     p = family.sample(2000, generator=generator(6))
-    for key in ("resistance", "inductance", "capacitance"):
+    for key, v in (
+        ("resistance", p.resistance),
+        ("inductance", p.inductance),
+        ("capacitance", p.capacitance),
+    ):
         low, high = family.config.bounds(key)
-        assert low <= p[key].min() and p[key].max() <= high
-        log = (p[key].log() - np.log(low)) / (np.log(high) - np.log(low))  # log-uniform: U[0, 1]
+        assert low <= v.min() and v.max() <= high
+        log = (v.log() - np.log(low)) / (np.log(high) - np.log(low))  # log-uniform: U[0, 1]
         assert abs(float(log.mean()) - 0.5) < 0.02 and abs(float(log.var()) - 1 / 12) < 0.01
 
 
@@ -73,11 +77,11 @@ def test_process_noise_covariance_matches_quadrature(rlc):
     cfg = family.config
     p = family.sample(8, generator=generator(7))
     for b in range(8):
-        A_c, b_c = continuous(*(float(p[k][b]) for k in ("resistance", "inductance", "capacitance")))
+        A_c, b_c = continuous(*(float(v[b]) for v in (p.resistance, p.inductance, p.capacitance)))
         integrand = lambda s, A_c=A_c, b_c=b_c: expm(A_c * s) @ b_c @ b_c.T @ expm(A_c * s).T  # noqa: E731
         Q, _ = quad_vec(integrand, 0.0, cfg.dt, epsabs=0, epsrel=1e-13)
         Q *= cfg.disturbance_std**2 * cfg.dt
-        np.testing.assert_allclose(p["Q"][b].numpy(), Q, rtol=1e-9, atol=1e-12 * np.abs(Q).max())
+        np.testing.assert_allclose(p.Q[b].numpy(), Q, rtol=1e-9, atol=1e-12 * np.abs(Q).max())
         assert np.linalg.eigvalsh(Q).min() > 0  # full rank: (A_c, b) is controllable
 
 
@@ -101,20 +105,14 @@ def test_kalman_innovations_are_white_with_the_filters_variance(rlc):
 
 def test_kalman_matches_filterpy_on_the_circuits(rlc):
     traj = rlc().generate(4, 30, generator=generator(9))
-    p = {k: v.numpy() for k, v in traj.params.items()}
-    ref = filterpy_predict(
-        p["A"], p["C"], p["Q"], p["R"], traj.y.numpy(), p["x0_mean"], p["P0"], p["B"], traj.u.numpy()
-    )
+    p = traj.params.map(torch.Tensor.numpy)
+    ref = filterpy_predict(p.A, p.C, p.Q, p.R, traj.y.numpy(), p.x0_mean, p.P0, p.B, traj.u.numpy())
     np.testing.assert_allclose(make_predictor("kalman").predict(traj).numpy(), ref, rtol=1e-10, atol=1e-12)
 
 
 def test_same_seed_same_circuits(rlc):
     one, two = (rlc().generate(5, 20, generator=generator(3)) for _ in range(2))
-    assert (
-        torch.equal(one.y, two.y)
-        and torch.equal(one.u, two.u)
-        and torch.equal(one.params["A"], two.params["A"])
-    )
+    assert torch.equal(one.y, two.y) and torch.equal(one.u, two.u) and torch.equal(one.params.A, two.params.A)
 
 
 def test_bad_knob_is_one_line_error(capsys):

@@ -74,7 +74,7 @@ def test_kalman_simulation_is_the_noise_free_model_rollout(traj):
     the simulation by C A^(j-1) B du at j steps after s, and nothing before (numpy closed form)."""
     sim = simulate(make_predictor("kalman"), traj, CONTEXT).numpy()
     one_step = make_predictor("kalman").predict(traj).numpy()
-    A, B, C = (traj.params[k].numpy() for k in "ABC")
+    A, B, C = (M.numpy() for M in (traj.params.A, traj.params.B, traj.params.C))
     u = traj.u.numpy()
     np.testing.assert_allclose(sim[:, 0], one_step[:, CONTEXT], rtol=1e-10)
     # the input's contribution: two rollouts differing only in the future inputs differ by C A^i B du

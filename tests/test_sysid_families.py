@@ -15,22 +15,22 @@ from mop.systems.lti_siso import lsim, sample_drss
 
 def test_drss_pole_law_and_masks():
     p = sample_drss(2000, 10, True, generator(0))
-    order = p["order"]
+    order = p.order
     assert order.min() == 1 and order.max() == 10
-    eig = torch.linalg.eigvals(p["A"])
+    eig = torch.linalg.eigvals(p.A)
     for b in range(200):  # the eigenvalues of the used block obey the law; padding is zero
         k = int(order[b])
         used = torch.sort(eig[b].abs(), descending=True).values[:k]
         assert (used > 0.5 - 1e-9).all() and (used < 0.97 + 1e-9).all()
         angle = eig[b].angle().abs()
         assert (angle[eig[b].abs() > 1e-9] <= math.pi / 2 + 1e-9).all()
-        assert p["B"][b, k:].abs().sum() == 0 and p["C"][b, :, k:].abs().sum() == 0
+        assert p.B[b, k:].abs().sum() == 0 and p.C[b, :, k:].abs().sum() == 0
     # masks: about 80% of the used B, C entries are kept (their pBCmask)
     used = torch.arange(10)[None] < order[:, None]
-    kept = (p["B"][..., 0] != 0)[used].double().mean()
+    kept = (p.B[..., 0] != 0)[used].double().mean()
     assert 0.77 < float(kept) < 0.83
-    assert (p["D"] == 0).all()
-    d = sample_drss(4000, 3, False, generator(1))["D"]
+    assert (p.D == 0).all()
+    d = sample_drss(4000, 3, False, generator(1)).D
     assert 0.12 < float((d != 0).double().mean()) < 0.18  # P(D != 0) = 0.5 * 0.3
 
 
@@ -41,8 +41,8 @@ def test_lti_siso_trajectories_are_normalized_and_the_kalman_filter_is_exact():
     np.testing.assert_allclose(traj.y.mean(1), 0, atol=1e-9)
     np.testing.assert_allclose(traj.y.std(1, correction=0), 1, atol=1e-4)
     p = traj.params
-    x, y_raw = lsim(p["A"], p["B"], p["C"], torch.zeros(20, 1, 1, dtype=torch.float64), traj.u)
-    expected = (y_raw - p["y_mean"][:, None, None]) / (p["y_std"][:, None, None] + 1e-6)
+    x, y_raw = lsim(p.A, p.B, p.C, torch.zeros(20, 1, 1, dtype=torch.float64), traj.u)
+    expected = (y_raw - p.y_mean[:, None, None]) / (p.y_std[:, None, None] + 1e-6)
     np.testing.assert_allclose(traj.y, expected, atol=1e-9)
     yhat = make_predictor("kalman").predict(traj)  # knows the noise-free system: exact from t = 0
     assert float((yhat - traj.y).abs().max()) < 1e-6

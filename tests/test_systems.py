@@ -23,7 +23,7 @@ def test_dense_A_spectral_radius_and_entries():
 
 def test_linear_entries_and_observability():
     traj = family("linear").generate(200, 5, generator=generator(1))
-    A, C = traj.params["A"].numpy(), traj.params["C"].numpy()
+    A, C = traj.params.A.numpy(), traj.params.C.numpy()
     assert ((C >= 0) & (C <= 1)).all()
     scale = 0.95 / np.abs(np.linalg.eigvals(A)).max(-1)  # A = scale * U, U entries in [0, 1]
     U = A / scale[:, None, None]
@@ -62,7 +62,7 @@ def test_is_observable_matches_numpy_rank():
 
 
 def test_upper_triangular_entries():
-    A = family("upper-triangular").generate(200, 5, generator=generator(2)).params["A"].numpy()
+    A = family("upper-triangular").generate(200, 5, generator=generator(2)).params.A.numpy()
     diag = np.diagonal(A, axis1=1, axis2=2)
     assert np.abs(diag).max() <= 0.95 and np.abs(diag).max() > 0.9
     assert np.allclose(np.tril(A, -1), 0)
@@ -75,7 +75,7 @@ def test_empirical_noise_covariances():
     """Residuals x_{t+1} - A x_t and y_t - C x_t have covariance sigma^2 I (tolerance 5 standard errors)."""
     fam = family("linear", noise_var_w=0.04, noise_var_v=0.09, max_abs=1e6)
     traj = fam.generate(2000, 20, generator=generator(3))
-    A, C, x, y = traj.params["A"], traj.params["C"], traj.x, traj.y
+    A, C, x, y = traj.params.A, traj.params.C, traj.x, traj.y
     w = (x[:, 1:] - x[:, :-1] @ A.mT).reshape(-1, 10).numpy()
     v = (y - x @ C.mT).reshape(-1, 5).numpy()
     for e, var in ((w, 0.04), (v, 0.09)):
@@ -84,7 +84,7 @@ def test_empirical_noise_covariances():
         np.testing.assert_allclose(np.diag(cov), var, atol=5 * se)
         off = cov - np.diag(np.diag(cov))
         assert np.abs(off).max() < 5 * var / np.sqrt(len(e))
-    np.testing.assert_allclose(traj.params["Q"].numpy(), np.broadcast_to(0.04 * np.eye(10), (2000, 10, 10)))
+    np.testing.assert_allclose(traj.params.Q.numpy(), np.broadcast_to(0.04 * np.eye(10), (2000, 10, 10)))
     x0 = x[:, 0].numpy()
     np.testing.assert_allclose(x0.var(0), 1.0, atol=5 * np.sqrt(2 / 2000))
 
@@ -100,24 +100,24 @@ def test_colored_noise_autocovariance(lag):
 
 def test_colored_family_uses_colored_noise_and_summed_R():
     traj = family("colored-noise", max_abs=1e6).generate(3000, 12, generator=generator(5))
-    v = (traj.y - traj.x @ traj.params["C"].mT).numpy()  # (B, T+1, m)
+    v = (traj.y - traj.x @ traj.params.C.mT).numpy()  # (B, T+1, m)
     np.testing.assert_allclose((v[:, 6] * v[:, 6]).mean(), 0.05, rtol=0.05)
     np.testing.assert_allclose((v[:, 6] * v[:, 8]).mean(), 0.03, atol=0.004)
-    np.testing.assert_allclose(traj.params["R"][0].numpy(), 0.05 * np.eye(5))
+    np.testing.assert_allclose(traj.params.R[0].numpy(), 0.05 * np.eye(5))
 
 
 def test_switching_continues_from_state_and_uses_system_2():
     fam = family("switching", switch_time=7, noise_var_w=0.0, noise_var_v=0.0)
     traj = fam.generate(20, 15, generator=generator(6))
     p, x, y = traj.params, traj.x.numpy(), traj.y.numpy()
-    A, C, A2, C2 = (p[k].numpy() for k in ("A", "C", "A2", "C2"))
+    A, C, A2, C2 = (M.numpy() for M in (p.A, p.C, p.A2, p.C2))
     for b in range(20):  # independent per-system recursion, noise-free
         s = x[b, 0]
         for t in range(15):
             At, Ct = (A[b], C[b]) if t < 7 else (A2[b], C2[b])
             np.testing.assert_allclose(y[b, t], Ct @ s, atol=1e-10)
             s = At @ s
-    assert (p["switch_time"] == 7).all() and not np.allclose(A, A2)
+    assert (p.switch_time == 7).all() and not np.allclose(A, A2)
 
 
 def test_redraws_only_offending_systems():
@@ -129,7 +129,7 @@ def test_redraws_only_offending_systems():
     first = fam.simulate(fam.sample(300, generator=g), 50, generator=g)
     inside = (first.y.abs() <= 8.0).flatten(1).all(1) & (first.x.abs() <= 8.0).flatten(1).all(1)
     assert 0 < int(inside.sum()) < 300  # some systems needed a redraw
-    assert torch.equal(traj.params["A"][inside], first.params["A"][inside].to(traj.params["A"].dtype))
+    assert torch.equal(traj.params.A[inside], first.params.A[inside].to(traj.params.A.dtype))
     assert torch.equal(traj.y[inside], first.y[inside])
     assert not torch.isclose(traj.y[~inside], first.y[~inside]).all(-1).all(-1).any()
 
@@ -139,7 +139,10 @@ def test_same_seed_same_data_different_seed_different():
         fam = family(name)
         a, b = (fam.generate(30, 10, generator=generator(11)) for _ in range(2))
         c = fam.generate(30, 10, generator=generator(12))
-        assert torch.equal(a.y, b.y) and all(torch.equal(a.params[k], b.params[k]) for k in a.params)
+        assert torch.equal(a.y, b.y) and all(
+            torch.equal(u, v)
+            for u, v in zip(a.params.as_dict().values(), b.params.as_dict().values(), strict=True)
+        )
         assert not torch.allclose(a.y, c.y)
 
 
@@ -148,7 +151,7 @@ def test_dtype_and_shapes():
         8, 6, generator=generator(0)
     )
     assert traj.y.dtype == torch.float32 and traj.y.shape == (8, 7, 2) and traj.x.shape == (8, 7, 4)
-    assert traj.params["A"].dtype == torch.float32 and traj.u is None
+    assert traj.params.A.dtype == torch.float32 and traj.u is None
 
 
 def test_unstable_request_is_mop_error():

@@ -15,6 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from mop.config import SystemConfig
 from mop.errors import MopError, require
@@ -43,11 +44,11 @@ def loop_kalman(traj: Trajectories) -> np.ndarray:
     """filterpy KalmanFilter, one system at a time."""
     from filterpy.kalman import KalmanFilter
 
-    p, y = {k: v.numpy() for k, v in traj.params.items()}, traj.y.numpy()
+    p, y = traj.params.map(Tensor.numpy), traj.y.numpy()
     out = np.zeros_like(y)
     for b in range(y.shape[0]):
-        kf = KalmanFilter(dim_x=p["A"].shape[-1], dim_z=y.shape[-1])
-        kf.F, kf.H, kf.Q, kf.R, kf.P = p["A"][b], p["C"][b], p["Q"][b], p["R"][b], p["P0"][b].copy()
+        kf = KalmanFilter(dim_x=p.A.shape[-1], dim_z=y.shape[-1])
+        kf.F, kf.H, kf.Q, kf.R, kf.P = p.A[b], p.C[b], p.Q[b], p.R[b], p.P0[b].copy()
         for t in range(y.shape[1]):
             out[b, t] = kf.H @ kf.x[:, 0]
             kf.update(y[b, t])
@@ -105,11 +106,11 @@ def quad_f(
 def loop_ekf(traj: Trajectories) -> np.ndarray:
     """Per-system numpy EKF (the authors' style): the posterior mean is clipped before the step, the
     predicted mean after it, F taken at the unclipped posterior."""
-    p, y, u = {k: v.numpy() for k, v in traj.params.items()}, traj.y.numpy(), traj.u.numpy()
+    p, y, u = traj.params.map(Tensor.numpy), traj.y.numpy(), traj.u.numpy()
     out, bound = np.zeros_like(y), np.array(BOUNDS)
     for b in range(y.shape[0]):
-        C, Q, R, P = p["C"][b], p["Q"][b], p["R"][b], p["P0"][b].copy()
-        m = np.clip(p["x0_mean"][b], -bound, bound)
+        C, Q, R, P = p.C[b], p.Q[b], p.R[b], p.P0[b].copy()
+        m = np.clip(p.x0_mean[b], -bound, bound)
         for t in range(y.shape[1]):
             out[b, t] = C @ m
             S = C @ P @ C.T + R
@@ -117,8 +118,9 @@ def loop_ekf(traj: Trajectories) -> np.ndarray:
             m = m + K @ (y[b, t] - C @ m)
             I_KC = np.eye(6) - K @ C
             P = I_KC @ P @ I_KC.T + K @ R @ K.T
-            _, F = quad_f(m, u[b, t], p["mass"][b], p["length"][b], p["inertia"][b])
-            f, _ = quad_f(np.clip(m, -bound, bound), u[b, t], p["mass"][b], p["length"][b], p["inertia"][b])
+            mlJ = (p.mass[b], p.length[b], p.inertia[b])
+            _, F = quad_f(m, u[b, t], *mlJ)
+            f, _ = quad_f(np.clip(m, -bound, bound), u[b, t], *mlJ)
             m, P = np.clip(f, -bound, bound), F @ P @ F.T + Q
     return out
 

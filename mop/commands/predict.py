@@ -26,7 +26,6 @@ import numpy as np
 import torch
 
 from mop.atomic import atomic_path
-from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.identify import is_fitted
 from mop.identify import load as load_fitted
@@ -42,7 +41,12 @@ from mop.pretrained import is_pretrained
 from mop.records import predict_all, scores, simulate_all
 from mop.runs import load_predictor
 from mop.systems import FAMILIES
-from mop.systems.base import LINEAR_MODEL_ARRAYS, linear_model_from_params
+from mop.systems.base import (
+    LINEAR_MODEL_ARRAYS,
+    LinearModelParams,
+    SystemParams,
+    linear_model_from_params,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -88,9 +92,7 @@ def resolve_predictor(spec: str, stream: bool = False):
     return make_predictor(spec), needs_system(spec)
 
 
-def system_of(
-    name: str, data_path: Path, num: int, has_inputs: bool = False
-) -> tuple[str, dict[str, torch.Tensor]]:
+def system_of(name: str, data_path: Path, num: int, has_inputs: bool = False) -> tuple[str, SystemParams]:
     """The family and params a system-aware predictor needs from DATA, or a one-line MopError.
 
     A predictor registered with linear_model=True (kalman) also takes any linear-Gaussian model: where DATA
@@ -107,10 +109,10 @@ def system_of(
     if family:
         if family not in FAMILIES.names():
             raise MopError(f"{data_path}: family {family!r} is not one of {', '.join(FAMILIES.names())}")
-        sample = FAMILIES.get(family)(SystemConfig(family=family)).sample(1, generator=torch.Generator())
-        missing = [f"param_{k}" for k in sample if k not in params]
+        Params = FAMILIES.get(family).Params  # the fields the family's trajectories carry, from its type
+        missing = [f"param_{k}" for k in Params.required() if k not in params]
         if not missing:
-            return family, {k: torch.from_numpy(v) for k, v in params.items()}
+            return family, Params.from_arrays(params, by=name, where=str(data_path))
     if not linear_ok:
         raise MopError(f"{name} needs {', '.join(missing)} in {data_path}; write the file with mop simulate")
     lacking = [f"param_{k}" for k in LINEAR_MODEL_ARRAYS if k not in params]
@@ -129,8 +131,9 @@ def system_of(
             )
         )
     tensors = {k: torch.from_numpy(v).double() for k, v in params.items()}
-    linear_model_from_params(tensors)  # shapes checked before any work
-    return "", tensors
+    model = LinearModelParams.from_arrays(tensors, by=name, where=str(data_path))
+    linear_model_from_params(model)  # shapes checked before any work
+    return "", model
 
 
 def write_simulation(path: Path, names: list[str], sims: list[np.ndarray], context: int) -> None:
@@ -261,7 +264,9 @@ def run(args: argparse.Namespace) -> int:
     check_predict_size(data, args.steps)
     context = None if args.simulate is None else simulation_context(args.simulate, data)
     has_inputs = data[0][1] is not None
-    family, params = system_of(args.predictor, data_path, len(data), has_inputs) if knows_system else ("", {})
+    family, params = (
+        system_of(args.predictor, data_path, len(data), has_inputs) if knows_system else ("", None)
+    )
     yhat = predict_all(predictor, data, args.steps, family, params)
     if context is not None:
         sims = simulate_all(predictor, data, context, family, params)

@@ -25,6 +25,7 @@ from mop.metrics import coverage, gaussian_nll, loglog_slope, matrix_power_ratio
 from mop.predictors import Predictor, first_learned, forecast, simulate
 from mop.registry import Registry
 from mop.report import forecast_markdown
+from mop.systems.base import require_params
 
 ANALYSES: Registry = Registry(
     "analysis",
@@ -93,7 +94,8 @@ def coverage_measure(measure: Measure, result: ConditionResult, reference: str, 
 @ANALYSES.register("matrix_powers")
 def matrix_powers(result: ConditionResult, predictors: list[Predictor], reference: str) -> dict:
     """Fig. 4b: mean over test systems of ||A^k|| / rho(A)^k, k = 0..49 (families with a matrix A)."""
-    return {"matrix_power_ratio": matrix_power_ratio(result.traj.params["A"], 50).tolist()}
+    require_params(result.traj.params, ("A",), by="the matrix_powers analysis")
+    return {"matrix_power_ratio": matrix_power_ratio(result.traj.params.A, 50).tolist()}
 
 
 def power_ratio(result: ConditionResult) -> list[float] | None:
@@ -132,14 +134,8 @@ def slope_fit(results: Results, axis: str) -> dict:
     excess = [r.extras["excess_mse"] for r in points]
     slope, intercept, se = loglog_slope(values, excess)
     half = float(student_t.ppf(0.975, max(len(values) - 2, 1))) * se
-    return {
-        "values": values,
-        "excess_mse": excess,
-        "slope": slope,
-        "intercept": intercept,
-        "slope_stderr": se,
-        "slope_ci95": [slope - half, slope + half],
-    }
+    fit = {"values": values, "excess_mse": excess, "slope": slope, "intercept": intercept}
+    return fit | {"slope_stderr": se, "slope_ci95": [slope - half, slope + half]}
 
 
 def _sweeps(results: Results) -> dict:
@@ -204,7 +200,8 @@ def floor(result: ConditionResult, predictors: list[Predictor], reference: str) 
     E||e_t|| for e_t ~ N(0, S_t) (Monte Carlo, the error panel's metric), and every predictor's excess MSE
     over the floor in the report's windows (what no predictor can remove is subtracted)."""
     p = result.traj.params
-    S = optimal_covariances(p["A"], p["C"], p["Q"], p["R"], result.traj.horizon, p.get("P0"))
+    require_params(p, ("A", "C", "Q", "R", "P0"), by="the floor analysis")
+    S = optimal_covariances(p.A, p.C, p.Q, p.R, result.traj.horizon, p.P0)
     # S (N, T+1, m, m)
     curve = S.diagonal(dim1=-2, dim2=-1).sum(-1).mean(0).tolist()  # (T+1,)
     mean_norm = expected_norm(S, num_samples=500).mean(0).tolist()  # (T+1,)
@@ -268,8 +265,7 @@ def forecast_analysis(result: ConditionResult, predictors: list[Predictor], refe
 
 
 def forecast_table(result: ConditionResult) -> dict | None:
-    """The forecast analysis's {"k", "start", "error": predictor -> errors per k}, or None where it did
-    not run."""
+    """The forecast analysis's {"k", "start", "error": predictor -> errors per k}, or None if not run."""
     return result.extras.get("forecast")
 
 

@@ -34,7 +34,7 @@ from torch import Tensor
 from mop.errors import MopError
 from mop.filters.gaussian import filter_forecast, gaussian_filter, kalman_step
 from mop.predictors import PREDICTORS
-from mop.systems.base import StateSpace, Trajectories
+from mop.systems.base import StateSpace, Trajectories, require_params
 
 CHUNK = 64  # systems per colored_filter call in the predictor (their covariances stay in cache)
 
@@ -199,7 +199,7 @@ def colored_filter(
 class ColoredNoiseKalmanPredictor:
     """Kalman filter on the noise-augmented state ("kalman-colored"): the optimal predictor for the
     colored-noise family when the system is known. Needs params A, C, P0, noise_var_w, noise_var_v (B,),
-    color_window (B,) (all systems of one batch share the window)."""
+    color_window (B,) (LinearParams has them; all systems of one batch share the window)."""
 
     name = "kalman-colored"
 
@@ -208,24 +208,20 @@ class ColoredNoiseKalmanPredictor:
 
     def _params(self, traj: Trajectories) -> dict:
         """A, C, var_w, var_v, P0 (float64) and window of colored_filter, checked."""
-        need = ("A", "C", "noise_var_w", "noise_var_v", "color_window")
-        missing = [k for k in need if k not in traj.params]
-        if missing:
-            raise MopError(
-                f"kalman-colored needs linear-system parameters {missing} in the trajectories; "
-                "use it on a linear family (colored-noise)"
-            )
+        require_params(
+            traj.params, ("A", "C", "P0", "noise_var_w", "noise_var_v", "color_window"), by=self.name
+        )
         p = traj.params
-        windows = p["color_window"].unique()
+        windows = p.color_window.unique()
         if windows.numel() != 1:
             raise MopError(f"kalman-colored: systems of one batch must share color_window, got {windows}")
         return {
-            "A": p["A"].double(),
-            "C": p["C"].double(),
-            "var_w": p["noise_var_w"].double(),
-            "var_v": p["noise_var_v"].double(),
+            "A": p.A.double(),
+            "C": p.C.double(),
+            "var_w": p.noise_var_w.double(),
+            "var_v": p.noise_var_v.double(),
             "window": int(windows.item()),
-            "P0": p["P0"].double() if "P0" in p else None,
+            "P0": p.P0.double(),
         }
 
     def predict(self, traj: Trajectories) -> Tensor:

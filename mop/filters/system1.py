@@ -1,6 +1,6 @@
 """The authors' switching baseline (Fig. 2c): the Kalman filter of system 1, kept after the switch.
 
-On switching trajectories (mop.systems.switching) params "A", "C" are system 1's; this filter never learns
+On switching trajectories (mop.systems.switching) params.A, params.C are system 1's; this filter never learns
 of system 2, so after switch_time it predicts with the wrong model, as the authors' code does.
 """
 
@@ -8,25 +8,24 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from mop.errors import MopError
 from mop.filters.gaussian import filter_distribution, filter_forecast, kalman_step
 from mop.predictors import PREDICTORS
-from mop.systems.base import StateSpace, Trajectories, linear_state_space
+from mop.systems.base import StateSpace, Trajectories, linear_state_space, require_params
+
+NEEDS = ("A", "C", "Q", "R", "P0")  # the fields of system 1's linear model (LinearParams has them)
 
 
 @PREDICTORS.register("kalman-system1", needs_system=True, gaussian=True)
 class KalmanKeepingSystem1:
-    """The Kalman filter of the linear model in params "A", "C", "Q", "R", "P0" (system 1 of a switch)."""
+    """The Kalman filter of the linear model in params A, C, Q, R, P0 (system 1 of a switch)."""
 
     name = "kalman-system1"
 
     @staticmethod
     def _model(traj: Trajectories) -> StateSpace:
+        require_params(traj.params, NEEDS, by="kalman-system1")
         p = traj.params
-        missing = [k for k in ("A", "C", "Q", "R", "P0") if k not in p]
-        if missing:
-            raise MopError(f"kalman-system1 needs a linear family's {missing}; use it on switching systems")
-        return linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"])
+        return linear_state_space(p.A, p.C, p.Q, p.R, p.P0)
 
     def predict_distribution(self, traj: Trajectories) -> tuple[Tensor, Tensor]:
         """Each (B, T+1, m): system 1's predictive mean and variance of y_t."""

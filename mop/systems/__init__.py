@@ -28,8 +28,10 @@ from mop.systems.base import (
     StateSpace,
     SystemConfig,
     SystemFamily,
+    SystemParams,
     Trajectories,
     register_family,
+    require_params,
     state_space_of,
 )
 
@@ -49,9 +51,11 @@ __all__ = [
     "StateSpace",
     "SystemConfig",
     "SystemFamily",
+    "SystemParams",
     "Trajectories",
     "generator",
     "make_family",
     "register_family",
+    "require_params",
     "state_space_of",
 ]

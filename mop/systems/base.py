@@ -13,9 +13,15 @@ A new family is one module:
         family: str = "pendulum"
         damping: float = 0.1
 
+    @dataclass(frozen=True)
+    class PendulumParams(SystemParams):        # what its systems are made of, each field (B, ...)
+        length: Tensor                         # (B,)
+        C: Tensor                              # (B, m, n)
+
     @register_family("pendulum", PendulumConfig)
     class Pendulum(SystemFamily):
-        def sample(self, num_systems, *, generator): ...          # params, each (B, ...)
+        Params = PendulumParams                                   # the type Trajectories.params has
+        def sample(self, num_systems, *, generator): ...          # PendulumParams of B systems
         def simulate(self, params, horizon, *, generator): ...    # Trajectories
         @staticmethod
         def state_space(params): ...                              # StateSpace for the EKF / UKF / PF
@@ -32,8 +38,10 @@ from torch import Tensor
 
 from mop.errors import MopError, check
 from mop.registry import Registry
+from mop.systems.params import SystemParams, require_params  # noqa: F401 (re-exported)
 from mop.systems.state_space import (  # noqa: F401 (re-exported: the families' API)
     LINEAR_MODEL_ARRAYS,
+    LinearModelParams,
     Projection,
     StateSpace,
     Transition,
@@ -89,6 +97,7 @@ class SystemFamily:
 
     name: ClassVar[str] = ""
     Config: ClassVar[type[SystemConfig]] = SystemConfig
+    Params: ClassVar[type[SystemParams]] = SystemParams  # each family declares its own (register_family)
     state_dim: int
     output_dim: int
     input_dim: int = 0
@@ -96,18 +105,17 @@ class SystemFamily:
     def __init__(self, config: SystemConfig, dtype: torch.dtype = torch.float32) -> None:
         self.config, self.dtype = config, dtype
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
-        """Parameters of `num_systems` systems, each tensor with leading dim B."""
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> SystemParams:
+        """Parameters of `num_systems` systems, each field with leading dim B."""
         raise NotImplementedError
 
-    def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
-    ) -> Trajectories:
-        """One trajectory of `horizon` steps (horizon + 1 outputs) per system."""
+    def simulate(self, params: SystemParams, horizon: int, *, generator: torch.Generator) -> Trajectories:
+        """One trajectory of `horizon` steps (horizon + 1 outputs) per system; its params are of type Params
+        (a family may add fields only a simulation gives, e.g. the normalization of lti-siso)."""
         raise NotImplementedError
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
+    def state_space(params: SystemParams) -> StateSpace:
         """The systems in `params` as a StateSpace; families without one refuse system-aware predictors."""
         raise MopError("this family gives no state-space model; use predictors that need no system knowledge")
 
@@ -136,13 +144,24 @@ FAMILIES: Registry = Registry("system family", group="mop.families")
 
 
 def register_family(name: str, config: type[SystemConfig], default: bool = False) -> Callable[[type], type]:
-    """Class decorator: register a SystemFamily subclass under `name` with its config dataclass.
+    """Class decorator: register a SystemFamily subclass under `name` with its config dataclass. The class
+    declares its parameter type as `Params` (a SystemParams dataclass); one that does not (a family written
+    with dict params) is refused in one line.
 
     default: the family a config without a family is (SystemConfig(), a RunConfig's default system); one
     family is (mop.systems.linear).
     """
 
     def decorate(cls: type) -> type:
+        declared = getattr(cls, "Params", SystemParams)
+        if (
+            not (isinstance(declared, type) and issubclass(declared, SystemParams))
+            or declared is SystemParams
+        ):
+            raise MopError(
+                f"family {name!r} declares no parameter type: set `Params` on {cls.__name__} to a frozen "
+                "dataclass of SystemParams (dict params are not read; see examples/pendulum.py)"
+            )
         cls.name, cls.Config = name, config
         FAMILIES.add(name, cls, default=default)
         return cls
@@ -156,15 +175,16 @@ def config_class(family: str) -> type[SystemConfig]:
 
 def state_space_of(traj: Trajectories) -> StateSpace:
     """The StateSpace of the systems in `traj` from its family; for data without a family but with the
-    arrays A, C, Q, R (a known linear model, linear_model_from_params), that model; else MopError."""
-    if not traj.family and all(k in traj.params for k in LINEAR_MODEL_ARRAYS):
-        return linear_model_from_params(traj.params)
-    if not traj.family:
+    fields A, C, Q, R (a known linear model, LinearModelParams), that model; else MopError."""
+    if traj.family:
+        return FAMILIES.get(traj.family).state_space(traj.params)
+    if traj.params is None:
         raise MopError(
             "these trajectories carry no system family, so a predictor that knows the system cannot run; "
             "use one that needs no model (`mop predict --help` lists them)"
         )
-    return FAMILIES.get(traj.family).state_space(traj.params)
+    model = LinearModelParams.from_arrays(traj.params.as_dict(), by="a known linear model", where="the data")
+    return linear_model_from_params(model)
 
 
 # ----------------------------------------------------------------------------- sampling helpers
@@ -209,7 +229,10 @@ def replace_rows(traj: Trajectories, idx: Tensor, new: Trajectories) -> Trajecto
         old[idx] = fresh
         return old
 
-    params = {k: put(v, new.params[k]) for k, v in traj.params.items()}
+    params = traj.params
+    if params is not None:
+        fresh = new.params.as_dict()
+        params = type(params)(**{k: put(v, fresh[k]) for k, v in params.as_dict().items()})
     return Trajectories(put(traj.y, new.y), put(traj.u, new.u), put(traj.x, new.x), params, traj.family)
 
 

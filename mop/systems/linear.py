@@ -21,6 +21,7 @@ from mop.systems.base import (
     StateSpace,
     SystemConfig,
     SystemFamily,
+    SystemParams,
     Trajectories,
     linear_state_space,
     normal,
@@ -188,16 +189,35 @@ class LinearConfig(SystemConfig):
         check(self.x0_std >= 0, f"system.x0_std must be >= 0, got {self.x0_std}")
 
 
+@dataclass(frozen=True)
+class LinearParams(SystemParams):
+    """x_{t+1} = A x_t + w_t, y_t = C x_t + v_t, x_0 ~ N(0, P0), per system:
+
+    A (B, n, n); C (B, m, n); Q (B, n, n) = var(w_t) I and R (B, m, m) = var(v_t) I (for colored noise the
+    summed variance color_window * sigma^2, as the paper's Kalman filter uses); P0 (B, n, n) = x0_std^2 I;
+    noise_var_w, noise_var_v (B,) float64: the variance of one noise draw; color_window (B,) long: the draws
+    summed per step (1: white; the exact colored-noise filter, mop.filters.colored, reads these three)."""
+
+    A: Tensor
+    C: Tensor
+    Q: Tensor
+    R: Tensor
+    P0: Tensor
+    noise_var_w: Tensor
+    noise_var_v: Tensor
+    color_window: Tensor
+
+
 @register_family("linear", LinearConfig, default=True)
 class LinearFamily(SystemFamily):
     """Dense linear Gaussian systems (the paper's Fig. 2a); the base of the other linear families.
 
-    params: "A" (B,n,n), "C" (B,m,n), "Q" (B,n,n) = var(w_t) I, "R" (B,m,m) = var(v_t) I (for colored noise
-    the summed variance color_window * sigma^2, as the paper's Kalman filter uses), "P0" (B,n,n) = x0_std^2 I.
-    Parameters are drawn in float64 (the spectral radius and observability checks need it); noise and
-    simulation run in `dtype`, which generate() returns (float32 for training, float64 for filter references).
+    params: LinearParams. Parameters are drawn in float64 (the spectral radius and observability checks need
+    it); noise and simulation run in `dtype`, which generate() returns (float32 for training, float64 for
+    filter references).
     """
 
+    Params = LinearParams
     window = 1  # noise draws summed per step (colored noise: color_window)
 
     def __init__(self, config: LinearConfig, dtype: torch.dtype = torch.float32) -> None:
@@ -208,10 +228,10 @@ class LinearFamily(SystemFamily):
     def sample_A(self, num_systems: int, generator: torch.Generator) -> Tensor:
         return sample_dense_A(num_systems, self.state_dim, self.config.spectral_radius, generator)
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> LinearParams:
         A = self.sample_A(num_systems, generator)  # (B, n, n)
         C = sample_observable_C(A, self.output_dim, generator)  # (B, m, n)
-        return {"A": A, "C": C, **self.noise_params(num_systems, A.device)}
+        return LinearParams(A=A, C=C, **self.noise_params(num_systems, A.device))
 
     def noise_params(self, num_systems: int, device: torch.device) -> dict[str, Tensor]:
         """Q, R (summed variances), P0; and for the exact colored-noise filter (mop.filters.colored) the
@@ -238,15 +258,14 @@ class LinearFamily(SystemFamily):
         v = moving_sum_noise(num_systems, horizon, m, cfg.noise_var_v, self.window, generator, self.dtype)
         return x0, w, v
 
-    def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
-    ) -> Trajectories:
-        A, C = params["A"].to(self.dtype), params["C"].to(self.dtype)
+    def simulate(self, params: LinearParams, horizon: int, *, generator: torch.Generator) -> Trajectories:
+        A, C = params.A.to(self.dtype), params.C.to(self.dtype)
         x, y = simulate_linear(A, C, *self.draw_noise(A.shape[0], horizon, generator))
-        return Trajectories(y=y, x=x, params=dict(params), family=self.name)
+        return Trajectories(y=y, x=x, params=params, family=self.name)
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
+    def state_space(params: LinearParams) -> StateSpace:
         """x_{t+1} = A x_t + w_t, y_t = C x_t + v_t with the white Q, R of params (for colored noise the
         summed variances: the paper's Kalman filter, which treats the noise as white)."""
-        return linear_state_space(params["A"], params["C"], params["Q"], params["R"], params["P0"])
+        p = params
+        return linear_state_space(p.A, p.C, p.Q, p.R, p.P0)

@@ -17,7 +17,7 @@ from torch import Tensor
 
 from mop.errors import check
 from mop.systems.base import StateSpace, Trajectories, linear_state_space, normal, register_family
-from mop.systems.linear import LinearConfig, LinearFamily, simulate_linear
+from mop.systems.linear import LinearConfig, LinearFamily, LinearParams, simulate_linear
 
 
 @dataclass(frozen=True)
@@ -40,31 +40,40 @@ class LinearInputsConfig(LinearConfig):
         check(self.input_gain >= 0, f"system.input_gain must be >= 0, got {self.input_gain}")
 
 
+@dataclass(frozen=True)
+class LinearInputsParams(LinearParams):
+    """LinearParams plus the input matrix B (B, n, k): x_{t+1} = A x_t + B u_t + w_t."""
+
+    B: Tensor
+
+
 @register_family("linear-inputs", LinearInputsConfig)
 class LinearInputsFamily(LinearFamily):
-    """Dense linear Gaussian systems with inputs. params: those of "linear" plus "B" (B, n, k)."""
+    """Dense linear Gaussian systems with inputs. params: LinearInputsParams."""
+
+    Params = LinearInputsParams
 
     def __init__(self, config: LinearInputsConfig, dtype: torch.dtype = torch.float32) -> None:
         super().__init__(config, dtype)
         self.input_dim = config.input_dim
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> LinearInputsParams:
         params = super().sample(num_systems, generator=generator)
         scale = self.config.input_gain / self.state_dim**0.5
-        params["B"] = normal((num_systems, self.state_dim, self.input_dim), generator) * scale
-        return params
+        B = normal((num_systems, self.state_dim, self.input_dim), generator) * scale
+        return LinearInputsParams.extend(params, B=B)
 
     def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
+        self, params: LinearInputsParams, horizon: int, *, generator: torch.Generator
     ) -> Trajectories:
-        A, B, C = (params[k].to(self.dtype) for k in "ABC")
+        A, B, C = (M.to(self.dtype) for M in (params.A, params.B, params.C))
         x0, w, v = self.draw_noise(A.shape[0], horizon, generator)
         u = normal((A.shape[0], horizon + 1, self.input_dim), generator, self.dtype) * self.config.input_std
         x, y = simulate_linear(A, C, x0, w + u @ B.mT, v)  # the input enters as a known forcing B u_t
-        return Trajectories(y=y, u=u, x=x, params=dict(params), family=self.name)
+        return Trajectories(y=y, u=u, x=x, params=params, family=self.name)
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
+    def state_space(params: LinearInputsParams) -> StateSpace:
         """x_{t+1} = A x_t + B u_t + w_t, y_t = C x_t + v_t, x_0 ~ N(0, P0)."""
         p = params
-        return linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"], B=p["B"])
+        return linear_state_space(p.A, p.C, p.Q, p.R, p.P0, B=p.B)

@@ -17,14 +17,15 @@ Where we differ, on purpose: their one-step LTI figure (0.009) was trained on py
 generator; we use this one generator for both metrics. Their normalization statistics come from the whole
 sequence (non-causal); we keep that, so the normalized outputs are comparable with theirs.
 
-params: "A" (B, n, n), "B" (B, n, 1), "C" (B, 1, n), "order" (B,), and the normalization "y_mean", "y_std"
-(B,) of each trajectory: what a Kalman filter that knows the system needs to predict the normalized outputs.
+params: LtiSisoParams, the system (A, B, C, order, noise_std) and the normalization y_mean, y_std (B,) of
+each trajectory: what a Kalman filter that knows the system needs to predict the normalized outputs.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -34,6 +35,7 @@ from mop.systems.base import (
     StateSpace,
     SystemConfig,
     SystemFamily,
+    SystemParams,
     Trajectories,
     linear_state_space,
     normal,
@@ -99,6 +101,16 @@ def _masked_normal(shape: tuple[int, ...], keep: float, valid: Tensor, generator
     return values * mask
 
 
+class Drss(NamedTuple):
+    """Random SISO systems of sample_drss: A (B, n, n), B (B, n, 1), C (B, 1, n), D (B, 1, 1), order (B,)."""
+
+    A: Tensor
+    B: Tensor
+    C: Tensor
+    D: Tensor
+    order: Tensor
+
+
 def sample_drss(
     num_systems: int,
     max_order: int,
@@ -107,7 +119,7 @@ def sample_drss(
     mag: tuple[float, float] = (0.5, 0.97),
     phase: tuple[float, float] = (0.0, math.pi / 2),
     random_order: bool = True,
-) -> dict[str, Tensor]:
+) -> Drss:
     """Random stable SISO (A (B, n, n), B (B, n, 1), C (B, 1, n), D (B, 1, 1), order (B,)) as their
     drss_matrices, order ~ U{1..max_order} (or max_order), padded to n = max_order with inert states."""
     Bn, n = num_systems, max_order
@@ -133,7 +145,7 @@ def sample_drss(
     D = D * (uniform((Bn, 1, 1), 0, 1, generator) >= P_D_ZERO)
     if strictly_proper:
         D = torch.zeros_like(D)
-    return {"A": A, "B": B, "C": C, "D": D, "order": order}
+    return Drss(A, B, C, D, order)
 
 
 def lsim(
@@ -185,45 +197,64 @@ class LtiSisoConfig(SystemConfig):
         check(self.noise_std >= 0, f"system.noise_std must be >= 0, got {self.noise_std}")
 
 
+@dataclass(frozen=True)
+class LtiSisoSystem(SystemParams):
+    """What sample draws: A (B, n, n), B (B, n, 1), C (B, 1, n) (n = max_order, padded), order (B,) long,
+    noise_std (B,): the white noise on the normalized outputs."""
+
+    A: Tensor
+    B: Tensor
+    C: Tensor
+    order: Tensor
+    noise_std: Tensor
+
+
+@dataclass(frozen=True)
+class LtiSisoParams(LtiSisoSystem):
+    """LtiSisoSystem plus each trajectory's normalization y_mean, y_std (B,) (simulate fills them)."""
+
+    y_mean: Tensor
+    y_std: Tensor
+
+
 @register_family("lti-siso", LtiSisoConfig)
 class LtiSisoFamily(SystemFamily):
     """Forgione et al.'s random SISO LTI class with white-noise input and per-trajectory normalization.
-    Its state is [x; 1] (max_order + 1): the constant carries the normalization offset."""
+    Its state is [x; 1] (max_order + 1): the constant carries the normalization offset. params: LtiSisoParams.
+    """
+
+    Params = LtiSisoParams
 
     def __init__(self, config: LtiSisoConfig, dtype: torch.dtype = torch.float32) -> None:
         super().__init__(config, dtype)
         self.state_dim, self.output_dim, self.input_dim = config.max_order + 1, 1, 1  # [x; 1]
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> LtiSisoSystem:
         cfg = self.config
-        p = sample_drss(
+        g = sample_drss(
             num_systems, cfg.max_order, True, generator, (cfg.mag_low, cfg.mag_high), (0.0, cfg.phase_high)
         )
-        del p["D"]
-        p["noise_std"] = torch.full((num_systems,), cfg.noise_std, dtype=torch.float64)
-        return p
+        noise_std = torch.full((num_systems,), cfg.noise_std, dtype=torch.float64)
+        return LtiSisoSystem(A=g.A, B=g.B, C=g.C, order=g.order, noise_std=noise_std)
 
-    def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
-    ) -> Trajectories:
-        A, B, C = params["A"], params["B"], params["C"]
+    def simulate(self, params: LtiSisoSystem, horizon: int, *, generator: torch.Generator) -> Trajectories:
+        A, B, C = params.A, params.B, params.C
         u = normal((A.shape[0], horizon + 1, 1), generator)
         x, y_raw = lsim(A, B, C, torch.zeros(A.shape[0], 1, 1, dtype=A.dtype), u)
         y, mean, std = normalize(y_raw)
         y = y + self.config.noise_std * normal(tuple(y.shape), generator)
-        params = {**params, "y_mean": mean[:, 0], "y_std": std[:, 0]}
+        params = LtiSisoParams.extend(params, y_mean=mean[:, 0], y_std=std[:, 0])
         x = torch.cat([x, torch.ones_like(x[..., :1])], dim=-1)  # the state of state_space: [x; 1]
         return Trajectories(
             y=y.to(self.dtype), u=u.to(self.dtype), x=x.to(self.dtype), params=params, family=self.name
         )
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
+    def state_space(params: LtiSisoParams) -> StateSpace:
         """The normalized output as a linear model on [x; 1]: y_t = (C x_t - mean) / (std + 1e-6) + v_t,
         x_0 = 0 known exactly (P0 = 0), Q = 0, R = noise_std^2 (each + JITTER)."""
-        return normalized_linear_model(
-            params["A"], params["B"], params["C"], params["y_mean"], params["y_std"], params["noise_std"]
-        )
+        p = params
+        return normalized_linear_model(p.A, p.B, p.C, p.y_mean, p.y_std, p.noise_std)
 
 
 def normalized_linear_model(

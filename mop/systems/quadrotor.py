@@ -36,6 +36,7 @@ from mop.systems.base import (
     StateSpace,
     SystemConfig,
     SystemFamily,
+    SystemParams,
     Trajectories,
     normal,
     register_family,
@@ -110,63 +111,75 @@ class QuadrotorConfig(SystemConfig):
         check(self.x0_std >= 0, f"system.x0_std must be >= 0, got {self.x0_std}")
 
 
+@dataclass(frozen=True)
+class QuadrotorParams(SystemParams):
+    """mass, length, inertia (B,): (m, l, J); C (B, 3, 6); Q (B, 6, 6); R (B, 3, 3); P0 (B, 6, 6);
+    x0_mean (B, 6): x_0 ~ N(x0_mean, P0) = N(0, x0_std^2 I) before clipping."""
+
+    mass: Tensor
+    length: Tensor
+    inertia: Tensor
+    C: Tensor
+    Q: Tensor
+    R: Tensor
+    P0: Tensor
+    x0_mean: Tensor
+
+
 @register_family("quadrotor", QuadrotorConfig)
 class QuadrotorFamily(SystemFamily):
-    """params: "mass", "length", "inertia" (B,), "C" (B,3,6), "Q" (B,6,6), "R" (B,3,3), "P0" (B,6,6),
-    "x0_mean" (B,6): x_0 ~ N(x0_mean, P0) = N(0, x0_std^2 I) before clipping.
-
-    Trajectories carry u (B, T+1, 2); u_T is drawn too (the model reads [y_t, u_t]) but moves nothing.
+    """params: QuadrotorParams. Trajectories carry u (B, T+1, 2); u_T is drawn too (the model reads
+    [y_t, u_t]) but moves nothing.
     """
 
+    Params = QuadrotorParams
     state_dim, output_dim, input_dim = STATE_DIM, OUTPUT_DIM, INPUT_DIM
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> QuadrotorParams:
         B, dev = num_systems, generator.device
         mass, length, inertia = uniform((3, B), *PARAM_RANGE, generator)
         C = uniform((B, OUTPUT_DIM, STATE_DIM), 0.0, 1.0, generator)
         eye = lambda d, var: scaled_eye(B, d, var, dev)  # noqa: E731
         cfg = self.config
-        return {
-            "mass": mass,
-            "length": length,
-            "inertia": inertia,
-            "C": C,
-            "Q": eye(STATE_DIM, cfg.noise_var_w),
-            "R": eye(OUTPUT_DIM, cfg.noise_var_v),
-            "P0": eye(STATE_DIM, cfg.x0_std**2),
-            "x0_mean": torch.zeros(B, STATE_DIM, dtype=torch.float64, device=dev),
-        }
+        return QuadrotorParams(
+            mass=mass,
+            length=length,
+            inertia=inertia,
+            C=C,
+            Q=eye(STATE_DIM, cfg.noise_var_w),
+            R=eye(OUTPUT_DIM, cfg.noise_var_v),
+            P0=eye(STATE_DIM, cfg.x0_std**2),
+            x0_mean=torch.zeros(B, STATE_DIM, dtype=torch.float64, device=dev),
+        )
 
-    def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
-    ) -> Trajectories:
-        p = {k: v.to(self.dtype) for k, v in params.items()}
-        B, cfg = p["C"].shape[0], self.config
+    def simulate(self, params: QuadrotorParams, horizon: int, *, generator: torch.Generator) -> Trajectories:
+        p = params.map(lambda v: v.to(self.dtype))
+        B, cfg = p.C.shape[0], self.config
         u = uniform((B, horizon + 1, INPUT_DIM), *ACTION_RANGE, generator, self.dtype)  # (B, T+1, 2)
         w = normal((B, horizon, STATE_DIM), generator, self.dtype) * cfg.noise_var_w**0.5
         v = normal((B, horizon + 1, OUTPUT_DIM), generator, self.dtype) * cfg.noise_var_v**0.5
-        x0 = p["x0_mean"] + normal((B, STATE_DIM), generator, self.dtype) * cfg.x0_std  # N(x0_mean, P0)
+        x0 = p.x0_mean + normal((B, STATE_DIM), generator, self.dtype) * cfg.x0_std  # N(x0_mean, P0)
         x = clip_state(x0)  # (B, 6)
         xs = [x]
         for t in range(horizon):
-            x = clip_state(dynamics(x, u[:, t], p["mass"], p["length"], p["inertia"]) + w[:, t])
+            x = clip_state(dynamics(x, u[:, t], p.mass, p.length, p.inertia) + w[:, t])
             xs.append(x)
         x = torch.stack(xs, dim=1)  # (B, T+1, 6)
-        y = x @ p["C"].mT + v  # (B, T+1, 3)
-        return Trajectories(y=y, u=u, x=x, params=dict(params), family=self.name)
+        y = x @ p.C.mT + v  # (B, T+1, 3)
+        return Trajectories(y=y, u=u, x=x, params=params, family=self.name)
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
+    def state_space(params: QuadrotorParams) -> StateSpace:
         """f and its Jacobian with (m, l, J) known, C, Q, R, N(x0_mean, P0), and the clipping (BOUNDS)."""
-        p = {k: v.double() for k, v in params.items()}
-        mlJ = (p["mass"], p["length"], p["inertia"])  # (B,) each
+        p = params.map(Tensor.double)
+        mlJ = (p.mass, p.length, p.inertia)  # (B,) each
         return StateSpace(
             f=lambda x, u, t: dynamics(x, u, *(q[:, None] for q in mlJ)),
-            C=p["C"],
-            Q=p["Q"],
-            R=p["R"],
-            m0=p["x0_mean"],
-            P0=p["P0"],
+            C=p.C,
+            Q=p.Q,
+            R=p.R,
+            m0=p.x0_mean,
+            P0=p.P0,
             jacobian=lambda x, u, t: dynamics_jacobian(x, u, *mlJ),
             project=clip_state,
         )
@@ -175,6 +188,7 @@ class QuadrotorFamily(SystemFamily):
 __all__ = [
     "QuadrotorFamily",
     "QuadrotorConfig",
+    "QuadrotorParams",
     "dynamics",
     "dynamics_jacobian",
     "clip_state",

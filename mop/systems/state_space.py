@@ -10,6 +10,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
+from mop.systems.params import SystemParams
 
 Transition = Callable[
     [Tensor, "Tensor | None", int], Tensor
@@ -87,33 +88,43 @@ def linear_state_space(
     )
 
 
-LINEAR_MODEL_ARRAYS = ("A", "C", "Q", "R")  # required; optional: "B", "P0", "x0_mean"
+@dataclass(frozen=True)
+class LinearModelParams(SystemParams):
+    """A known linear-Gaussian model given with data that has no family (mop predict kalman DATA.npz):
+
+        x_{t+1} = A x_t + B u_t + w_t, w_t ~ N(0, Q);  y_t = C x_t + v_t, v_t ~ N(0, R);
+        x_0 ~ N(x0_mean, P0).
+
+    A (B, n, n), C (B, m, n), Q (B, n, n), R (B, m, m); optional B (B, n, k) (None: the inputs do not act),
+    P0 (B, n, n) (None: I), x0_mean (B, n) (None: 0)."""
+
+    A: Tensor
+    C: Tensor
+    Q: Tensor
+    R: Tensor
+    B: Tensor | None = None
+    P0: Tensor | None = None
+    x0_mean: Tensor | None = None
 
 
-def linear_model_from_params(params: dict[str, Tensor]) -> StateSpace:
-    """A known linear-Gaussian model x_{t+1} = A x_t + B u_t + w_t, y_t = C x_t + v_t, x_0 ~ N(x0_mean, P0),
-    from params "A" (B, n, n), "C" (B, m, n), "Q" (B, n, n), "R" (B, m, m) and optional "B" (B, n, k)
-    (default: the inputs do not act), "P0" (B, n, n) (default I), "x0_mean" (B, n) (default 0).
-    MopError naming the first missing or misshapen array (as param_<name>, the .npz key)."""
-    missing = [f"param_{k}" for k in LINEAR_MODEL_ARRAYS if k not in params]
-    if missing:
-        raise MopError(f"a linear model needs {', '.join(missing)}; add them (see mop predict --help)")
-    A = params["A"]
+LINEAR_MODEL_ARRAYS = LinearModelParams.required()
+
+
+def linear_model_from_params(params: LinearModelParams) -> StateSpace:
+    """The StateSpace of a known linear-Gaussian model (LinearModelParams; defaults P0 = I, x0_mean = 0).
+    MopError naming the first misshapen array (as param_<name>, the .npz key)."""
+    p, A = params, params.A
     if A.ndim != 3 or A.shape[1] != A.shape[2]:
         raise MopError(f"param_A has shape {tuple(A.shape)}, need (B, n, n)")
-    batch, n, m = A.shape[0], A.shape[-1], params["C"].shape[-2]
-    eye = torch.eye(n, dtype=torch.float64, device=A.device).expand(batch, n, n)
-    P0 = params.get("P0", eye)
-    x0 = params.get("x0_mean", A.new_zeros(batch, n))
-    B = params.get("B")
+    batch, n, m = A.shape[0], A.shape[-1], p.C.shape[-2]
+    k = None if p.B is None else p.B.shape[-1]
     expected = {"C": (batch, m, n), "Q": (batch, n, n), "R": (batch, m, m), "P0": (batch, n, n)}
-    expected["x0_mean"] = (batch, n)
-    if B is not None:
-        expected["B"] = (batch, n, B.shape[-1])
-    values = {"C": params["C"], "Q": params["Q"], "R": params["R"], "P0": P0, "x0_mean": x0, "B": B}
-    for name, shape in expected.items():
-        if tuple(values[name].shape) != shape:
+    expected |= {"x0_mean": (batch, n), "B": (batch, n, k), "A": (batch, n, n)}
+    for name, value in p.as_dict().items():
+        if value is not None and tuple(value.shape) != expected[name]:
             raise MopError(
-                f"param_{name} has shape {tuple(values[name].shape)}, need {shape} for A {n} x {n}"
+                f"param_{name} has shape {tuple(value.shape)}, need {expected[name]} for A {n} x {n}"
             )
-    return linear_state_space(A, params["C"], params["Q"], params["R"], P0, B, x0)
+    P0 = torch.eye(n, dtype=torch.float64, device=A.device).expand(batch, n, n) if p.P0 is None else p.P0
+    x0 = A.new_zeros(batch, n) if p.x0_mean is None else p.x0_mean
+    return linear_state_space(A, p.C, p.Q, p.R, P0, p.B, x0)

@@ -7,11 +7,14 @@ inputs u_t (where a family has them) act between y_t and y_{t+1}.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import Tensor
+
+from mop.errors import MopError
+from mop.systems.params import SystemParams
 
 
 @dataclass
@@ -22,16 +25,23 @@ class Trajectories:
         is the mask). Every predictor skips what was not measured; inputs u must be complete.
     u: (B, T+1, k) inputs u_0..u_T, or None for families without inputs.
     x: (B, T+1, n) true states, or None for measured data.
-    params: per-system parameters, each with leading dim B (e.g. "A": (B, n, n), "C": (B, m, n),
-        "Q": (B, n, n), "R": (B, m, m)); what a predictor that knows the system may use.
+    params: the systems' parameters, the family's typed SystemParams (each field with leading dim B, e.g.
+        params.A (B, n, n)), or None (measured data); what a predictor that knows the system reads.
     family: name of the family that made it ("" for user data); its state_space(params) describes the systems.
     """
 
     y: Tensor
     u: Tensor | None = None
     x: Tensor | None = None
-    params: dict[str, Tensor] = field(default_factory=dict)
+    params: SystemParams | None = None
     family: str = ""
+
+    def __post_init__(self) -> None:
+        if self.params is not None and not isinstance(self.params, SystemParams):
+            raise MopError(
+                f"Trajectories.params must be the family's parameter type (a SystemParams), got "
+                f"{type(self.params).__name__}; a family declares it as `Params` (README: add a family)"
+            )
 
     @property
     def num_systems(self) -> int:
@@ -68,9 +78,8 @@ class Trajectories:
 
     def _map(self, fn: Callable[[Tensor], Tensor]) -> Trajectories:
         opt = lambda t: None if t is None else fn(t)  # noqa: E731
-        return Trajectories(
-            fn(self.y), opt(self.u), opt(self.x), {k: fn(v) for k, v in self.params.items()}, self.family
-        )
+        params = None if self.params is None else self.params.map(fn)
+        return Trajectories(fn(self.y), opt(self.u), opt(self.x), params, self.family)
 
     def to(self, device: torch.device | str) -> Trajectories:
         return self._map(lambda t: t.to(device))
@@ -86,7 +95,8 @@ class Trajectories:
             out["u"] = self.u.cpu().numpy()
         if self.x is not None:
             out["x"] = self.x.cpu().numpy()
-        out.update({f"param_{k}": v.cpu().numpy() for k, v in self.params.items()})
+        if self.params is not None:
+            out.update({f"param_{k}": v for k, v in self.params.to_arrays().items()})
         if self.family:
             out["family"] = np.array(self.family)
         return out
