@@ -183,12 +183,9 @@ def slope(measure: Measure, results: Results, reference: str, seed: int) -> tupl
 def _floor_table(extras: dict) -> str:
     excess = extras["floor"]["excess_mse"]
     wins = list(next(iter(excess.values())))
-    lines = [
-        "Excess MSE over the irreducible error (mean trace S_t of the optimal filter of each test system):",
-        "",
-        "| predictor | " + " | ".join(f"t in {w}" for w in wins) + " |",
-        "|---" * (len(wins) + 1) + "|",
-    ]
+    head = "Excess MSE over the irreducible error (mean trace S_t of the optimal filter of each test system):"
+    cols = "".join(f" t in {w} |" for w in wins)
+    lines = [head, "", f"| predictor |{cols}", "|---" * (len(wins) + 1) + "|"]
     lines += [f"| {n} | " + " | ".join(f"{e[w]:+.4f}" for w in wins) + " |" for n, e in excess.items()]
     return "\n".join(lines) + "\n"
 
@@ -296,20 +293,14 @@ def simulation_context(result) -> int:
 
 
 def _simulation_table(extras: dict) -> str:
-    simulation = extras["simulation"]
-    c = simulation["context"]
-    lines = [
+    c, rmse = extras["simulation"]["context"], extras["simulation"]["rmse"]
+    head = (
         f"Free-run simulation after a context of {c} outputs (y_{c}..y_T from the inputs alone), RMSE over "
-        "those steps beside the one-step RMSE over the same steps:",
-        "",
-        "| predictor | one-step RMSE | simulation RMSE |",
-        "|---|---|---|",
-    ]
-    lines += [
-        f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} |"
-        for n, r in simulation["rmse"].items()
-    ]
-    return "\n".join(lines) + "\n"
+        "those steps beside the one-step RMSE over the same steps:\n\n"
+        "| predictor | one-step RMSE | simulation RMSE |\n|---|---|---|\n"
+    )
+    rows = [f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} |\n" for n, r in rmse.items()]
+    return head + "".join(rows)
 
 
 @ANALYSES.register("simulation", markdown=_simulation_table)
