@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import check
-from mop.systems import SystemConfig, SystemFamily, Trajectories, register_family
+from mop.systems import SystemConfig, SystemFamily, SystemParams, Trajectories, register_family
 from mop.systems.base import StateSpace, linear_state_space, normal, uniform
 from mop.systems.linear import simulate_linear
 
@@ -72,19 +72,37 @@ class DeadTimeConfig(SystemConfig):
             check(getattr(self, name) >= 0, f"dead-time: {name} must be >= 0, got {getattr(self, name)}")
 
 
+@dataclass(frozen=True)
+class DeadTimeParams(SystemParams):
+    """radius, angle, zero, gain (B,), delay (B,) integers 1..D; the augmented linear model A (B, n, n),
+    B (B, n, 1), C (B, 1, n), Q (B, n, n), R (B, 1, 1), P0 (B, n, n), x0_mean (B, n), n = 2 + D; float64."""
+
+    radius: Tensor
+    angle: Tensor
+    zero: Tensor
+    gain: Tensor
+    delay: Tensor
+    A: Tensor
+    B: Tensor
+    C: Tensor
+    Q: Tensor
+    R: Tensor
+    P0: Tensor
+    x0_mean: Tensor
+
+
 @register_family("dead-time", DeadTimeConfig)
 class DeadTimeFamily(SystemFamily):
-    """params: "radius", "angle", "zero", "gain" (B,), "delay" (B,) integers 1..D; the augmented linear
-    model "A" (B, n, n), "B" (B, n, 1), "C" (B, 1, n), "Q" (B, n, n), "R" (B, 1, 1), "P0" (B, n, n),
-    "x0_mean" (B, n), n = 2 + D; float64."""
+    """params: DeadTimeParams."""
 
+    Params = DeadTimeParams
     output_dim, input_dim = 1, 1
 
     def __init__(self, config: DeadTimeConfig, dtype: torch.dtype = torch.float32) -> None:
         super().__init__(config, dtype)
         self.state_dim = 2 + config.max_delay
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> DeadTimeParams:
         cfg, B, D, n = self.config, num_systems, self.config.max_delay, self.state_dim
         r = uniform((B,), cfg.pole_radius_min, cfg.pole_radius_max, generator)
         theta = uniform((B,), 0.0, cfg.max_angle, generator)
@@ -108,13 +126,11 @@ class DeadTimeFamily(SystemFamily):
         R = torch.full((B, 1, 1), cfg.output_std**2, dtype=torch.float64, device=r.device)
         x0_mean = torch.zeros(B, n, dtype=torch.float64, device=r.device)
         plant = {"radius": r, "angle": theta, "zero": z0, "gain": gain, "delay": delay}
-        return {**plant, "A": A, "B": Bd, "C": C, "Q": Q, "R": R, "P0": P0, "x0_mean": x0_mean}
+        return DeadTimeParams(**plant, A=A, B=Bd, C=C, Q=Q, R=R, P0=P0, x0_mean=x0_mean)
 
-    def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
-    ) -> Trajectories:
+    def simulate(self, params: DeadTimeParams, horizon: int, *, generator: torch.Generator) -> Trajectories:
         cfg, n = self.config, self.state_dim
-        A, Bd, C = (params[key].to(self.dtype) for key in "ABC")
+        A, Bd, C = (M.to(self.dtype) for M in (params.A, params.B, params.C))
         num = A.shape[0]
         x0 = torch.zeros(num, n, dtype=self.dtype, device=A.device)
         x0[:, :2] = normal((num, 2), generator, self.dtype) * cfg.initial_std
@@ -123,10 +139,10 @@ class DeadTimeFamily(SystemFamily):
         w[..., :2] = normal((num, horizon + 1, 2), generator, self.dtype) * cfg.process_std
         v = normal((num, horizon + 1, 1), generator, self.dtype) * cfg.output_std
         x, y = simulate_linear(A, C, x0, w + u @ Bd.mT, v)  # u_t enters the delay line as B u_t
-        return Trajectories(y=y, u=u, x=x, params=dict(params), family=self.name)
+        return Trajectories(y=y, u=u, x=x, params=params, family=self.name)
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
+    def state_space(params: DeadTimeParams) -> StateSpace:
         """s_{t+1} = A s_t + B u_t + w_t, y_t = C s_t + v_t, s_0 ~ N(0, P0) (the line's block of P0 is 0)."""
         p = params
-        return linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"], B=p["B"], m0=p["x0_mean"])
+        return linear_state_space(p.A, p.C, p.Q, p.R, p.P0, B=p.B, m0=p.x0_mean)

@@ -41,7 +41,7 @@ from scipy.linalg import expm
 from torch import Tensor
 
 from mop.errors import check
-from mop.systems import SystemConfig, SystemFamily, Trajectories, register_family
+from mop.systems import SystemConfig, SystemFamily, SystemParams, Trajectories, register_family
 from mop.systems.base import StateSpace, linear_state_space, normal, uniform
 from mop.systems.linear import simulate_linear
 
@@ -126,18 +126,35 @@ def psd_sqrt(Q: Tensor) -> Tensor:
     return V * lam.clamp(min=0).sqrt()[..., None, :]
 
 
+@dataclass(frozen=True)
+class ThermalParams(SystemParams):
+    """capacity, ambient (B, n), coupling (B, n-1); the exact discrete model A (B, n, n), B (B, n, 1),
+    C (B, 2, n), Q (B, n, n), R (B, 2, 2), P0 (B, n, n), x0_mean (B, n); float64."""
+
+    capacity: Tensor
+    ambient: Tensor
+    coupling: Tensor
+    A: Tensor
+    B: Tensor
+    C: Tensor
+    Q: Tensor
+    R: Tensor
+    P0: Tensor
+    x0_mean: Tensor
+
+
 @register_family("thermal-network", ThermalConfig)
 class ThermalFamily(SystemFamily):
-    """params: "capacity", "ambient" (B, n), "coupling" (B, n-1); the exact discrete model "A" (B, n, n),
-    "B" (B, n, 1), "C" (B, 2, n), "Q" (B, n, n), "R" (B, 2, 2), "P0" (B, n, n), "x0_mean" (B, n); float64."""
+    """params: ThermalParams."""
 
+    Params = ThermalParams
     output_dim, input_dim = 2, 1
 
     def __init__(self, config: ThermalConfig, dtype: torch.dtype = torch.float32) -> None:
         super().__init__(config, dtype)
         self.state_dim = config.num_nodes
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> ThermalParams:
         cfg, B, n = self.config, num_systems, self.config.num_nodes
         c = log_uniform((B, n), cfg.bounds("capacity"), generator)
         g = log_uniform((B, n), cfg.bounds("ambient"), generator)
@@ -148,35 +165,33 @@ class ThermalFamily(SystemFamily):
         C = torch.zeros(B, 2, n, dtype=torch.float64, device=c.device)
         C[:, 0, 0], C[:, 1, n - 1] = 1.0, 1.0
         eye = lambda d: torch.eye(d, dtype=torch.float64, device=c.device).expand(B, d, d).clone()  # noqa: E731
-        return {
-            "capacity": c,
-            "ambient": g,
-            "coupling": k,
-            "A": A,
-            "B": Bd,
-            "C": C,
-            "Q": Q,
-            "R": cfg.sensor_std**2 * eye(2),
-            "P0": cfg.initial_std**2 * eye(n),
-            "x0_mean": torch.zeros(B, n, dtype=torch.float64, device=c.device),
-        }
+        return ThermalParams(
+            capacity=c,
+            ambient=g,
+            coupling=k,
+            A=A,
+            B=Bd,
+            C=C,
+            Q=Q,
+            R=cfg.sensor_std**2 * eye(2),
+            P0=cfg.initial_std**2 * eye(n),
+            x0_mean=torch.zeros(B, n, dtype=torch.float64, device=c.device),
+        )
 
-    def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
-    ) -> Trajectories:
+    def simulate(self, params: ThermalParams, horizon: int, *, generator: torch.Generator) -> Trajectories:
         cfg, n = self.config, self.state_dim
-        A, Bd, C = (params[key].to(self.dtype) for key in "ABC")
+        A, Bd, C = (M.to(self.dtype) for M in (params.A, params.B, params.C))
         num = A.shape[0]
-        w_root = psd_sqrt(params["Q"]).to(self.dtype)  # (B, n, n)
+        w_root = psd_sqrt(params.Q).to(self.dtype)  # (B, n, n)
         x0 = normal((num, n), generator, self.dtype) * cfg.initial_std
         u = normal((num, horizon + 1, 1), generator, self.dtype) * cfg.heater_std  # (B, T+1, 1)
         w = normal((num, horizon + 1, n), generator, self.dtype) @ w_root.mT  # (B, T+1, n), w_T unused
         v = normal((num, horizon + 1, 2), generator, self.dtype) * cfg.sensor_std
         x, y = simulate_linear(A, C, x0, w + u @ Bd.mT, v)  # the heater enters as the known forcing B u_t
-        return Trajectories(y=y, u=u, x=x, params=dict(params), family=self.name)
+        return Trajectories(y=y, u=u, x=x, params=params, family=self.name)
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
+    def state_space(params: ThermalParams) -> StateSpace:
         """x_{t+1} = A x_t + B u_t + w_t, y_t = C x_t + v_t, x_0 ~ N(0, P0)."""
         p = params
-        return linear_state_space(p["A"], p["C"], p["Q"], p["R"], p["P0"], B=p["B"], m0=p["x0_mean"])
+        return linear_state_space(p.A, p.C, p.Q, p.R, p.P0, B=p.B, m0=p.x0_mean)

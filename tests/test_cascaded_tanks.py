@@ -35,11 +35,11 @@ def test_discretisation_matches_solve_ivp_without_overflow():
     """The RK4 map (2 substeps of 2 s) against solve_ivp (rtol 1e-10) over 100 samples of 4 s, u held over
     each sample, on noise-free records that never reach a rim; measured 1.5e-6 V over 300 samples."""
     traj = tanks(12, 100, 1, noise_std=0.0, process_noise_std=0.0)
-    H = traj.params["max_level"][:, None]
+    H = traj.params.max_level[:, None]
     below = (traj.x < H[..., None] - 1e-6).all(-1).all(-1)
     assert int(below.sum()) >= 6
     for b in below.nonzero()[:, 0].tolist():
-        p = {k: float(traj.params[k][b]) for k in PHYSICS}
+        p = {k: float(v[b]) for k, v in traj.params.as_dict().items() if k in PHYSICS}
         h, u = traj.x[b, 0].numpy(), traj.u[b, :, 0].numpy()
         levels = [h]
         for t in range(traj.horizon):
@@ -75,7 +75,7 @@ def test_levels_stay_within_the_rims_and_the_upper_tank_overflows_at_its_maximum
     """Noisy records: 0 <= h <= H always (the clip, after the noise too), some records reach H exactly, and
     the overflow carries water: with rho = 0 the lower tank ends lower than with rho > 0."""
     traj = tanks(200, 300, 3, input_amplitude=0.8)
-    H = traj.params["max_level"][:, None, None]
+    H = traj.params.max_level[:, None, None]
     assert bool((traj.x >= 0).all()) and bool((traj.x <= H).all())
     full = (traj.x[..., 0] == H[..., 0]).any(1)
     assert 0.05 < full.double().mean() < 0.9  # some overflow, not all
@@ -96,7 +96,7 @@ def test_jacobian_equals_central_differences_inside_at_the_rim_and_near_empty():
     """df/dx against (f(x + e) - f(x - e)) / 2e, e = 1e-6, at states inside, just below the upper rim while
     filling (it overflows within the step: its row is 0) and near empty, at u and 4 u (more overflow)."""
     traj = tanks(16, 20, 5)
-    p = {k: traj.params[k] for k in PHYSICS}
+    p = {k: v for k, v in traj.params.as_dict().items() if k in PHYSICS}
     u, H, eps = traj.u[:, 3], p["max_level"], 1e-6
     states = {
         "inside": torch.minimum(traj.x[:, 3], H[:, None] - 0.01),  # at H exactly f has a kink
@@ -119,7 +119,8 @@ def test_same_seed_same_numbers_other_seed_other_numbers():
         for name in ("y", "u", "x"):
             assert torch.equal(getattr(a, name), getattr(b, name))
             assert not torch.allclose(getattr(a, name), getattr(c, name))
-        assert all(torch.equal(a.params[k], b.params[k]) for k in a.params)
+        pairs = zip(a.params.as_dict().values(), b.params.as_dict().values(), strict=True)
+        assert all(torch.equal(u, v) for u, v in pairs)
 
 
 def test_multisine_has_unit_rms_and_no_power_above_its_band():
@@ -159,8 +160,8 @@ def test_steady_start_is_at_rest_under_the_operating_input():
     """x0="steady": x_0 is the equilibrium at u_op, so the levels do not move while u stays at u_op."""
     traj = tanks(8, 5, 9, x0="steady", noise_std=0.0, process_noise_std=0.0)
     p = traj.params
-    np.testing.assert_allclose(traj.x[:, 0].numpy(), p["x0_mean"].numpy(), atol=1e-12)
-    x = simulate_levels(traj.x[:, 0], p["u_op"][:, None, None].expand(8, 50, 1), p)
+    np.testing.assert_allclose(traj.x[:, 0].numpy(), p.x0_mean.numpy(), atol=1e-12)
+    x = simulate_levels(traj.x[:, 0], p.u_op[:, None, None].expand(8, 50, 1), p.as_dict())
     np.testing.assert_allclose(x.numpy(), traj.x[:, :1].expand(8, 50, 2).numpy(), atol=1e-10)
 
 

@@ -51,19 +51,19 @@ def test_thermal_network_matches_scipy_hold_and_quadrature():
     p = fam.sample(16, generator=generator(1))
     q = fam.config.disturbance_std
     for s in range(16):
-        c, g, k = (p[key][s].numpy() for key in ("capacity", "ambient", "coupling"))
+        c, g, k = (v[s].numpy() for v in (p.capacity, p.ambient, p.coupling))
         A_c, b = thermal_continuous(c, g, k)
         A, B, *_ = cont2discrete((A_c, b, np.eye(3), np.zeros((3, 1))), fam.config.dt, method="zoh")
-        np.testing.assert_allclose(p["A"][s].numpy(), A, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(p["B"][s].numpy(), B, rtol=1e-10, atol=1e-14)
+        np.testing.assert_allclose(p.A[s].numpy(), A, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(p.B[s].numpy(), B, rtol=1e-10, atol=1e-14)
         G = q * np.diag(1 / c)
         Q, _ = quad_vec(
             lambda t, A_c=A_c, G=G: expm(A_c * t) @ G @ G.T @ expm(A_c * t).T, 0, 1.0, epsrel=1e-12
         )
-        np.testing.assert_allclose(p["Q"][s].numpy(), Q, rtol=1e-8, atol=1e-14)
+        np.testing.assert_allclose(p.Q[s].numpy(), Q, rtol=1e-8, atol=1e-14)
         lam = np.linalg.eigvals(A_c)
         assert np.abs(lam.imag).max() < 1e-9 and lam.real.max() < 0  # relaxes to ambient, no oscillation
-    assert p["C"][0].tolist() == [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # sensors on the heated and the far node
+    assert p.C[0].tolist() == [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # sensors on the heated and the far node
 
 
 def test_dead_time_plant_matches_its_transfer_function():
@@ -71,15 +71,15 @@ def test_dead_time_plant_matches_its_transfer_function():
     (scipy.signal.dimpulse of the transfer function), and its DC gain is 1."""
     fam = family("dead-time", "dead_time.py")
     p = fam.sample(12, generator=generator(2))
-    assert set(p["delay"].tolist()) <= {1, 2, 3}
+    assert set(p.delay.tolist()) <= {1, 2, 3}
     for s in range(12):
-        r, th, z0, d = (float(p[key][s]) for key in ("radius", "angle", "zero", "delay"))
+        r, th, z0, d = (float(v[s]) for v in (p.radius, p.angle, p.zero, p.delay))
         poles = [r * np.exp(1j * th), r * np.exp(-1j * th)]
         den = np.real(np.poly(poles))
         K = float(np.real((1 - poles[0]) * (1 - poles[1]))) / (1 - z0)
         den = np.concatenate([den, np.zeros(int(d))])  # z^-d: d more powers of z below
         _, (h,) = dimpulse((K * np.array([1.0, -z0]), den, 1), n=21)
-        A, B, C = (p[key][s].numpy() for key in "ABC")
+        A, B, C = (v[s].numpy() for v in (p.A, p.B, p.C))
         mine = [(C @ np.linalg.matrix_power(A, j) @ B).item() for j in range(20)]  # y_{j+1} from u_0 = 1
         np.testing.assert_allclose(mine, h[1:21, 0], rtol=1e-9, atol=1e-12)
         assert (C @ np.linalg.solve(np.eye(A.shape[0]) - A, B)).item() == pytest.approx(1.0, rel=1e-9)

@@ -55,6 +55,7 @@ from mop.systems.base import (
     StateSpace,
     SystemConfig,
     SystemFamily,
+    SystemParams,
     Trajectories,
     normal,
     register_family,
@@ -220,15 +221,40 @@ class CascadedTanksConfig(SystemConfig):
         check(0 <= self.x0_spread <= 1, f"system.x0_spread must be in [0, 1], got {self.x0_spread}")
 
 
+@dataclass(frozen=True)
+class CascadedTanksParams(SystemParams):
+    """The physics (PHYSICS: area1, area2, outflow1, outflow2, pump, max_level, overflow_to_lower, each (B,));
+    the input's operating point u_op, amplitude and bandwidth (B,); noise_std (B,); C (B, 1, 2); Q (B, 2, 2);
+    R (B, 1, 1); x0_mean (B, 2); P0 (B, 2, 2). The tanks' helpers (tank_step, ...) take the physics as a dict
+    (params.as_dict())."""
+
+    area1: Tensor
+    area2: Tensor
+    outflow1: Tensor
+    outflow2: Tensor
+    pump: Tensor
+    max_level: Tensor
+    overflow_to_lower: Tensor
+    u_op: Tensor
+    amplitude: Tensor
+    bandwidth: Tensor
+    noise_std: Tensor
+    C: Tensor
+    Q: Tensor
+    R: Tensor
+    x0_mean: Tensor
+    P0: Tensor
+
+
 @register_family("cascaded-tanks", CascadedTanksConfig)
 class CascadedTanksFamily(SystemFamily):
-    """params: the physics (PHYSICS, each (B,)), "u_op", "amplitude", "bandwidth", "noise_std" (B,), "C"
-    (B, 1, 2), "Q" (B, 2, 2), "R" (B, 1, 1), "x0_mean" (B, 2), "P0" (B, 2, 2). Trajectories carry u
-    (B, T+1, 1) in volts (u_T is drawn too but moves nothing) and the levels x (B, T+1, 2)."""
+    """params: CascadedTanksParams. Trajectories carry u (B, T+1, 1) in volts (u_T is drawn too but moves
+    nothing) and the levels x (B, T+1, 2)."""
 
+    Params = CascadedTanksParams
     state_dim, output_dim, input_dim = 2, 1, 1
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> dict[str, Tensor]:
+    def sample(self, num_systems: int, *, generator: torch.Generator) -> CascadedTanksParams:
         B, cfg = num_systems, self.config
         p = {name: uniform((B,), *bounds, generator) for name, bounds in RANGES.items()}
         level = uniform((B,), *OPERATING_LEVEL, generator)
@@ -243,12 +269,12 @@ class CascadedTanksFamily(SystemFamily):
         p["Q"] = max(cfg.process_noise_std**2, JITTER) * eye.expand(B, 2, 2).clone()
         p["R"] = (p["noise_std"] ** 2 + JITTER)[:, None, None]
         p["x0_mean"], p["P0"] = m0, torch.diag_embed((spread * m0) ** 2 + JITTER)
-        return p
+        return CascadedTanksParams(**p)
 
     def simulate(
-        self, params: dict[str, Tensor], horizon: int, *, generator: torch.Generator
+        self, params: CascadedTanksParams, horizon: int, *, generator: torch.Generator
     ) -> Trajectories:
-        p, cfg = {k: v.double() for k, v in params.items()}, self.config
+        p, cfg = params.map(Tensor.double).as_dict(), self.config
         B = p["u_op"].shape[0]
         s = unit_rms_signal(cfg.input, p, horizon + 1, generator)  # (B, T+1)
         u = (p["u_op"][:, None] * (1 + p["amplitude"][:, None] * s)).clamp(0, U_MAX)[..., None]
@@ -261,14 +287,14 @@ class CascadedTanksFamily(SystemFamily):
             y=(x[..., 1:] + v).to(self.dtype),
             u=u.to(self.dtype),
             x=x.to(self.dtype),
-            params=dict(params),
+            params=params,
             family=self.name,
         )
 
     @staticmethod
-    def state_space(params: dict[str, Tensor]) -> StateSpace:
+    def state_space(params: CascadedTanksParams) -> StateSpace:
         """f and its Jacobian with the physics known, C = [0, 1], Q, R, N(x0_mean, P0), the clip to [0, H]."""
-        p = {k: v.double() for k, v in params.items()}
+        p = params.map(Tensor.double).as_dict()
         per_point = {k: p[k][:, None] for k in PHYSICS}  # (B, 1): broadcast over point sets (B, N)
         return StateSpace(
             f=lambda x, u, t: tank_step(x, u, per_point),
@@ -296,6 +322,7 @@ def simulate_levels(x0: Tensor, u: Tensor, p: dict[str, Tensor], w: Tensor | Non
 __all__ = [
     "CascadedTanksConfig",
     "CascadedTanksFamily",
+    "CascadedTanksParams",
     "RANGES",
     "SUBSTEPS",
     "TS",
