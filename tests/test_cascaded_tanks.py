@@ -56,7 +56,7 @@ def test_equilibrium_equals_closed_form_with_and_without_overflow():
     below the rims; when k_p u > a1 sqrt(H) the upper tank stays at H and the lower one receives
     a1 sqrt(H) + rho (k_p u - a1 sqrt(H)), so h2 = (that / a2)^2 (clipped at H)."""
     family = make_family(SystemConfig(family="cascaded-tanks"), torch.float64)
-    p = family.sample(64, generator=generator(2))
+    p = family.sample(64, generator=generator(2)).as_dict()  # the physics helpers take a dict
     H = p["max_level"]
     u_fill = p["outflow1"] * H.sqrt() / p["pump"]  # the input that just fills the upper tank
     u_below = torch.minimum(u_fill, p["outflow2"] * H.sqrt() / p["pump"])  # neither tank reaches H
@@ -80,7 +80,7 @@ def test_levels_stay_within_the_rims_and_the_upper_tank_overflows_at_its_maximum
     full = (traj.x[..., 0] == H[..., 0]).any(1)
     assert 0.05 < full.double().mean() < 0.9  # some overflow, not all
     family = make_family(SystemConfig(family="cascaded-tanks"), torch.float64)
-    p = family.sample(8, generator=generator(4))
+    p = family.sample(8, generator=generator(4)).as_dict()  # the physics helpers take a dict
     u = (3 * p["outflow1"] * p["max_level"].sqrt() / p["pump"])[:, None, None].expand(8, 301, 1)
     spilling = simulate_levels(torch.zeros(8, 2, dtype=torch.float64), u, p)[:, -1]
     dry = simulate_levels(

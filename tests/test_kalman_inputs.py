@@ -73,22 +73,22 @@ def test_there_is_a_linear_family_with_inputs():
 
 def linear_inputs_matrices(traj):
     """linear-inputs: x' = A x + B u + w, y = C x + v, x_0 ~ N(0, P0), from the sampled params."""
-    p = {k: v.numpy() for k, v in traj.params.items()}
-    return p["A"], p["B"], p["C"], p["Q"], p["R"], np.zeros(p["A"].shape[:2]), p["P0"]
+    p = traj.params.map(torch.Tensor.numpy)
+    return p.A, p.B, p.C, p.Q, p.R, np.zeros(p.A.shape[:2]), p.P0
 
 
 def lti_siso_matrices(traj):
     """lti-siso (its state_space docstring): the normalized output of [x; 1], A_aug = blockdiag(A, 1),
     B_aug = [B; 0], C_aug = [C, -mean] / (std + 1e-6), x_0 = [0; 1], Q = P0 = 1e-10 I,
     R = noise_std^2 + 1e-10."""
-    p = {k: v.numpy() for k, v in traj.params.items()}
-    Bn, n = p["A"].shape[:2]
+    p = traj.params.map(torch.Tensor.numpy)
+    Bn, n = p.A.shape[:2]
     A = np.zeros((Bn, n + 1, n + 1))
-    A[:, :n, :n], A[:, n, n] = p["A"], 1.0
-    B = np.concatenate([p["B"], np.zeros((Bn, 1, p["B"].shape[-1]))], axis=1)
-    C = np.concatenate([p["C"], -p["y_mean"][:, None, None]], axis=-1) / (p["y_std"] + 1e-6)[:, None, None]
+    A[:, :n, :n], A[:, n, n] = p.A, 1.0
+    B = np.concatenate([p.B, np.zeros((Bn, 1, p.B.shape[-1]))], axis=1)
+    C = np.concatenate([p.C, -p.y_mean[:, None, None]], axis=-1) / (p.y_std + 1e-6)[:, None, None]
     Q = np.broadcast_to(1e-10 * np.eye(n + 1), (Bn, n + 1, n + 1)).copy()
-    R = (p["noise_std"] ** 2 + 1e-10)[:, None, None]
+    R = (p.noise_std**2 + 1e-10)[:, None, None]
     x0 = np.zeros((Bn, n + 1))
     x0[:, n] = 1.0
     return A, B, C, Q, R, x0, Q.copy()
