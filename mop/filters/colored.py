@@ -242,5 +242,5 @@ class ColoredNoiseKalmanPredictor:
         """forecast by the generic core: gaussian_forecast with kalman_step on the dense augmented model
         (colored_state_space), O(N^3) per step; the reference of the tests."""
         p = self._params(traj)
-        model = colored_state_space(p["A"], p["C"], p["var_w"], p["var_v"], p["window"], p["P0"])
+        model = colored_state_space(**p)  # A, C, var_w, var_v, window, P0
         return filter_forecast(model, kalman_step, traj, steps)[0]
