@@ -12,7 +12,12 @@ from mop.checkpoint import load_model_weights, save_model
 from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.models import build_model, model_names, register_model, registry
+from mop.models.forecast import forecast_path
 from mop.models.interface import CAPABILITIES, LearnedModel, check_model_class
+from mop.models.predictor import LearnedPredictor
+from mop.models.simulate import simulation_path
+from mop.systems.base import Trajectories
+from tests.reference import reference_forecast, reference_simulate
 
 
 def tiny(arch: str, **kw) -> ModelConfig:
@@ -101,6 +106,23 @@ def test_a_path_the_model_does_not_declare_raises(monkeypatch):
     model = Toy(tiny("gpt"))
     with pytest.raises(MopError, match="does not declare supports_stream"):
         model.init_cache(2)
+
+
+def test_a_model_that_declares_no_capability_takes_the_plain_paths():
+    """A new architecture with every optional flag False predicts by its forward, forecasts and simulates one
+    forward per step (forecast_path / simulation_path: "window"), equal to the definition, and refuses the
+    stream mode in one line."""
+    torch.manual_seed(0)
+    model = Toy(tiny("gpt", output_dim=2, input_dim=3)).double()
+    p = LearnedPredictor(model)
+    g = torch.Generator().manual_seed(1)
+    y, u = torch.randn(2, 9, 2, generator=g), torch.randn(2, 9, 1, generator=g)
+    traj = Trajectories(y.double(), u.double())
+    assert forecast_path(p, traj.horizon) == "window" and simulation_path(p, traj.horizon, 3) == "window"
+    torch.testing.assert_close(p.forecast(traj, 3), reference_forecast(p, traj, 3), equal_nan=True)
+    torch.testing.assert_close(p.simulate(traj, 3), reference_simulate(p, traj, 3))
+    with pytest.raises(MopError, match="does not stream; use mode 'window'"):
+        LearnedPredictor(model, mode="stream")
 
 
 @pytest.mark.parametrize("arch", model_names())
