@@ -60,7 +60,7 @@ class Toy(LearnedModel):
     """The least a registered architecture declares: every flag, forward, predict_distribution and loss."""
 
     context_limited = supports_stream = supports_branch = branchable_state = False
-    has_direct_heads = reads_features = False
+    has_direct_heads = supports_features = reads_features = False
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__(cfg)
@@ -89,11 +89,13 @@ def test_an_undeclared_member_is_refused_in_one_line(monkeypatch):
     no_flag = type("NoFlag", (Toy,), {"reads_features": LearnedModel.reads_features})
     no_loss = type("NoLoss", (Toy,), {"loss": LearnedModel.loss})
     false_promise = type("FalsePromise", (Toy,), {"supports_stream": True})
+    per_model = type("PerModel", (Toy,), {"supports_features": property(lambda self: True)})
     cases = [
         (no_flag, "model class NoFlag \\(arch 'a'\\) does not declare reads_features"),
         (no_loss, "does not declare loss"),
         (false_promise, "declares supports_stream = True but does not define init_cache, step_distribution"),
         (nn.Linear, "must derive from mop.models.interface.LearnedModel"),
+        (per_model, "must set supports_features to True or False in its class body"),
     ]
     for cls, message in cases:
         with pytest.raises(MopError, match=message) as err:
@@ -131,6 +133,7 @@ def test_builtin_models_declare_their_capabilities(arch):
     model = build_model(tiny(arch))
     check_model_class(arch, type(model))
     assert all(isinstance(getattr(model, flag), bool) for flag in CAPABILITIES)
+    assert registry.reads_features(arch) is type(model).supports_features is (arch == "gpt")
 
 
 def test_loading_does_not_import_the_trainer():

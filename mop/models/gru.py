@@ -41,7 +41,8 @@ class GRUModel(LearnedModel):
     supports_branch = False
     branchable_state = True  # GRUCache.h is the whole state (mop.models.rollout.recurrent_forecast)
     has_direct_heads = True
-    reads_features = False  # no input features (refused below)
+    supports_features = False  # no input features (refused below)
+    reads_features = False
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__(cfg)

@@ -6,7 +6,8 @@
         supports_branch = False       # prefill / branch (the transformer's fast k-step forecasts)
         branchable_state = True       # the stream cache's `.h` (L, B, d) is the whole state (the GRU's)
         has_direct_heads = True       # forecast_heads (model.horizons > 1)
-        reads_features = False        # inputs features computed over the whole window (mop.models.features)
+        supports_features = False     # may read input features (model.input_scale / rls_order / arx_order)
+        reads_features = False        # reads them (a property of the config where supports_features)
 
         def __init__(self, cfg: ModelConfig) -> None:
             super().__init__(cfg)     # keeps cfg as self.cfg
@@ -38,8 +39,10 @@ CAPABILITIES: dict[str, tuple[str, ...]] = {
     "supports_branch": ("prefill", "branch"),
     "branchable_state": ("init_cache", "step_distribution"),
     "has_direct_heads": ("forecast_heads",),
+    "supports_features": (),
     "reads_features": (),
 }
+CLASS_FLAGS = ("supports_features",)  # asked of the class, before a model is built: a bool in its body
 
 
 class LearnedModel(nn.Module, ABC):
@@ -77,6 +80,12 @@ class LearnedModel(nn.Module, ABC):
     @abstractmethod
     def has_direct_heads(self) -> bool:
         """True when forecast_heads reads the k-step heads of model.horizons (mop.models.horizons)."""
+
+    @property
+    @abstractmethod
+    def supports_features(self) -> bool:
+        """True when the architecture can read the input features of mop.models.features (a class-level
+        bool: mop.train.auto asks it of the class)."""
 
     @property
     @abstractmethod
@@ -137,6 +146,9 @@ def check_model_class(name: str, cls: type) -> None:
     if inspect.isabstract(cls):
         missing = ", ".join(sorted(cls.__abstractmethods__))
         raise MopError(f"{where} does not declare {missing}; see mop.models.interface.LearnedModel")
+    for flag in CLASS_FLAGS:
+        if not isinstance(_defined(cls, flag), bool):
+            raise MopError(f"{where} must set {flag} to True or False in its class body")
     for flag, methods in CAPABILITIES.items():
         if _defined(cls, flag) is True:
             lacking = [m for m in methods if _defined(cls, m) is _defined(LearnedModel, m)]

@@ -11,7 +11,6 @@ module registers it.
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
 
 from mop.config import ModelConfig
@@ -55,9 +54,9 @@ def skip_presets(arch: str) -> tuple[str, ...]:
 
 def reads_features(arch: str) -> bool:
     """Whether architecture `arch` can read the input features (model.input_scale, rls_order, arx_order):
-    its class does not declare reads_features = False (the transformer's is a property of its config)."""
+    its class's declared supports_features (mop.models.interface)."""
     check_arch(arch)
-    return inspect.getattr_static(_MODELS[arch], "reads_features") is not False
+    return _MODELS[arch].supports_features
 
 
 def model_names() -> list[str]:

@@ -142,6 +142,7 @@ class Transformer(LearnedModel):
     supports_branch = True  # prefill / branch (mop.models.rollout), unless it reads features
     branchable_state = False
     has_direct_heads = True
+    supports_features = True  # model.input_scale / rls_order / arx_order (mop.models.features)
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__(cfg)
