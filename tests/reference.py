@@ -1,6 +1,6 @@
 """Slow, independent reference implementations used only by the tests, in one place: a per-system filterpy
-Kalman filter, the authors' quadrotor step written coordinate by coordinate in numpy, a learned model's
-forecasts and simulation by definition (one predict per step), and seeded batches."""
+Kalman filter, the authors' quadrotor step written coordinate by coordinate in numpy, and seeded batches
+(a learned model's forecasts and simulation by definition: tests/reference_models.py)."""
 
 import copy
 import csv
@@ -15,7 +15,6 @@ from filterpy.kalman import KalmanFilter
 
 from mop.config import SystemConfig
 from mop.systems import generator, make_family
-from mop.systems.base import Trajectories
 from mop.systems.quadrotor import BOUNDS
 
 
@@ -309,43 +308,3 @@ def run_example_smoke(module, out: Path) -> list:
         return module.main(["--out", str(out), "--budget", "smoke"])
     finally:
         torch.set_num_threads(threads)
-
-
-def _window_mode(p):
-    """A copy of the learned predictor p that predicts with the sliding window (the definition's)."""
-    window = copy.copy(p)
-    window.mode = "window"
-    return window
-
-
-def _rows(traj, y, last: int) -> Trajectories:
-    """Rows 0..last of outputs y (B, T+1, m) with traj's inputs."""
-    return Trajectories(y[:, : last + 1], None if traj.u is None else traj.u[:, : last + 1])
-
-
-def reference_forecast(p, traj, steps: int) -> torch.Tensor:
-    """A learned predictor's k-step forecasts (B, T+1, K, m) by definition, one predict per (origin, step),
-    independent of the package's roll-outs: the forecasts f[:, t, 0..j-1] are written over the outputs
-    y_t..y_{t+j-1} of a copy of the data, and f[:, t, j] is the sliding-window one-step prediction at t + j
-    of that copy. f[:, :, 0] is p.predict(traj) in p's own mode; NaN where t + j > T."""
-    window = _window_mode(p)
-    first = p.predict(traj)  # (B, T+1, m)
-    B, T1, m = first.shape
-    out = first.new_full((B, T1, steps, m), float("nan"))
-    out[:, :, 0] = first
-    for t in range(T1):
-        y = traj.y.clone()
-        for j in range(1, min(steps, T1 - t)):
-            y[:, t + j - 1] = out[:, t, j - 1]
-            out[:, t, j] = window.predict(_rows(traj, y, t + j))[:, t + j]
-    return out
-
-
-def reference_simulate(p, traj, context: int) -> torch.Tensor:
-    """A learned predictor's free-run simulation (B, T+1-c, m) by definition: for s = c..T, y_s of a copy of
-    the data is overwritten by the sliding-window one-step prediction at s of that copy."""
-    window = _window_mode(p)
-    y = traj.y.clone()
-    for s in range(context, traj.horizon + 1):
-        y[:, s] = window.predict(_rows(traj, y, s))[:, s]
-    return y[:, context:]

@@ -17,7 +17,7 @@ from mop.models.interface import CAPABILITIES, LearnedModel, check_model_class
 from mop.models.predictor import LearnedPredictor
 from mop.models.simulate import simulation_path
 from mop.systems.base import Trajectories
-from tests.reference import reference_forecast, reference_simulate
+from tests.reference_models import reference_forecast, reference_simulate
 
 
 def tiny(arch: str, **kw) -> ModelConfig:

@@ -1,8 +1,8 @@
 """Fast learned k-step forecasts (mop.models.rollout: prefill + branches, all origins at once), the streamed
-and the windowed ones (mop.models.forecast) and simulations (mop.models.simulate) equal the definition,
-tests.reference.reference_forecast / reference_simulate (one predict per origin and step, the predictions
-written over a copy of the outputs), on random models in float64, inside the context (T <= C), beyond it
-(T > C) and with more steps than the context."""
+and the windowed ones (mop.models.forecast) and simulations (mop.models.simulate) equal the definition
+(tests.reference_models: one predict per origin and step, the predictions written over a copy of the
+outputs), on random models in float64, inside the context (T <= C), beyond it (T > C) and with more steps
+than the context."""
 
 import itertools
 
@@ -14,7 +14,7 @@ from mop.models import build_model, forecast, rollout
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.models.rollout import can_branch
 from mop.systems.base import Trajectories
-from tests.reference import reference_forecast, reference_simulate
+from tests.reference_models import reference_forecast, reference_simulate
 
 CONTEXT = 6
 # (T, K): inside (T < C, T = C), beyond (T > C), and K > C (windows of new inputs only)
