@@ -148,6 +148,9 @@ class ModelConfig:
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
+    rls_prior: str | list[float] = (
+        "none"  # the feature's theta_0: "none" (0), "fit" (by the trainer) or fitted
+    )
     # "given": input_scale / rls_order / arx_order as set; "auto": chosen from the family's shapes and data,
     # with train.steps scaled by the chosen feature's step cost (mop.train.auto; resolved before training,
     # so a saved config holds the choice and "given")

@@ -45,23 +45,38 @@ def arx_regressors(y: Tensor, u: Tensor | None, p: int, q: int, offset: bool = F
 
 
 def _arx_run(
-    y: Tensor, u: Tensor | None, p: int, q: int, offset: bool = False
+    y: Tensor,
+    u: Tensor | None,
+    p: int,
+    q: int,
+    offset: bool = False,
+    prior: tuple[Tensor, float] | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1}).
 
     y with NaN (missing outputs): mop.filters.rls._rls_run_gaps with the input lags (and the constant) as
     complete extra regressors, so pairs with a missing target or output regressor are skipped and missing
-    regressors are filled with the model's own one-step predictions (phi then holds the filled outputs)."""
+    regressors are filled with the model's own one-step predictions (phi then holds the filled outputs).
+    prior: (theta_0 (d, m), p0) for rls_loop (complete data only)."""
     r = p if u is None else max(p, q)
     if torch.isnan(y).any():
+        if prior is not None:
+            raise MopError("an ARX prior (model.rls_prior) needs complete outputs; fill the gaps")
         return _rls_run_gaps(y, p, extra=known_regressors(y, u, q, offset), start=r)
-    return rls_loop(y, arx_regressors(y, u, p, q, offset), r)
+    return rls_loop(y, arx_regressors(y, u, p, q, offset), r, prior)
 
 
-def arx_predict(y: Tensor, u: Tensor | None, p: int = 2, q: int = 2, offset: bool = False) -> Tensor:
+def arx_predict(
+    y: Tensor,
+    u: Tensor | None,
+    p: int = 2,
+    q: int = 2,
+    offset: bool = False,
+    prior: tuple[Tensor, float] | None = None,
+) -> Tensor:
     """One-step ARX(p, q) predictions yhat (B, T, m) for y (B, T, m), u (B, T, k) or None; offset: with a
-    constant regressor (an intercept)."""
-    return _arx_run(y, u, p, q, offset)[0]
+    constant regressor (an intercept); prior: theta_0 (d, m) and P_0 = p0 I of the recursion (rls_loop)."""
+    return _arx_run(y, u, p, q, offset, prior)[0]
 
 
 def arx_forecast(

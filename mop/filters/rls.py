@@ -51,14 +51,18 @@ def _rls_run(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     return rls_loop(y, regressors(y, order), order)
 
 
-def rls_loop(y: Tensor, phi: Tensor, start: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
+def rls_loop(
+    y: Tensor, phi: Tensor, start: int, prior: tuple[Tensor, float] | None = None
+) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """The complete-data recursion shared by RLS and ARX: y (B, T, m), regressors phi (B, T, d) with
     phi[:, t] predicting y_{t+1}; yhat_0 = 0, yhat_t = y_{t-1} for 1 <= t <= start, then theta (B, d, m)
-    from theta_0 = 0, P_0 = I and the pairs (phi_{s-1}, y_s), s < t. Returns (yhat, phi, {t: theta})."""
+    from theta_0 = 0, P_0 = I (prior: theta_0 (d, m) and P_0 = p0 I, the ridge solution pulled towards
+    theta_0) and the pairs (phi_{s-1}, y_s), s < t. Returns (yhat, phi, {t: theta})."""
     B, T, m = y.shape
     d = phi.shape[-1]
-    theta = y.new_zeros(B, d, m)
+    theta = y.new_zeros(B, d, m) if prior is None else prior[0].to(y).expand(B, d, m).clone()
     P = torch.eye(d, dtype=y.dtype, device=y.device).repeat(B, 1, 1)  # (B, d, d)
+    P = P if prior is None else prior[1] * P
     preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(start + 1, T))]
     thetas = {}
     for t in range(start + 1, T):

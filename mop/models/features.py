@@ -42,6 +42,10 @@ from mop.filters.arx import arx_predict
 from mop.filters.rls import regressors, rls_predict, rls_update
 from mop.models.recordnorm import RecordStats, normalise, running_moments
 
+# P_0 of the RLS / ARX feature started from fitted coefficients (model.rls_prior): a window's 50 pairs of
+# unit-scale regressors move it little (the ridge term P_0^-1 = 1000 I against sum phi phi^T ~ 50 I), so the
+# feature is the fitted ARX, nudged by each window
+PRIOR_P0 = 1e-3
 SCALE_EPS = 1e-4  # floor of s_t^2: a trajectory of zeros gets s = 0.01, not a division by zero
 
 
@@ -66,6 +70,21 @@ def check_features(cfg: ModelConfig) -> None:
     """One-line errors for feature options the model's inputs cannot serve."""
     if cfg.arx_order > 0 and input_count(cfg) <= 0:
         raise MopError("model.arx_order reads input lags, but the model has no inputs u; use rls_order alone")
+    if isinstance(cfg.rls_prior, str) and cfg.rls_prior not in ("none", "fit"):
+        raise MopError(
+            f"model.rls_prior must be 'none', 'fit' or a list of coefficients, got {cfg.rls_prior!r}"
+        )
+    if cfg.rls_prior != "none" and (cfg.rls_order == 0 or cfg.record_norm != "none" or cfg.observation_mask):
+        raise MopError(
+            "model.rls_prior starts the RLS / ARX feature from fitted coefficients: it needs "
+            "model.rls_order > 0, and neither model.record_norm nor an observation mask"
+        )
+    prior = feature_prior(cfg)
+    d = cfg.rls_order * cfg.output_dim + cfg.arx_order * input_count(cfg) + int(cfg.rls_offset)
+    if prior is not None and prior[0].shape[0] != d:
+        raise MopError(
+            f"model.rls_prior holds {prior[0].shape[0]} rows of coefficients, the feature reads {d}"
+        )
     if cfg.record_norm != "none" and (cfg.input_scale != "none" or cfg.readout != "mean"):
         raise MopError(
             "model.record_norm normalises each record itself: use it with model.input_scale='none' and "
@@ -88,16 +107,30 @@ def observed_outputs(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor |
     return torch.where(seen, y, torch.full_like(y, float("nan"))), seen
 
 
+def feature_prior(cfg: ModelConfig) -> tuple[Tensor, float] | None:
+    """(theta_0 (d, m) float64, PRIOR_P0) of the RLS / ARX feature where model.rls_prior holds the fitted
+    coefficients (d = p m + q k [+ 1] rows, in mop.filters.arx's regressor order), else None."""
+    if not isinstance(cfg.rls_prior, list):
+        return None
+    theta = torch.tensor(cfg.rls_prior, dtype=torch.float64).reshape(-1, cfg.output_dim)
+    return theta, PRIOR_P0
+
+
 def rls_next(
-    y: Tensor, order: int, u: Tensor | None = None, input_order: int = 0, offset: bool = False
+    y: Tensor,
+    order: int,
+    u: Tensor | None = None,
+    input_order: int = 0,
+    offset: bool = False,
+    prior: tuple[Tensor, float] | None = None,
 ) -> Tensor:
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
     u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
-    a constant regressor."""
+    a constant regressor; prior: the recursion's theta_0 and P_0 (feature_prior)."""
     pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
-    if input_order > 0 or offset:  # the pad rows are never read
+    if input_order > 0 or offset or prior is not None:  # the pad rows are never read
         u_lags = pad(u) if input_order > 0 else None
-        return arx_predict(pad(y), u_lags, order, max(input_order, 1), offset)[:, 1:].to(y.dtype)
+        return arx_predict(pad(y), u_lags, order, max(input_order, 1), offset, prior)[:, 1:].to(y.dtype)
     return rls_predict(pad(y), order)[:, 1:].to(y.dtype)  # (B, T, m)
 
 
@@ -111,7 +144,8 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
         mean, std = running_moments(inputs[..., : m + k], mask)  # (B, T, m + k) each
         base = _framed_feature(y, u, mean, std, cfg) if cfg.rls_order > 0 else None
         return _record_assemble(inputs, mean, std, base, seen, m)
-    base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset) if cfg.rls_order > 0 else None
+    prior = feature_prior(cfg)
+    base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset, prior) if cfg.rls_order > 0 else None
     scale = running_scale(inputs[..., :m]) if cfg.input_scale == "running" else None
     return _assemble(inputs, scale, base, m), scale, base
 
@@ -191,6 +225,12 @@ class FeatureState:
             f64 = dict(device=device, dtype=torch.float64)
             self.theta = torch.zeros(batch_size, d, self.m, **f64)
             self.P = torch.eye(d, **f64).repeat(batch_size, 1, 1)
+            prior = feature_prior(cfg)
+            if prior is not None:  # as rls_loop: theta_0 and P_0 = p0 I
+                self.theta, self.P = (
+                    prior[0].to(device).expand(batch_size, d, self.m).clone(),
+                    prior[1] * self.P,
+                )
             self.recent = torch.zeros(batch_size, p + 1, self.m, **f64)
             self.recent_u = torch.zeros(batch_size, q + 1, self.k if q > 0 else 0, **f64)
         # with an observation mask the RLS feature skips pairs next to gaps (mop.filters.rls._rls_run_gaps):

@@ -30,9 +30,11 @@ from torch import Tensor
 
 from mop.config import DataConfig
 from mop.errors import MopError
+from mop.filters.arx import arx_regressors
 from mop.io import Data, read_trajectories
 
 MAX_VALIDATION_WINDOWS = 256
+RIDGE = 1e-6  # relative ridge of fit_prior's least squares
 
 
 @dataclasses.dataclass
@@ -212,6 +214,25 @@ class RecordedData:
         windows = [parts[j][s : s + horizon + 1] for j, s in self.validation_windows(horizon)]
         z = torch.from_numpy(np.stack(windows).astype(np.float32)).to(device)  # (N, T+1, d_in)
         return z[:, :-1].contiguous(), z[:, 1:, : self.output_dim].contiguous()
+
+    def fit_prior(self, cfg: DataConfig, p: int, q: int, offset: bool) -> list[float]:
+        """The ARX(p, q) coefficients (d, m) flattened, by least squares on the normalised training parts:
+        the pairs (phi_{s-1}, y_s), s >= max(p, q), with phi as mop.filters.arx.arx_regressors (the rows the
+        RLS / ARX feature of the model regresses on; a ridge of RIDGE for collinear inputs)."""
+        m, r = self.output_dim, max(p, q)
+        rows, targets = [], []
+        for a in self._normalised(cfg, self.train_parts):
+            z = torch.from_numpy(a)[None]  # (1, L, m + k)
+            u = z[..., m:] if q > 0 else None
+            phi = arx_regressors(z[..., :m], u, p, max(q, 1), offset)[0]  # (L, d)
+            rows.append(phi[r - 1 : -1])
+            targets.append(z[0, r:, :m])
+        phi, target = torch.cat(rows).numpy(), torch.cat(targets).numpy()
+        if np.isnan(target).any():
+            raise MopError(f"{self.path}: model.rls_prior=fit needs complete outputs; fill the gaps")
+        gram = phi.T @ phi + RIDGE * len(phi) * np.eye(phi.shape[1])
+        theta = np.linalg.solve(gram, phi.T @ target)  # (d, m)
+        return [float(v) for v in theta.reshape(-1)]
 
     def summary(self, horizon: int) -> str:
         """One line: the file, its shape, the split and the windows of horizon + 1 steps on each side."""
