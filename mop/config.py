@@ -140,9 +140,7 @@ class ModelConfig:
     output_dim: int = 0
     readout: str = "mean"  # "mean" (MSE) or "gaussian" (mean and variance, NLL)
     dropout: float = 0.0
-    position: str = (
-        "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact relative streaming)
-    )
+    position: str = "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact streaming)
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
     record_norm: str = "none"  # "causal": each channel by its running mean and std (mop.models.recordnorm)
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
@@ -257,11 +255,13 @@ class TrainConfig:
     missing_burst_rate: float = 0.0
     missing_burst_length: int = 5
     score_dropped: bool = False
+    simulate_after: int = 0  # c > 0: y_s.. dropped and scored, s ~ U{c..T}: a simulation loss (data.py)
+    init: str = ""  # a run directory or pretrained:NAME whose weights step 0 starts from (mop.train.init)
 
     @property
     def drops_outputs(self) -> bool:
         """True when training drops outputs (so the model needs the observation mask)."""
-        return self.missing_rate > 0 or self.missing_burst_rate > 0
+        return self.missing_rate > 0 or self.missing_burst_rate > 0 or self.simulate_after > 0
 
     def __post_init__(self) -> None:
         for name in ("missing_rate", "missing_burst_rate"):
@@ -277,6 +277,7 @@ class TrainConfig:
         )
         for name in "steps batch_size horizon log_every checkpoint_every missing_burst_length".split():
             check_int(f"train.{name}", getattr(self, name), 1)
+        check_int("train.simulate_after", self.simulate_after, 0, self.horizon, " (at most train.horizon)")
         check(
             self.num_source_systems >= 0,
             f"train.num_source_systems must be >= 0, got {self.num_source_systems}",

@@ -23,6 +23,7 @@ EPILOG = """examples:
   mop train examples/rlc_circuit.toml --out runs/rlc  # an experiment file, as mop reproduce reads it
   mop train --data record.csv --out runs/mine         # one long record: its last 10% validates
   mop train --data est.csv --val val.csv --out runs/mine   # an estimation and a validation record
+  mop train --data record.csv --init pretrained:lti-siso --out runs/ft   # fine-tune a class model
   mop predict runs/mine new_runs.csv                             # predictions in the data's units
   torchrun --nproc_per_node 4 -m mop train --out runs/ddp        # DistributedDataParallel, rank 0 writes
   python -c "import mop; p = mop.load('runs/tiny'); print(p.name)"
@@ -52,6 +53,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "last steps of each; channels normalised on the training part",
     )
     parser.add_argument("--val", default=None, help="a validation record for --data (all of --data trains)")
+    parser.add_argument(
+        "--init",
+        default=None,
+        metavar="RUN",
+        help="fine-tune: start from this run directory's or pretrained:NAME's weights, with its model and "
+        "normalisation, 500 steps at a tenth of its learning rate (key=value overrides win)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--fresh",
@@ -69,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     source, overrides = args.source, list(args.overrides or [])
     if source is not None and "=" in source:  # no config file: the first word is an override
         source, overrides = None, [source, *overrides]
-    config = training_config(source, args.preset, args.data, args.val, overrides)
+    config = training_config(source, args.preset, args.data, args.val, overrides, args.init)
     if config.data is not None:
         print(recorded_data(config.data).summary(config.train.horizon))
     out = train(

@@ -7,6 +7,12 @@ Layers, later wins:
 2. `--data FILE` (data.path) and `--val FILE` (data.validation_path): recorded trajectories;
 3. on recorded data with inputs, RECORDED_FEATURES, where the base reads no feature and no override names one;
 4. the dotted key=value overrides.
+With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.train.init) the base is the
+source's own RunConfig (its model, so the architecture is the source's; its data normalisation kept, where
+it was trained on recorded data), layer 3 is skipped, and FINE_TUNE sets a short schedule before the
+overrides: FINE_TUNE_STEPS steps at a tenth of the source's learning rate, constant, no warm-up (the weights
+are trained already: a warm-up from zero and the source's full rate would first move them away from what
+they learned; 500 steps of batch 16 on a 2-core CPU are minutes).
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from mop.errors import MopError
 from mop.experiments import get_experiment, run_config
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.presets import default_preset, preset_config
+from mop.runs import load_config
 from mop.train.records import recorded_data
 
 # The network reads the online ARX(2, 2) one-step prediction with an intercept (mop.models.features) and
@@ -91,14 +98,44 @@ def with_recorded_features(config: RunConfig, overrides: list[str]) -> RunConfig
     return apply_overrides(config, [f"{k}={json.dumps(v)}" for k, v in RECORDED_FEATURES.items()])
 
 
+FINE_TUNE_STEPS = 500
+FINE_TUNE_LR_FACTOR = 0.1
+
+
+def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConfig:
+    """The fine-tuning layer: train.init, the short schedule, and the source's fitted normalisation."""
+    train = dataclasses.replace(
+        config.train,
+        init=str(init),
+        steps=FINE_TUNE_STEPS,
+        lr=source.train.lr * FINE_TUNE_LR_FACTOR,
+        warmup_steps=0,
+        lr_schedule="constant",
+    )
+    data = config.data
+    if data is not None and source.data is not None and source.data.fitted:
+        kept = {k: getattr(source.data, k) for k in ("y_mean", "y_std", "u_mean", "u_std")}
+        data = dataclasses.replace(data, **kept)
+    return dataclasses.replace(config, train=train, data=data)
+
+
 def training_config(
     source: str | None,
     preset: str | None = None,
     data: str | None = None,
     val: str | None = None,
     overrides: list[str] = (),
+    init: str | None = None,
 ) -> RunConfig:
-    """The RunConfig of `mop train [SOURCE] [--preset P] [--data FILE [--val FILE]] [key=value ...]`."""
-    config = with_records(base_config(source, preset), data, val)
-    config = with_recorded_features(config, list(overrides))
+    """The RunConfig of `mop train [SOURCE] [--preset P] [--data FILE [--val FILE]] [--init RUN]
+    [key=value ...]`."""
+    if init is None:
+        config = with_records(base_config(source, preset), data, val)
+        config = with_recorded_features(config, list(overrides))
+        return apply_overrides(config, list(overrides))
+    if source is not None or preset is not None:
+        given = source if source is not None else f"--preset {preset}"
+        raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
+    base = load_config(init)
+    config = with_fine_tuning(with_records(base, data, val), base, init)
     return apply_overrides(config, list(overrides))

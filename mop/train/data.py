@@ -9,9 +9,10 @@ time, or against a separate validation file) and fits per-channel mean/std on th
 samples windows of train.horizon + 1 steps uniformly over all valid (part, start) pairs of the normalised
 training parts; num_source_systems is unused (the file fixes the systems).
 
-Missing outputs: with train.missing_rate / missing_burst_rate > 0 (model.observation_mask) every batch has
-outputs dropped at random (with_drop_outs, from the same generator); outputs missing in a recorded file (NaN)
-stay missing. Targets then hold NaN where missing and the loss counts only the measured ones.
+Missing outputs: with train.missing_rate / missing_burst_rate / simulate_after > 0 (model.observation_mask)
+every batch has outputs dropped at random (with_drop_outs, from the same generator); outputs missing in a
+recorded file (NaN) stay missing. Targets then hold NaN where missing and the loss counts only the measured
+ones (and the dropped ones with train.score_dropped; the simulated tail of simulate_after always).
 """
 
 from __future__ import annotations
@@ -82,10 +83,23 @@ def with_drop_outs(
     drop = drop_mask(
         tuple(clean.shape), cfg.missing_rate, generator, cfg.missing_burst_rate, cfg.missing_burst_length
     )
-    y = drop_outputs(clean, drop)
+    tail = simulated_tail(clean.shape, cfg.simulate_after, generator)  # (B, T+1, 1)
+    y = drop_outputs(clean, drop | tail)
     z = torch.cat([y[:, :-1], inputs[..., m:]], dim=-1)
-    scored = clean if cfg.score_dropped else y
+    scored = clean if cfg.score_dropped else torch.where(tail.to(y.device), clean, y)
     return masked_inputs(z, m), scored[:, 1:].contiguous()
+
+
+def simulated_tail(shape: torch.Size, after: int, generator: torch.Generator) -> Tensor:
+    """(B, T+1, 1) bool: True from step s on, s ~ U{after..T} per trajectory (train.simulate_after = c > 0;
+    all False for 0): the outputs a free-run simulation from s predicts from the inputs alone, dropped and
+    scored (a model with forecast_mode = "gap" simulates by reading them as missing)."""
+    B, T1 = shape[0], shape[1]
+    dev = generator.device
+    if after <= 0:
+        return torch.zeros(B, T1, 1, dtype=torch.bool, device=dev)
+    start = torch.randint(after, T1, (B, 1), generator=generator, device=dev)  # (B, 1)
+    return (torch.arange(T1, device=dev)[None, :] >= start)[..., None]
 
 
 def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, Tensor]:

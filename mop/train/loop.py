@@ -35,6 +35,7 @@ from mop.runs import load_model
 from mop.train.data import TrainingData, validation_batch
 from mop.train.device import init_distributed, setup_device
 from mop.train.estimate import plan_line
+from mop.train.init import check_init, load_init
 from mop.train.lock import run_lock
 from mop.train.optim import (
     LossModule,
@@ -116,6 +117,7 @@ def _train(
 ) -> nn.Module | None:
     """The trained model, or None when `out_dir` holds a finished run of `config` (nothing is trained)."""
     config = resolve_config(config)
+    check_init(config)
     cfg = config.train
     rank, world = init_distributed()
     if cfg.batch_size % world:
@@ -163,6 +165,8 @@ def _start(config: RunConfig, out_dir: Path, device: torch.device, rank: int, wo
     optimizer = make_optimizer(model, config.train, device)
     data = TrainingData(config, device)
     step = restore_training_state(out_dir, model, optimizer, data.generator, device)
+    if step == 0 and config.train.init:  # fine-tuning: the source's weights at step 0
+        load_init(config, model)
     if world > 1:
         dist.barrier()
     loss_fn = maybe_compile(LossModule(model), config.train, device)

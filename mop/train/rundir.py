@@ -76,7 +76,8 @@ def _resolve_data(config: RunConfig) -> RunConfig:
             "that reads them with model.observation_mask=true (or train.missing_rate=0.1), or fill them"
         )
     data.check_lengths(config.train.horizon)
-    stats = data.fit()
+    kept = config.train.init and config.data.fitted  # fine-tuning keeps the source's normalisation
+    stats = {} if kept else data.fit()
     for name, value in stats.items():
         given = getattr(config.data, name)
         if given is not None and [float(v) for v in given] != value:

@@ -1,0 +1,43 @@
+"""Fine-tuning: a run that starts from another model's weights (`mop train --data FILE --init SOURCE`).
+
+train.init names the source: a run directory or `pretrained:NAME`. The trainer refuses a source whose model
+differs from the run's in any architecture key (one line, naming the first), then loads the source's weights
+before step 0 (a resumed run continues from its own checkpoint instead). The run's config.json keeps
+train.init, so the run says where it started. The config layering (the source's model, its normalisation
+and the short schedule) is mop.experiments.training's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from torch import nn
+
+from mop.checkpoint import load_model_weights
+from mop.config import RunConfig
+from mop.errors import MopError
+from mop.pretrained import resolve_run_dir
+from mop.runs import load_config, retrain_hint
+
+
+def check_init(config: RunConfig) -> None:
+    """One-line MopError unless train.init's model has the run's architecture (every model key)."""
+    if not config.train.init:
+        return
+    source = load_config(config.train.init).model
+    for field in dataclasses.fields(source):
+        ours, theirs = getattr(config.model, field.name), getattr(source, field.name)
+        if ours != theirs:
+            raise MopError(
+                f"--init {config.train.init}: its model has model.{field.name}={theirs!r}, this run "
+                f"{ours!r}; fine-tuning keeps the source's architecture: drop the model.{field.name} "
+                "override"
+                " (or train from scratch without --init)"
+            )
+
+
+def load_init(config: RunConfig, model: nn.Module) -> None:
+    """Copy train.init's weights into `model` (in place, so an optimizer built on it keeps its params)."""
+    run_dir = Path(resolve_run_dir(config.train.init))
+    load_model_weights(run_dir / "model.safetensors", model, retrain=retrain_hint(run_dir))
