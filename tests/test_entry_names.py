@@ -58,6 +58,13 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
         "arx",
     ): "the fitted identifier's own name (mop.identify's IDENTIFIERS), not the online predictor",
     ("mop.identify.select", "simulation"): "the --select criterion of mop fit (held-out simulation RMSE)",
+    **{
+        ("mop.identity", n): "the frozen record of the keys each family's config.json held (run hashes)"
+        for n in (
+            *("linear", "upper-triangular", "colored-noise", "switching", "linear-inputs", "quadrotor"),
+            *("lti-siso", "wiener-hammerstein"),
+        )
+    },
     ("mop.identify.select", "rmse"): "fitted.json's held-out score key",
 }
 # A benchmark times and checks the very entries it names (against filterpy and per-system loops), as the
