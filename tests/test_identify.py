@@ -74,8 +74,9 @@ def test_arx_fit_equals_a_plain_numpy_least_squares_fit():
     np.testing.assert_allclose(fitted.model.d, theta[-1], atol=1e-10)
     y, u = data[1]
     yhat = fitted.predict(traj(y, u))[0].numpy()
-    for t in range(3, len(y)):
-        phi = np.concatenate([y[t - 1], y[t - 2], y[t - 3], u[t - 1], u[t - 2], [1.0]])
+    lag = lambda a, t, j: a[max(t - j, 0)]  # noqa: E731 (before the record: its first values)
+    for t in range(1, len(y)):
+        phi = np.concatenate([lag(y, t, 1), lag(y, t, 2), lag(y, t, 3), lag(u, t, 1), lag(u, t, 2), [1.0]])
         np.testing.assert_allclose(yhat[t], theta.T @ phi, atol=1e-10)
     context, sim = 10, y.copy()  # free run: the model's own outputs replace y from the context on
     for t in range(context, len(y)):

@@ -11,7 +11,8 @@ one equation for each t = r..T_i of every trajectory i (r = max(p, q)), solved j
 As a mop.identify.linear.LinearModel the state is the lags, x_t = [y_{t-1}..y_{t-p}, u_{t-1}..u_{t-q}]
 (n = p m + q k): C = [a_1 .. a_p, b_1 .. b_q] (m, n), d = c, A shifts the lags and writes the prediction
 into the newest output lag, B writes u_t into the newest input lag, K = [I_m; 0] (one-step prediction puts
-the measured y_t there instead). Before a record starts the lags sit at the estimation means (x0).
+the measured y_t there instead). yhat_0 has its lags at the estimation means (x0); from t = 1 the lags
+before the record's start are its first values y_0, u_0 (FittedPredictor.states).
 """
 
 from __future__ import annotations

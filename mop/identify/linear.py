@@ -7,7 +7,7 @@ A fitted model is linear in innovation form, in numpy float64:
 x_t (n,) the state before y_t is read, so yhat_t predicts y_t from y_<t and u_<t (the mop convention,
 mop.predictors); u_t acts between y_t and y_{t+1} (no direct term). b, d carry the offsets (ARX's intercept,
 the estimation means N4SID removes). x0 is the state before a record starts (ARX: its lags at the estimation
-means; N4SID: 0, the mean).
+means, for yhat_0; its lags at y_0, u_0 from t = 1 on; N4SID: 0, the mean).
 - predict: the recursion above over the record from x_0 = x0 (ARX: x_t holds the measured lags, so K
   writes y_t into the state; N4SID: the steady-state Kalman predictor).
 - forecast[t, j]: the state after y_<t propagated j steps with the deterministic model (K dropped) and the
@@ -54,14 +54,16 @@ class LinearModel:
     def state_dim(self) -> int:
         return self.A.shape[0]
 
-    def predictor_states(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """X (B, T+1, n): X[:, t] the state after reading y_<t, u_<t from x0; y (B, T+1, m), u (B, T+1, k)."""
+    def predictor_states(self, y: np.ndarray, u: np.ndarray, first: np.ndarray | None = None) -> np.ndarray:
+        """X (B, T+1, n): X[:, t] the state after reading y_<t, u_<t; y (B, T+1, m), u (B, T+1, k). X[:, 0] =
+        x0; y_0 is read into `first` (B, n) where given (ARX: its lags at the record's first values)."""
         F = self.A - self.K @ self.C  # (n, n)
-        x = np.broadcast_to(self.x0, (y.shape[0], self.state_dim)).copy()
+        x = np.broadcast_to(self.x0 if first is None else first, (y.shape[0], self.state_dim)).copy()
         X = np.empty((*y.shape[:2], self.state_dim))
         for t in range(y.shape[1]):
             X[:, t] = x
             x = x @ F.T + y[:, t] @ self.K.T + u[:, t] @ self.B.T + (self.b - self.K @ self.d)
+        X[:, 0] = self.x0
         return X
 
     def rollout(self, x: np.ndarray, u: np.ndarray, steps: int) -> np.ndarray:
@@ -136,10 +138,21 @@ class FittedPredictor:
     def _arrays(self, traj: Trajectories) -> tuple[np.ndarray, np.ndarray]:
         return arrays_of(traj, self.output_dim, self.input_dim, self.name)
 
+    def states(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """(B, T+1, n): the predictor states over the record. lag_state (ARX): the lags before the record's
+        start read as its first values y_0, u_0 (at rest there), not the estimation means x0, from t = 1
+        on: a mismatch between measured and assumed lags is amplified by a high order's large coefficients
+        (a cascaded-tanks record: one-step errors up to 5800 over t < r, against 0.1 after)."""
+        if not self.lag_state:
+            return self.model.predictor_states(y, u)
+        p, q = self.orders["p"], self.orders["q"]
+        rest = np.concatenate([np.tile(y[:, 0], p), np.tile(u[:, 0], q)], axis=-1)  # (B, n)
+        return self.model.predictor_states(y, u, first=rest)
+
     def predict(self, traj: Trajectories) -> Tensor:
         """(B, T+1, m): yhat_t = C x_t + d, x_t the predictor state after y_<t, u_<t."""
         y, u = self._arrays(traj)
-        X = self.model.predictor_states(y, u)
+        X = self.states(y, u)
         return torch.from_numpy(X @ self.model.C.T + self.model.d).to(traj.y.dtype)
 
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
@@ -147,7 +160,7 @@ class FittedPredictor:
         y_<t."""
         y, u = self._arrays(traj)
         M = self.model
-        X = M.predictor_states(y, u)  # (B, T+1, n)
+        X = self.states(y, u)  # (B, T+1, n)
         T1 = y.shape[1]
         u_ahead = np.concatenate([u, np.repeat(u[:, -1:], steps, axis=1)], axis=1)  # inputs past T: unused
         out = np.empty((*y.shape[:2], steps, y.shape[-1]))
@@ -161,11 +174,11 @@ class FittedPredictor:
         """(x_s (B, n), s): a state of the deterministic model at s <= context estimated from y_<context.
 
         lag_state (ARX, context >= 1): the state is the measured lags, x_context read from the context (lags
-        before the record's start at the estimation means). Otherwise the last L = min(context, W) context
+        before the record's start at its first values). Otherwise the last L = min(context, W) context
         outputs fit x_{context-L} by least squares (fit_state, around x0), W = max(10, 2 n); context 0: the
         first min(T+1, W) outputs fit x_0 (the only outputs there are)."""
         if self.lag_state and context >= 1:
-            X = self.model.predictor_states(y[:, : context + 1], u[:, : context + 1])  # X[:, C] reads y_<C
+            X = self.states(y[:, : context + 1], u[:, : context + 1])  # X[:, C] reads y_<C
             return X[:, context], context
         n, T1 = self.model.state_dim, y.shape[1]
         window = max(10, 2 * n)
