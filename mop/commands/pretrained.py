@@ -89,5 +89,6 @@ def run(args: argparse.Namespace) -> int:
         overrides=overrides,
         preset=args.preset,
         progress=not args.quiet,
+        report=print,
     )
     return 0

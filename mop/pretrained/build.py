@@ -20,6 +20,7 @@ import platform
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -264,10 +265,12 @@ def build(
     overrides: list[str] = (),
     preset: str | None = None,
     progress: bool = True,
+    report: Callable[[str], None] = print,
 ) -> list[Path]:
     """Train (or reuse), measure and ship the named catalog models (all when names is empty).
 
     preset: train and measure under this preset instead of each entry's (e.g. "smoke" in tests).
+    report: gets the line naming each shipped model as it is written.
     """
     entries = [catalog_entry(n) for n in names] if names else list(CATALOG)
     if preset is not None:
@@ -282,5 +285,5 @@ def build(
         measured = measure(entry, run_dir, progress)
         measured["rebuild"] = rebuild_command(entry, threads, list(overrides))
         shipped.append(ship(entry, run_dir, measured, out_root))
-        print(f"built {PREFIX}{entry.name} -> {shipped[-1]}")
+        report(f"built {PREFIX}{entry.name} -> {shipped[-1]}")
     return shipped
