@@ -12,7 +12,7 @@ import torch
 from mop.cli import main
 from mop.config import DataConfig, RunConfig, to_dict
 from mop.experiments.presets import PRESETS
-from mop.experiments.training import RECORDED_FEATURES, training_config
+from mop.experiments.training import RECORDED_MODEL, RECORDED_STEPS, training_config
 from mop.train.estimate import duration
 from mop.train.records import RecordedData, choose_split
 
@@ -94,20 +94,26 @@ def test_validation_windows_are_thinned_evenly(tmp_path):
     assert len(windows) == 256 and windows[0] == (0, 0) and windows[-1] == (0, 600 - 9)
 
 
-def test_one_record_trains_through_the_cli_with_the_small_preset_and_the_arx_feature(tmp_path, capsys):
+def test_one_record_trains_through_the_cli_with_the_records_recipe(tmp_path, capsys):
     path = write_record(tmp_path / "one.csv", lengths=(300,))
     run = tmp_path / "run"
     assert main(["train", "--data", str(path), "--out", str(run), "--no-progress", *TINY]) == 0
     out = capsys.readouterr().out
     assert "1 trajectory (m=1, k=1), split in time: the last 30 of 300 steps validate;" in out
     assert "262 training / 22 validation windows of 9 steps" in out
+    assert "with an intercept one-step prediction started from its least-squares fit on the training" in out
     assert "model: " in out and "parameters" in out and "4 steps of batch 8 x 8 on cpu: about" in out
     saved = json.loads((run / "config.json").read_text())
     small = PRESETS["small"].train
     assert saved["train"]["lr"] == small.lr and saved["train"]["lr_schedule"] == small.lr_schedule
-    assert {k.split(".")[1]: saved["model"][k.split(".")[1]] for k in RECORDED_FEATURES} == {
-        k.split(".")[1]: v for k, v in RECORDED_FEATURES.items()
-    }
+    # the ARX orders are those `mop fit arx` chooses on the training part (the first 270 steps)
+    part = tmp_path / "part.csv"
+    part.write_text("\n".join(path.read_text().splitlines()[: 1 + 270]) + "\n")
+    assert main(["fit", "arx", str(part), "--out", str(tmp_path / "arx")]) == 0
+    orders = json.loads((tmp_path / "arx" / "fitted.json").read_text())["orders"]
+    model = saved["model"]
+    assert (model["rls_order"], model["arx_order"], model["rls_offset"]) == (orders["p"], orders["q"], True)
+    assert len(model["rls_prior"]) == orders["p"] + orders["q"] + 1  # the fitted coefficients, m = k = 1
     records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     assert any(np.isfinite(r.get("val_loss", np.nan)) for r in records)
 
@@ -118,10 +124,16 @@ def test_training_config_layers(tmp_path):
     assert training_config(None, "paper").train == paper.train
     with_inputs = write_record(tmp_path / "u.csv", lengths=(60,))
     without = write_record(tmp_path / "y.csv", lengths=(60,), inputs=False)
-    assert training_config(None, "small", str(with_inputs)).model.arx_order == 2
-    assert training_config(None, "small", str(without)).model.rls_order == 0  # no inputs: no ARX default
-    off = training_config(None, "small", str(with_inputs), overrides=["model.rls_order=0"])
-    assert off.model.rls_order == 0 and off.model.arx_order == 0  # a named feature key: no default at all
+    recipe = training_config(None, None, str(with_inputs))
+    assert (
+        recipe.model.rls_prior == "fit" and recipe.model.rls_offset and recipe.train.steps == RECORDED_STEPS
+    )
+    assert all(getattr(recipe.model, k.split(".")[1]) == v for k, v in RECORDED_MODEL.items())
+    assert training_config(None, None, str(with_inputs), overrides=["train.steps=9"]).train.steps == 9
+    assert training_config(None, "small", str(with_inputs)).model == small.model  # --preset: its own model
+    assert training_config(None, None, str(without)).model.rls_order == 0  # no inputs: no ARX feature
+    off = training_config(None, None, str(with_inputs), overrides=["model.rls_order=0"])
+    assert off.model.rls_order == 0 and off.model.arx_order == 0  # a named feature key: no recipe at all
     toml = Path(__file__).resolve().parents[1] / "examples" / "rlc_circuit.toml"
     rlc = training_config(str(toml), "smoke")
     assert rlc.system.family == "rlc-circuit" and rlc.train.steps == PRESETS["smoke"].train.steps

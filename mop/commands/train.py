@@ -10,7 +10,7 @@ import argparse
 
 from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
-from mop.experiments.training import training_config
+from mop.experiments.training import feature_line, training_config
 from mop.train import train
 from mop.train.records import recorded_data
 
@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     config = training_config(source, args.preset, args.data, args.val, overrides, args.init)
     if config.data is not None:
         print(recorded_data(config.data).summary(config.train.horizon))
+        print(feature_line(config) or "feature: none (the network reads the record alone)")
     out = train(
         config,
         args.out,

@@ -5,7 +5,11 @@ Layers, later wins:
    an experiment's training under the preset (an experiment name or a .toml / .json experiment file, as
    `mop reproduce` reads them), or a RunConfig .json file (its sizes are its own: no --preset);
 2. `--data FILE` (data.path) and `--val FILE` (data.validation_path): recorded trajectories;
-3. on recorded data with inputs, RECORDED_FEATURES, where the base reads no feature and no override names one;
+3. on recorded data with inputs and complete outputs, where no source, no --preset and no override chose
+   the feature, the
+   records recipe (recorded_recipe): a 1 x 32 model for RECORDED_STEPS steps whose ARX(p, q) feature with an
+   intercept starts from the least-squares ARX of the training part (model.rls_prior = "fit"), the orders
+   those `mop fit arx` chooses on that part (held-out free-run simulation);
 4. the dotted key=value overrides.
 With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.train.init) the base is the
 source's own RunConfig (its model, so the architecture is the source's; its data normalisation kept, where
@@ -21,19 +25,21 @@ import dataclasses
 import json
 from pathlib import Path
 
-from mop.config import DataConfig, RunConfig, apply_overrides, from_dict, parse_overrides
+from mop.config import DataConfig, RunConfig, apply_overrides, apply_settings, from_dict, parse_overrides
 from mop.errors import MopError
 from mop.experiments import get_experiment, run_config
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.presets import default_preset, preset_config
+from mop.identify.select import fit
 from mop.runs import load_config
 from mop.train.records import recorded_data
 
-# The network reads the online ARX(2, 2) one-step prediction with an intercept (mop.models.features) and
-# predicts its residual: on records with inputs it starts as ARX rather than from zero. Measured on the
-# cascaded-tanks worked example (README, "Recorded data").
-RECORDED_FEATURES = {"model.rls_order": 2, "model.arx_order": 2, "model.rls_offset": True}
-FEATURE_KEYS = ("model.rls_order", "model.arx_order", "model.rls_offset")
+# The records recipe (README, "Recorded data": measured on examples/tank_records.py, one record of 1024
+# samples): a small network reading the fitted ARX's prediction and predicting its residual, so it starts as
+# that ARX; the 2 x 64 small-preset model trained 2500 steps overfits one record (one-step RMSE 2.5x ARX's)
+RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2}
+RECORDED_STEPS = 1000
+FEATURE_KEYS = ("model.rls_order", "model.arx_order", "model.rls_offset", "model.rls_prior")
 
 
 def base_config(source: str | None, preset: str | None) -> RunConfig:
@@ -88,14 +94,37 @@ def with_records(config: RunConfig, data: str | None, val: str | None) -> RunCon
     )
 
 
-def with_recorded_features(config: RunConfig, overrides: list[str]) -> RunConfig:
-    """Layer 3: RECORDED_FEATURES on recorded data with inputs, where nothing chose a feature."""
+def recorded_recipe(config: RunConfig) -> dict[str, object]:
+    """The records recipe's settings for config.data: the ARX orders `mop fit arx` chooses on the training
+    part (mop.identify.select.fit, free-run simulation of its last 20%), the feature started from their
+    least-squares fit, RECORDED_MODEL and RECORDED_STEPS."""
+    data = recorded_data(config.data)
+    m = data.output_dim
+    parts = [(a[:, :m], a[:, m:]) for a in data.train_parts]
+    orders = fit("arx", parts, source=config.data.path).orders
+    return {
+        **RECORDED_MODEL,
+        "train.steps": RECORDED_STEPS,
+        "model.rls_order": orders["p"],
+        "model.arx_order": orders["q"],
+        "model.rls_offset": True,
+        "model.rls_prior": "fit",
+    }
+
+
+def with_recorded_features(config: RunConfig, overrides: list[str], chosen: bool = False) -> RunConfig:
+    """Layer 3: the records recipe on recorded data with inputs and complete outputs, unless the source or
+    --preset (`chosen`), the base's feature or an override chose the feature (overrides of sizes and steps
+    apply on top of it, as layer 4)."""
     named = parse_overrides(overrides)
-    if config.data is None or config.model.rls_order > 0 or any(k in named for k in FEATURE_KEYS):
+    if config.data is None or chosen or config.model.rls_order > 0:
         return config
-    if recorded_data(config.data).input_dim == 0:
+    if any(k in named for k in FEATURE_KEYS):
         return config
-    return apply_overrides(config, [f"{k}={json.dumps(v)}" for k, v in RECORDED_FEATURES.items()])
+    data = recorded_data(config.data)
+    if data.input_dim == 0 or data.num_missing:
+        return config
+    return apply_settings(config, recorded_recipe(config))
 
 
 FINE_TUNE_STEPS = 500
@@ -131,7 +160,8 @@ def training_config(
     [key=value ...]`."""
     if init is None:
         config = with_records(base_config(source, preset), data, val)
-        config = with_recorded_features(config, list(overrides))
+        chosen = source is not None or preset is not None
+        config = with_recorded_features(config, list(overrides), chosen)
         return apply_overrides(config, list(overrides))
     if source is not None or preset is not None:
         given = source if source is not None else f"--preset {preset}"
@@ -139,3 +169,16 @@ def training_config(
     base = load_config(init)
     config = with_fine_tuning(with_records(base, data, val), base, init)
     return apply_overrides(config, list(overrides))
+
+
+def feature_line(config: RunConfig) -> str | None:
+    """One line naming the input feature a records run reads, or None without one."""
+    m = config.model
+    if m.rls_order == 0:
+        return None
+    kind = f"ARX({m.rls_order}, {m.arx_order})" if m.arx_order else f"RLS-AR({m.rls_order})"
+    start = " started from its least-squares fit on the training part" if m.rls_prior != "none" else ""
+    offset = " with an intercept" if m.rls_offset else ""
+    return (
+        f"feature: the network reads the {kind}{offset} one-step prediction{start}, and predicts its residual"
+    )

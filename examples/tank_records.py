@@ -1,0 +1,181 @@
+"""A worked example as identification data comes: one estimation and one validation record of one plant with
+hard nonlinearities (two cascaded tanks with square-root outflows and overflow), MOP trained on the estimation
+record with mop's defaults beside the fitted ARX and N4SID and the online arx-best, on the validation record.
+
+    python examples/tank_records.py [--out DIR] [--budget smoke|full] [--seeds K] [--plant S]
+
+1. Record. One plant of the "cascaded-tanks" family (mop/systems/cascaded_tanks.py, drawn with seed S, input
+   swing input_amplitude=1.0 so that both tanks overflow at times), two multisine experiments of 1024 samples
+   each (Ts = 4 s, as the benchmark's records): DIR/est.csv and DIR/val.csv (trajectory,t,y0,u0; y the lower
+   tank's level in V, u the pump voltage).
+2. Fit and train on est.csv only, every command with its defaults:
+       mop train --data est.csv --out DIR/mop-S train.seed=S      (S = 0..K-1: the spread over training seeds)
+       mop fit arx est.csv --out DIR/arx ;  mop fit n4sid est.csv --out DIR/n4sid
+3. Compare on val.csv: `mop predict P val.csv` (one step ahead) and `mop predict P val.csv --simulate 50`
+   (free run from the inputs alone after 50 outputs), P each of the above and the online `arx-best` and
+   `last`. The table (DIR/validation.md and .csv): one-step RMSE over t >= 512 (the record's second half)
+   and over t >= 50, simulation RMSE and fit % over t >= 50, in volts; MOP as the mean over the seeds with
+   their range.
+
+Budgets: smoke (seconds, for the test suite: a tiny model trained for a few steps, its numbers mean little)
+and full (the defaults; see the README's "Recorded data" for its numbers and time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mop.cli import main as mop
+from mop.config import SystemConfig
+from mop.records import scores
+from mop.systems import make_family
+
+SAMPLES, CONTEXT, HALF = 1024, 50, 512
+BUDGETS = {
+    "smoke": [
+        "train.steps=4",
+        "model.num_layers=1",
+        "model.width=16",
+        "model.num_heads=2",
+        "train.batch_size=8",
+    ],
+    "full": [],
+}
+BASELINES = {
+    "arx (fitted)": "arx",
+    "n4sid (fitted)": "n4sid",
+    "arx-best (online)": "arx-best",
+    "last": "last",
+}
+
+
+def run_mop(argv: list[str], log: Path | None = None) -> None:
+    """One mop command, as you would type it; its printout goes to `log` when given."""
+    print("$ mop " + shlex.join(argv), flush=True)
+    with contextlib.ExitStack() as stack:
+        if log is not None:
+            stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(log, "w"))))
+        code = mop(argv)
+    if code != 0:
+        raise SystemExit(f"mop {argv[0]} failed (exit {code})")
+
+
+def write_records(out: Path, plant: int) -> tuple[Path, Path]:
+    """est.csv and val.csv: two experiments on the one plant drawn with seed `plant`."""
+    family = make_family(SystemConfig(family="cascaded-tanks", input_amplitude=1.0))
+    params = family.sample(1, generator=torch.Generator().manual_seed(plant))
+    paths = []
+    for name, seed in (("est", 10 * plant + 1), ("val", 10 * plant + 2)):
+        traj = family.simulate(params, SAMPLES - 1, generator=torch.Generator().manual_seed(seed))
+        y, u = traj.y[0, :, 0].double().numpy(), traj.u[0, :, 0].double().numpy()
+        path = out / f"{name}.csv"
+        rows = [f"{name},{t},{float(y[t])!r},{float(u[t])!r}" for t in range(SAMPLES)]
+        path.write_text("trajectory,t,y0,u0\n" + "\n".join(rows) + "\n")
+        paths.append(path)
+    return paths[0], paths[1]
+
+
+def predictions(out: Path, predictor: str, val: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(one-step yhat (T+1,), simulation after CONTEXT (T+1-C,)) of `predictor` on the validation record."""
+    one, sim = out / "onestep" / f"{name}.npz", out / "simulation" / f"{name}.npz"
+    run_mop(["predict", predictor, str(val), "--out", str(one)], log=one.with_suffix(".log"))
+    run_mop(
+        ["predict", predictor, str(val), "--simulate", str(CONTEXT), "--out", str(sim)],
+        log=sim.with_suffix(".log"),
+    )
+    return np.load(one)["yhat"][0, :, 0], np.load(sim)["ysim"][0, :, 0]
+
+
+def row(y: np.ndarray, yhat: np.ndarray, ysim: np.ndarray) -> dict[str, float]:
+    """The table's figures for one predictor (mop.records.scores, y and predictions (T+1,))."""
+    sim = scores(y[CONTEXT:, None], ysim[:, None])
+    return {
+        "one_step_second_half": scores(y[HALF:, None], yhat[HALF:, None]).rmse,
+        "one_step": scores(y[CONTEXT:, None], yhat[CONTEXT:, None]).rmse,
+        "simulation": sim.rmse,
+        "simulation_fit": sim.fit,
+    }
+
+
+KEYS = ["one_step_second_half", "one_step", "simulation", "simulation_fit"]
+HEAD = (
+    f"| predictor (fitted on est.csv) | one-step RMSE, t >= {HALF} | one-step RMSE, t >= {CONTEXT} "
+    f"| simulation RMSE, t >= {CONTEXT} | simulation fit % |"
+)
+
+
+def write_table(out: Path, rows: dict[str, list[dict[str, float]]]) -> str:
+    """Markdown and CSV; a predictor with several rows (training seeds) as mean [min, max]."""
+    md = [HEAD, "|---|---|---|---|---|"]
+    with open(out / "validation.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["predictor", "seed", *KEYS])
+        for name, seeds in rows.items():
+            w.writerows([name, s, *[f"{r[k]:.6g}" for k in KEYS]] for s, r in enumerate(seeds))
+            cells = []
+            for k in KEYS:
+                v = np.array([r[k] for r in seeds])
+                spread = f" [{v.min():.4g}, {v.max():.4g}]" if len(v) > 1 else ""
+                cells.append(f"{v.mean():.4g}{spread}")
+            md.append(f"| {name} | " + " | ".join(cells) + " |")
+    (out / "validation.md").write_text("\n".join(md) + "\n")
+    return "\n".join(md)
+
+
+def main(argv: list[str] | None = None) -> dict[str, list[dict[str, float]]]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=None, help="output directory (runs/tanks-BUDGET)")
+    parser.add_argument("--budget", choices=BUDGETS, default="full")
+    parser.add_argument("--seeds", type=int, default=3, help="MOP training seeds 0..K-1 (3)")
+    parser.add_argument("--plant", type=int, default=1, help="seed of the plant and its two records (1)")
+    args = parser.parse_args(argv)
+    out = args.out or Path("runs") / f"tanks-{args.budget}"
+    for sub in ("onestep", "simulation"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    est, val = write_records(out, args.plant)
+    y = np.loadtxt(val, delimiter=",", skiprows=1, usecols=2)
+    rows: dict[str, list[dict[str, float]]] = {"MOP (mop train --data est.csv)": []}
+    for seed in range(args.seeds):
+        run = out / f"mop-{seed}"
+        run_mop(
+            [
+                "train",
+                "--data",
+                str(est),
+                "--out",
+                str(run),
+                "--no-progress",
+                f"train.seed={seed}",
+                *BUDGETS[args.budget],
+            ]
+        )
+        rows["MOP (mop train --data est.csv)"].append(row(y, *predictions(out, str(run), val, f"mop-{seed}")))
+    trained = time.perf_counter()
+    for name, kind in BASELINES.items():
+        spec = kind
+        if kind in ("arx", "n4sid"):
+            spec = str(out / kind)
+            run_mop(["fit", kind, str(est), "--out", spec], log=out / f"fit-{kind}.log")
+        rows[name] = [row(y, *predictions(out, spec, val, kind))]
+    table = write_table(out, rows)
+    print(
+        f"\nvalidation record ({SAMPLES} samples, one plant of cascaded-tanks, seed {args.plant}):\n{table}"
+    )
+    print(
+        f"wall time: {time.perf_counter() - start:.0f} s (MOP's trainings {trained - start:.0f} s); in {out}"
+    )
+    return rows
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
