@@ -28,10 +28,8 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
     hints = typing.get_type_hints(cls)
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise MopError(
-            f"unknown config key{'s' if len(unknown) > 1 else ''} "
-            f"{', '.join(repr(where + k) for k in unknown)}; known keys: {', '.join(fields)}"
-        )
+        keys, known = ", ".join(repr(where + k) for k in unknown), ", ".join(fields)
+        raise MopError(f"unknown config key{'s' * (len(unknown) > 1)} {keys}; known keys: {known}")
     kwargs = {}
     for name, value in data.items():
         sub = dataclass_type(hints[name])
@@ -47,9 +45,8 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
 
 
 def to_dict(config: Any, omit_defaults: bool = True) -> dict[str, Any]:
-    """The config as nested dicts. A RunConfig gives its identity (mop.identity: config.json, the run hash):
-    no "data" key without recorded data, and only the keys written before that rule or away from their
-    defaults; omit_defaults=False gives every key."""
+    """The config as nested dicts; a RunConfig's is its identity (mop.identity: config.json, the run hash),
+    or with omit_defaults=False every key (and no "data" key without recorded data)."""
     if isinstance(config, RunConfig) and omit_defaults:
         return identity(config)
     data = dataclasses.asdict(config)
@@ -146,9 +143,8 @@ class ModelConfig:
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
-    rls_prior: str | list[float] = (
-        "none"  # the feature's theta_0: "none" (0), "fit" (by the trainer) or fitted
-    )
+    # the feature's theta_0: "none" (0), "fit" (by the trainer) or fitted
+    rls_prior: str | list[float] = "none"
     # "given": input_scale / rls_order / arx_order as set; "auto": chosen from the family's shapes and data,
     # with train.steps scaled by the chosen feature's step cost (mop.train.auto; resolved before training,
     # so a saved config holds the choice and "given")

@@ -164,9 +164,8 @@ def test_arx_beats_output_only_ar_and_last_on_linear_inputs():
     arx = make_predictor("arx").predict(traj).numpy()
     for b in range(10):
         np.testing.assert_allclose(arx[b], numpy_arx(y[b], u[b], 2, 2)[0], rtol=1e-8, atol=1e-8)
-    p = {k: v.numpy() for k, v in traj.params.items()}
-    x0 = np.zeros(p["A"].shape[:2])
-    kf = filterpy_predict(p["A"], p["C"], p["Q"], p["R"], y, x0, p["P0"], p["B"], u)
+    p = traj.params.map(torch.Tensor.numpy)
+    kf = filterpy_predict(p.A, p.C, p.Q, p.R, y, np.zeros(p.A.shape[:2]), p.P0, p.B, u)
     no_u = np.zeros((y.shape[1], 0))
     ar2 = np.stack([numpy_arx(y[b], no_u, 2, 0)[0] for b in range(len(y))])
     last = np.concatenate([np.zeros_like(y[:, :1]), y[:, :-1]], axis=1)
