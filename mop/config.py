@@ -143,11 +143,9 @@ class ModelConfig:
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
-    # the feature's theta_0: "none" (0), "fit" (by the trainer) or fitted
-    rls_prior: str | list[float] = "none"
+    rls_prior: str | list[float] = "none"  # the feature's theta_0: "none" (0), "fit" (trainer) or a list
     # "given": input_scale / rls_order / arx_order as set; "auto": chosen from the family's shapes and data,
-    # with train.steps scaled by the chosen feature's step cost (mop.train.auto; resolved before training,
-    # so a saved config holds the choice and "given")
+    # train.steps scaled by the feature's step cost (mop.train.auto; resolved before training, so saved)
     features: str = "given"
     # True: the model reads [y_t zero-filled where missing, u_t, observed_t (0/1 per output)], width
     # m + k + m, and may be given outputs with gaps; the trainer sets it when training drops outputs
