@@ -29,6 +29,7 @@ DATA_MODULES = {
     "mop.experiments.paper": "the paper's experiments",
     "mop.experiments.missing_data": "the missing-data experiment",
     "mop.experiments.inputs": "the linear-inputs experiment",
+    "mop.experiments.classes": "the class-model experiments",
     "mop.pretrained.catalog": "the shipped models: the experiment and family each was trained on",
 }
 

@@ -37,8 +37,9 @@ def family_traj(name: str, num_systems: int, seed: int, horizon: int = 50) -> Tr
     return family.generate(num_systems, horizon, generator=generator(seed))
 
 
-def late_mse(e: np.ndarray) -> float:
-    return float((e[:, LATE[0] : LATE[1]] ** 2).mean())
+def late_mse(e: np.ndarray, stop: int = LATE[1]) -> float:
+    """MSE over t in [20, stop) (the cards' late window: stop = horizon + 1)."""
+    return float((e[:, LATE[0] : stop] ** 2).mean())
 
 
 def test_every_catalog_model_is_shipped_within_10_mb():
@@ -68,7 +69,8 @@ def test_ratio_on_the_cards_test_systems_is_the_cards_number(name):
     traj = family_traj(name, ev["num_systems"], ev["test_seed"], ev["horizon"])
     e_mop = errors(mop.load(f"pretrained:{name}").predict(traj), traj.y)
     e_ref = errors(make_predictor(ev["reference"]).predict(traj), traj.y)
-    assert late_mse(e_mop) / late_mse(e_ref) == pytest.approx(r["ratio"], rel=1e-6)
+    stop = ev["horizon"] + 1
+    assert late_mse(e_mop, stop) / late_mse(e_ref, stop) == pytest.approx(r["ratio"], rel=1e-6)
 
 
 @pytest.mark.parametrize("name", SHIPPED)
@@ -374,3 +376,34 @@ def test_the_build_measures_a_condition_as_the_report_does(tmp_path, tiny_smoke,
     assert ev["best"] == report["to_best"]["predictor"] == "last"
     late = ev["ratio_to_best"][f"[20,{ev['horizon'] + 1})"]
     assert late == {k: report["to_best"][k] for k in ("ratio", "low", "high")}
+
+
+# --- class models ---------------------------------------------------------------------------------------
+
+CLASS_MODELS = [n for n in SHIPPED if load_config(f"pretrained:{n}").model.record_norm == "causal"]
+
+
+@pytest.mark.parametrize("name", CLASS_MODELS)
+def test_class_model_predicts_and_simulates_any_units_zero_shot(name, tmp_path, capsys):
+    """mop predict on 3 records of the class, as is and in other units (y -> 1000 y + 5, u -> 0.1 u - 2):
+    one-step predictions and the free-run simulation after 300 steps come back as 1000 x + 5 (the model
+    runs in float32: 1e-4 relative)."""
+    traj = family_traj(name, 3, seed=11, horizon=400)
+    y, u = traj.y.numpy(), traj.u.numpy()
+    np.savez(tmp_path / "a.npz", y=y, u=u)
+    np.savez(tmp_path / "b.npz", y=1000 * y + 5, u=0.1 * u - 2)
+    out = {}
+    for f in ("a", "b"):
+        for flag, key in ((["--simulate", "300"], "ysim"), ([], "yhat")):
+            target = tmp_path / f"{f}_{key}.npz"
+            assert (
+                main(
+                    ["predict", f"pretrained:{name}", str(tmp_path / f"{f}.npz"), "--out", str(target), *flag]
+                )
+                == 0
+            )
+            out[f, key] = np.load(target)[key]
+    for key, start in (("yhat", 1), ("ysim", 0)):  # yhat_0 is the data-free prediction
+        got, want = out["b", key][:, start:], 1000 * out["a", key][:, start:] + 5
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-2)
+    assert np.sqrt(((out["a", "ysim"] - y[:, 300:]) ** 2).mean()) < 0.5 * y[:, 300:].std()

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 from mop.config import DataConfig, RunConfig, apply_settings, parse_overrides
+from mop.experiments.classes import CLASS_EXPERIMENTS
 from mop.experiments.inputs import LINEAR_INPUTS
 from mop.experiments.missing_data import MISSING_DATA
 from mop.experiments.paper import PAPER_EXPERIMENTS
@@ -29,6 +30,7 @@ for _exp in (
     *PAPER_EXPERIMENTS,
     MISSING_DATA,
     LINEAR_INPUTS,
+    *CLASS_EXPERIMENTS,
 ):  # the built-in ones (plugins: entry points of mop.experiments)
     EXPERIMENTS.add(_exp.name, _exp)
 

@@ -32,7 +32,7 @@ from mop.config import RunConfig
 from mop.errors import MopError
 from mop.evaluate import evaluate, windows
 from mop.experiments import TEST_SEED_OFFSET, get_experiment, get_preset, run_config
-from mop.experiments.analyses import horizon_errors
+from mop.experiments.analyses import horizon_errors, simulation_analysis
 from mop.experiments.evaluating import evaluate_condition, test_system, test_trajectories
 from mop.experiments.planning import classical_predictor, config_hash
 from mop.experiments.results import ConditionResult
@@ -123,7 +123,10 @@ def _ratios(e_num: np.ndarray, e_den: np.ndarray, seed: int) -> dict[str, dict[s
 
 
 def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[str, Any]:
-    """The card's measured sections (evaluation, forecast, noise_shift) for the model in `run_dir`.
+    """The card's measured sections (evaluation, forecast, simulation, noise_shift) of the model in run_dir.
+    An experiment with the "simulation" analysis (a class model) gets the free-run simulation table of
+    mop.experiments.analyses (one-step and simulation RMSE after the condition's context, every predictor)
+    and, unless it also lists "forecast", no k-step forecast table.
 
     The condition is evaluated by the runner's own function (mop.experiments.evaluating.evaluate_condition:
     the same test data, `missing` and `data` included, the same test seed and predictor options as
@@ -144,9 +147,11 @@ def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[s
     shown = [p for p in predictors if p.name in (model.name, reference, best)]
     ref = next(p for p in predictors if p.name == reference)
     system, horizon = test_system(config, condition), result.traj.y.shape[1] - 1
+    simulates = "simulation" in exp.analyses  # a class model: scored in free-run simulation
     return {
         "evaluation": _evaluation(result, model.name, reference, best, entry.seed),
-        "forecast": _forecast(result.traj, shown),
+        "forecast": None if simulates and "forecast" not in exp.analyses else _forecast(result.traj, shown),
+        "simulation": simulation_analysis(result, predictors, reference)["simulation"] if simulates else None,
         "noise_shift": noise_shift(model, ref, system, horizon, entry.seed),
     }
 

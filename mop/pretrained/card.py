@@ -9,7 +9,8 @@ card.json (written by mop.pretrained.build):
     evaluation    {"num_systems", "test_seed", "horizon", "reference", "best",
                    "errors": {predictor: {window: mean ||e||}},
                    "ratio_to_reference" / "ratio_to_best": {window: {"ratio", "low", "high"}}}
-    forecast      {"k", "start", "error": {predictor: [mean ||e|| per k]}}
+    forecast      {"k", "start", "error": {predictor: [mean ||e|| per k]}} or null (a class model)
+    simulation    {"context", "rmse": {predictor: {"one_step_rmse", "simulation_rmse"}}} or null/absent
     noise_shift   {"trained": {"noise_var_w", "noise_var_v"}, "num_systems", "rows": [{"factor",
                    "noise_var_w", "noise_var_v", "ratio", "low", "high"}]} or null
     sha256        {file: digest}
@@ -49,6 +50,26 @@ def _ratio_table(ev: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _simulation_table(sim: dict[str, Any] | None) -> list[str]:
+    """The free-run simulation table of a class model's card (RMSE in the test records' units)."""
+    if not sim:
+        return []
+    c = sim["context"]
+    lines = [
+        f"Free-run simulation of y_{c}..y_T from the inputs alone after a context of {c} outputs (RMSE per "
+        "system, averaged), beside the one-step RMSE over the same steps:",
+        "",
+        "| predictor | one-step RMSE | simulation RMSE |",
+        "|---|---|---|",
+    ]
+    rows = sim["rmse"].items()
+    return [
+        *lines,
+        *(f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} |" for n, r in rows),
+        "",
+    ]
+
+
 def _noise_table(shift: dict[str, Any] | None, reference: str) -> list[str]:
     if not shift:
         return ["The family has no noise-level knobs; no noise-shift numbers."]
@@ -69,6 +90,8 @@ def _noise_table(shift: dict[str, Any] | None, reference: str) -> list[str]:
 def _features(model: dict[str, Any]) -> str:
     """The card's clause naming the model's input features (mop.models.features); empty if plain."""
     parts = ["the running output scale"] if model.get("input_scale", "none") == "running" else []
+    if model.get("record_norm", "none") == "causal":
+        parts.append("each record normalised by its causal running mean and std (any units)")
     p, q = model.get("rls_order", 0), model.get("arx_order", 0)
     if p:
         fit = f"ARX({p}, {q})" if q else f"RLS-AR({p})"
@@ -126,7 +149,8 @@ def render_card(card: dict[str, Any]) -> str:
         "",
         *_ratio_table(ev),
         "",
-        *forecast_markdown(card["forecast"]),
+        *(forecast_markdown(card["forecast"]) if card["forecast"] else []),
+        *_simulation_table(card.get("simulation")),
         "",
         "## Where not to use it",
         "",

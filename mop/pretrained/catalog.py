@@ -82,6 +82,32 @@ CATALOG: tuple[ShippedModel, ...] = (
 )
 
 
+CLASS = (
+    "records of another class, or other input signals than the white N(0, 1) input it was trained on (its "
+    "ARX feature and network saw only those spectra), multi-output data (m = 1, k = 1 only), and records "
+    "shorter than the ARX order's start-up; fine-tune it on your estimation record (mop train --data FILE "
+    "--init pretrained:NAME) where it is not within the card's numbers"
+)
+CLASS_MODELS: tuple[ShippedModel, ...] = (
+    ShippedModel(
+        "lti-siso",
+        "class-lti-siso",
+        "class model of SISO LTI systems of order 1..10 (Forgione et al.'s class), any units (per-record "
+        "causal normalisation), trained for free-run simulation: predicts and simulates a new record in "
+        "context, zero-shot",
+        f"{CLASS}; nonlinear plants (saturation, dead zones): use a nonlinear class",
+    ),
+    ShippedModel(
+        "wiener-hammerstein",
+        "class-wiener-hammerstein",
+        "class model of SISO Wiener-Hammerstein systems (linear blocks of order 1..5 around a static tanh "
+        "network), any units, trained for free-run simulation: zero-shot in context",
+        f"{CLASS}; hard nonlinearities the smooth tanh network lacks (saturation, hysteresis, overflow)",
+    ),
+)
+CATALOG = CATALOG + CLASS_MODELS
+
+
 def catalog_entry(name: str) -> ShippedModel:
     for entry in CATALOG:
         if entry.name == name:
