@@ -41,6 +41,8 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
     ("mop.evaluate", "error"): "eval.json's mean-error curve",
     ("mop.metrics", "error"): "eval.json's mean-error curve",
     ("mop.report", "error"): "the forecast table's errors",
+    ("mop.pretrained.card", "simulation"): "card.json's simulation section",
+    ("mop.pretrained.card", "rmse"): "card.json's simulation table",
     ("mop.plots", "error"): "eval.json's mean-error curve",
     ("mop.experiments.analyses", "error"): "the forecast table's errors",
     ("mop.experiments.figures", "coverage"): "the calibration table's coverage column",

@@ -303,7 +303,10 @@ def _simulation_table(extras: dict) -> str:
     return head + "".join(rows)
 
 
-@ANALYSES.register("simulation", markdown=_simulation_table)
+SIMULATION = "simulation"  # the analysis (and its extras key), as the card build asks for it
+
+
+@ANALYSES.register(SIMULATION, markdown=_simulation_table)
 def simulation_analysis(result, predictors: list, reference: str) -> dict:
     """Free-run simulation after the condition's context c (simulation_context), for every predictor with a
     forecast or a simulate: each system's RMSE over y_c..y_T and the outputs, averaged over systems

@@ -32,7 +32,7 @@ from mop.config import RunConfig
 from mop.errors import MopError
 from mop.evaluate import evaluate, windows
 from mop.experiments import TEST_SEED_OFFSET, get_experiment, get_preset, run_config
-from mop.experiments.analyses import horizon_errors, simulation_analysis
+from mop.experiments.analyses import SIMULATION, horizon_errors, simulation_analysis
 from mop.experiments.evaluating import evaluate_condition, test_system, test_trajectories
 from mop.experiments.planning import classical_predictor, config_hash
 from mop.experiments.results import ConditionResult
@@ -147,11 +147,11 @@ def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[s
     shown = [p for p in predictors if p.name in (model.name, reference, best)]
     ref = next(p for p in predictors if p.name == reference)
     system, horizon = test_system(config, condition), result.traj.y.shape[1] - 1
-    simulates = "simulation" in exp.analyses  # a class model: scored in free-run simulation
+    simulates = SIMULATION in exp.analyses  # a class model: scored in free-run simulation
     return {
         "evaluation": _evaluation(result, model.name, reference, best, entry.seed),
         "forecast": None if simulates and "forecast" not in exp.analyses else _forecast(result.traj, shown),
-        "simulation": simulation_analysis(result, predictors, reference)["simulation"] if simulates else None,
+        SIMULATION: simulation_analysis(result, predictors, reference)[SIMULATION] if simulates else None,
         "noise_shift": noise_shift(model, ref, system, horizon, entry.seed),
     }
 
