@@ -9,7 +9,9 @@ and it is trained for the metric the benchmarks score, free-run simulation: ever
 and scores its outputs from a random step s >= 200 on (train.simulate_after), and the model simulates by
 reading the future outputs as missing (model.forecast_mode = "gap"), starting as the ARX simulation.
 Test: 400 steps of context, y_400..y_499 simulated, one-step RMSE over the same steps beside it.
-`pretrained:lti-siso` and `pretrained:wiener-hammerstein` are these models under the small preset.
+`pretrained:lti-siso`, `pretrained:wiener-hammerstein` and `pretrained:cascaded-tanks` are these models
+under the small preset; the tanks (mop.systems.cascaded_tanks) are a class with hard nonlinearities
+(square-root outflows, overflow) in physical units (levels 0..10 V, a multisine pump voltage).
 """
 
 from __future__ import annotations
@@ -84,4 +86,5 @@ def class_experiment(name: str, family: str, knowing: str, arx: str, order: int,
 CLASS_EXPERIMENTS = (
     class_experiment("class-lti-siso", "lti-siso", "kalman", "arx-15-offset", 15, 1e-3),
     class_experiment("class-wiener-hammerstein", "wiener-hammerstein", "ukf", "arx-10-offset", 10, 3e-3),
+    class_experiment("class-cascaded-tanks", "cascaded-tanks", "ukf", "arx-10-offset", 10, 3e-3),
 )

@@ -234,19 +234,23 @@ class FeatureState:
             self.recent = torch.zeros(batch_size, p + 1, self.m, **f64)
             self.recent_u = torch.zeros(batch_size, q + 1, self.k if q > 0 else 0, **f64)
         # with an observation mask the RLS feature skips pairs next to gaps (mop.filters.rls._rls_run_gaps):
-        # the stream recomputes it over the inputs so far (O(t) per step), exactly the forward's
+        # once a gap has come, the stream recomputes it over the inputs so far (O(t) per step), exactly the
+        # forward's; before, the one-step updates equal it (nothing missing)
         self.history = [] if cfg.observation_mask and p > 0 else None
+        self.gapped = False
         if cfg.record_norm == "causal":
             self.stats = RecordStats(batch_size, self.m + self.k, device)
 
     def step(self, z: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """z_t (B, d_in) -> network input (B, 1, d_in + extra), s_t (B, 1, 1)|None, r_{t+1} (B, 1, m)|None."""
-        if self.history is not None:  # the RLS feature over gaps: the forward's features at the last input
-            self.history.append(z)
-            self.t += 1
-            net, scale, base = augment(torch.stack(self.history, dim=1), self.cfg)
-            return net[:, -1:], *(None if a is None else a[:, -1:] for a in (scale, base))
         y, seen = observed_outputs(z, self.cfg)
+        if self.history is not None:  # kept until the first gap; from there the forward's features
+            self.history.append(z)
+            self.gapped = self.gapped or not bool(seen.all())
+            if self.gapped:
+                self.t += 1
+                net, scale, base = augment(torch.stack(self.history, dim=1), self.cfg)
+                return net[:, -1:], *(None if a is None else a[:, -1:] for a in (scale, base))
         scale = base = None
         if self.cfg.input_scale == "running":
             self.sum_sq = self.sum_sq + (y**2).mean(-1, keepdim=True)

@@ -104,6 +104,17 @@ CLASS_MODELS: tuple[ShippedModel, ...] = (
         "network), any units, trained for free-run simulation: zero-shot in context",
         f"{CLASS}; hard nonlinearities the smooth tanh network lacks (saturation, hysteresis, overflow)",
     ),
+    ShippedModel(
+        "cascaded-tanks",
+        "class-cascaded-tanks",
+        "class model of two cascaded water tanks with square-root outflows and overflow (mop.systems."
+        "cascaded_tanks: random areas, outflows, pump gain, levels 0..10 V, multisine pump voltage), any "
+        "units, trained for free-run simulation: zero-shot in context",
+        "records of another class, or inputs unlike a multisine (or noise) about an operating point, "
+        "multi-output data (m = 1, k = 1 only), and records shorter than the ARX order's start-up; fine-tune "
+        "it on your estimation record (mop train --data FILE --init pretrained:cascaded-tanks) where it is "
+        "not within the card's numbers; a real plant's pump and sensor characteristics are not modelled",
+    ),
 )
 CATALOG = CATALOG + CLASS_MODELS
 
