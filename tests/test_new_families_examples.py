@@ -47,7 +47,7 @@ def thermal_continuous(c, g, k) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_thermal_network_matches_scipy_hold_and_quadrature():
-    fam = family("thermal-network", "thermal_network.py", num_nodes=3)
+    fam = family("thermal-network", "thermal_network.py", num_nodes=3, dt=0.5)
     p = fam.sample(16, generator=generator(1))
     q = fam.config.disturbance_std
     for s in range(16):
@@ -58,7 +58,7 @@ def test_thermal_network_matches_scipy_hold_and_quadrature():
         np.testing.assert_allclose(p.B[s].numpy(), B, rtol=1e-10, atol=1e-14)
         G = q * np.diag(1 / c)
         Q, _ = quad_vec(
-            lambda t, A_c=A_c, G=G: expm(A_c * t) @ G @ G.T @ expm(A_c * t).T, 0, 1.0, epsrel=1e-12
+            lambda t, A_c=A_c, G=G: expm(A_c * t) @ G @ G.T @ expm(A_c * t).T, 0, fam.config.dt, epsrel=1e-12
         )
         np.testing.assert_allclose(p.Q[s].numpy(), Q, rtol=1e-8, atol=1e-14)
         lam = np.linalg.eigvals(A_c)
