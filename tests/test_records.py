@@ -137,7 +137,10 @@ def test_training_config_layers(tmp_path):
     toml = Path(__file__).resolve().parents[1] / "examples" / "rlc_circuit.toml"
     rlc = training_config(str(toml), "smoke")
     assert rlc.system.family == "rlc-circuit" and rlc.train.steps == PRESETS["smoke"].train.steps
-    assert training_config(str(toml), "small").train.steps == 5000  # the file's [presets.small]
+    small = training_config(str(toml), "small")  # the small preset's model.features=auto, resolved
+    assert small.model.features == "given" and small.model.arx_order > 0 and small.train.steps == 2100
+    named = training_config(None, "small", overrides=["model.rls_order=3"])  # a named key: auto is off
+    assert (named.model.features, named.model.rls_order, named.train.steps) == ("given", 3, 2500)
     cfg = tmp_path / "c.json"
     cfg.write_text(json.dumps({"train": {"steps": 7}}))
     assert training_config(str(cfg)).train.steps == 7

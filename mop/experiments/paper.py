@@ -52,10 +52,9 @@ COLORED_NOISE = Experiment(
     description="the paper's reference is the KF that assumes white noise; kalman-colored is the exact "
     "optimum (a KF on the state augmented with the noise draws)",
     train={"system.family": "colored-noise"},
-    # small preset: the model reads the RLS-AR(2) one-step prediction and predicts the residual (mop bench
-    # recipe, 2500 steps, N = 500: MOP / kalman-colored 1.176 [1.167, 1.185] (seed 0), 1.195 [1.186, 1.205]
-    # (seed 1) against the plain model's 1.64)
-    presets={"small": {"model.rls_order": 2}},
+    # small preset: model.features=auto gives the RLS-AR(2) feature it had by hand (the model reads the
+    # RLS-AR(2) one-step prediction and predicts the residual: MOP / kalman-colored 1.166 / 1.217 over
+    # seeds 0 / 1 at 2500 steps against the plain model's 1.64), at 2100 steps (its step cost)
     predictors=(*LINEAR_PREDICTORS, "kalman-colored"),
     best="kalman-colored",
     authors="about 1.23 (error 0.511 against the optimum's 0.46; 0.27 x the white-noise KF)",
@@ -92,12 +91,9 @@ QUADROTOR = Experiment(
     name="quadrotor",
     title="Fig. 3",
     train={"system.family": "quadrotor"},
-    # small preset: the ARX(2, 2) feature (mop.models.features) at the plain model's training cost: its step
-    # costs 1.17x (97.8 against 83.7 ms, side by side), so 2100 steps instead of 2500. k-step errors k = 1..5
-    # on the test systems of `mop reproduce quadrotor`, seeds 0 / 1: 0.297 0.381 0.463 0.548 0.632 /
-    # 0.297 0.381 0.463 0.547 0.631, against the plain model's 0.301 0.386 0.472 0.560 0.649 /
-    # 0.302 0.388 0.476 0.566 0.656 (the PF: 0.308 0.368 0.423 0.477 0.528)
-    presets={"small": {"model.rls_order": 2, "model.arx_order": 2, "train.steps": 2100}},
+    # small preset: model.features=auto, an ARX feature at the plain model's training cost (2100 steps),
+    # as the ARX(2, 2) at 2100 steps kept by hand before (k-step errors k = 1..5, seeds 0 / 1: 0.297 0.381
+    # 0.463 0.548 0.632 / 0.297 0.381 0.463 0.547 0.631; the plain model 0.301 0.386 0.472 0.560 0.649)
     predictors=("mop", "gru", "ekf", "ekf-noclip", "ukf", "pf", "arx", "n4sid-kf", "zero", "last"),
     reference="ekf",
     best="pf",
@@ -115,12 +111,10 @@ UPPER_TRIANGULAR = Experiment(
     name="upper-triangular",
     title="Fig. 4",
     train={"system.family": "upper-triangular"},
-    # small preset: the causal running output scale and the RLS-AR(3) feature (mop reproduce, 2500 steps,
-    # N = 500: MOP/KF 1.413 / 1.412 over seeds 0 / 1, MOP/RLS 0.974 [0.958, 0.989] paired, below the paper's
-    # RLS-AR(2); with the AR(2) feature 1.455, level with RLS; the scale alone 3.45, the plain model 4.29;
-    # RLS-AR(3) itself 1.406: the network's residual wins early, the feature sets the late error);
-    # the dense condition keeps the plain linear model (shared with `linear`)
-    presets={"small": {"model.input_scale": "running", "model.rls_order": 3}},
+    # small preset: model.features=auto gives the running output scale and the RLS-AR(3) feature kept by
+    # hand before (MOP/KF 1.413 / 1.412 over seeds 0 / 1 at 2500 steps, MOP/RLS 0.974 [0.958, 0.989]
+    # paired; the scale alone 3.45, the plain model 4.29), at 2100 steps; the dense condition trains the
+    # linear family's own auto model (shared with `linear`)
     predictors=LINEAR_PREDICTORS,
     authors="2.33 (MOP/KF; worse than RLS: error 1.023 against 0.835)",
     conditions=(
@@ -128,7 +122,7 @@ UPPER_TRIANGULAR = Experiment(
         Condition(
             "dense",
             system={"family": "linear"},
-            train={"system.family": "linear", "model.input_scale": "none", "model.rls_order": 0},
+            train={"system.family": "linear"},
             predictors=("mop", "kalman"),
         ),
     ),
@@ -238,6 +232,7 @@ SCALING = Experiment(
     presets={
         "small": {
             **SMALL_MODEL,
+            "model.features": "given",  # the plain model's sample complexity: no input feature
             "train.steps": 600,
             "train.lr": 1e-3,
             "train.lr_schedule": "constant",

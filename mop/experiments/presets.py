@@ -31,8 +31,11 @@ PRESETS: dict[str, Preset] = {
     # laptop CPU (2 cores): fresh systems every batch, a 2 x 64 model, lr 3e-3 with warm-up and cosine decay.
     # `mop bench recipe`: as good as the former 4 x 128 preset (linear MOP/KF ratio over t in [20,50]
     # 1.029 [1.025, 1.032]) at ~1/5 of its FLOPs. The GRU baseline is off (--with gru turns it on).
+    # model.features=auto (mop.train.auto): the online identifier feature (ARX / RLS-AR, its orders, the
+    # running scale) from the family's shapes and data, and the 2500 steps scaled by its step cost (2100
+    # with the identifier), for every family; an experiment or a user that names a feature key sets it.
     "small": Preset(
-        ModelConfig(num_layers=2, num_heads=4, width=64),
+        ModelConfig(num_layers=2, num_heads=4, width=64, features="auto"),
         TrainConfig(
             steps=2500,
             batch_size=64,

@@ -32,6 +32,7 @@ from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.presets import default_preset, preset_config
 from mop.identify.select import fit
 from mop.runs import load_config
+from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.records import recorded_data
 
 # The records recipe (README, "Recorded data": measured on examples/tank_records.py, one record of 1024
@@ -112,6 +113,15 @@ def recorded_recipe(config: RunConfig) -> dict[str, object]:
     }
 
 
+def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
+    """config with model.features="given" where an override names a feature key (model.rls_order, ...)
+    and none names model.features: the named keys, not the preset's auto, set the features."""
+    named = parse_overrides(overrides)
+    if "model.features" in named or not any(k.startswith("model.") and k[6:] in AUTO_KEYS for k in named):
+        return config
+    return dataclasses.replace(config, model=dataclasses.replace(config.model, features="given"))
+
+
 def with_recorded_features(config: RunConfig, overrides: list[str], chosen: bool = False) -> RunConfig:
     """Layer 3: the records recipe on recorded data with inputs and complete outputs, unless the source or
     --preset (`chosen`), the base's feature or an override chose the feature (overrides of sizes and steps
@@ -162,7 +172,7 @@ def training_config(
         config = with_records(base_config(source, preset), data, val)
         chosen = source is not None or preset is not None
         config = with_recorded_features(config, list(overrides), chosen)
-        return apply_overrides(config, list(overrides))
+        return apply_overrides(given_features(config, list(overrides)), list(overrides))
     if source is not None or preset is not None:
         given = source if source is not None else f"--preset {preset}"
         raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
