@@ -144,3 +144,17 @@ def test_describe_features():
     assert auto.describe_features(dataclasses.replace(model, input_scale="none", arx_order=2)) == "ARX(3, 2)"
     assert auto.describe_features(RunConfig().model) == "none"
     assert "features" not in to_dict(RunConfig())["model"]  # omitted at its default: old hashes unchanged
+
+
+def test_mop_train_plan_line_names_the_chosen_features(one_thread):
+    """The line `mop train` prints before training names what auto chose (and nothing for a plain model)."""
+    from mop.models import build_model
+    from mop.train import resolve_config
+    from mop.train.estimate import plan_line
+
+    base = ["system.family=linear-inputs", "model.num_layers=1", "model.width=16", "model.num_heads=2"]
+    base += ["model.context=20", "train.horizon=20", "train.batch_size=4", "train.steps=12"]
+    for extra, words in ((["model.features=auto"], "features ARX("), ([], "(gpt 1 x 16);")):
+        config = resolve_config(apply_overrides(RunConfig(), [*base, *extra]))
+        line = plan_line(config, build_model(config.model), torch.device("cpu"))
+        assert words in line, line

@@ -13,6 +13,7 @@ import time
 import torch
 
 from mop.config import RunConfig
+from mop.train.auto import describe_features
 from mop.train.optim import LossModule, make_optimizer, train_step
 
 TRIAL_STEPS = 2
@@ -53,13 +54,16 @@ def duration(seconds: float) -> str:
 
 
 def plan_line(config: RunConfig, model: torch.nn.Module, device: torch.device, start_step: int = 0) -> str:
-    """One line: parameters, layers x width, steps left of batch x horizon, and the estimated time."""
+    """One line: parameters, layers x width, the input features, steps left of batch x horizon, and the
+    estimated time."""
     m, t = config.model, config.train
     params = sum(p.numel() for p in model.parameters())
     left = max(t.steps - start_step, 0)
     seconds = step_seconds(config, model, device) if left else 0.0
+    features = describe_features(m)  # what model.features=auto chose, or the keys as given
+    shape = f"{m.arch} {m.num_layers} x {m.width}" + ("" if features == "none" else f", features {features}")
     return (
-        f"model: {params:,} parameters ({m.arch} {m.num_layers} x {m.width}); {left} steps of batch "
+        f"model: {params:,} parameters ({shape}); {left} steps of batch "
         f"{t.batch_size} x {t.horizon} on {device.type}: about {duration(seconds * left)} "
         f"({1000 * seconds:.0f} ms per step, timed on {TRIAL_STEPS} trial steps)"
     )
