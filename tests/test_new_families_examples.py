@@ -1,7 +1,8 @@
 """The plugin families written for model.features=auto's check (examples/thermal_network.py,
-examples/dead_time.py): each model against an independent construction (scipy's zero-order hold and
-quadrature; the plant's transfer function by scipy.signal), the Kalman filter's innovations white with its own
-variance (simulate and state_space agree), and each experiment file end to end on the smoke preset."""
+examples/dead_time.py, examples/two_mass.py): each model against an independent construction (scipy's
+zero-order hold and quadrature; the plant's transfer function by scipy.signal), the Kalman filter's
+innovations white with its own variance (simulate and state_space agree), and each experiment file end to
+end on the smoke preset."""
 
 import json
 from pathlib import Path
@@ -66,6 +67,31 @@ def test_thermal_network_matches_scipy_hold_and_quadrature():
     assert p.C[0].tolist() == [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # sensors on the heated and the far node
 
 
+def test_two_mass_matches_the_equations_of_motion_held_by_scipy():
+    """A, B == scipy's zero-order hold of the equations of motion written out mass by mass; Q == quadrature
+    of the disturbance forces' covariance; C reads the two positions."""
+    fam = family("two-mass", "two_mass.py", dt=0.3)
+    p = fam.sample(12, generator=generator(4))
+    q, dt = fam.config.disturbance_std, fam.config.dt
+    for s in range(12):
+        (m1, m2), (k1, k2), (c1, c2) = (v[s].tolist() for v in (p.mass, p.spring, p.damper))
+        A_c = np.zeros((4, 4))
+        A_c[0, 2] = A_c[1, 3] = 1.0
+        A_c[2] = [-(k1 + k2) / m1, k2 / m1, -(c1 + c2) / m1, c2 / m1]  # m1 a1 = -k1 p1 + k2 (p2 - p1) ...
+        A_c[3] = [k2 / m2, -k2 / m2, c2 / m2, -c2 / m2]
+        b = np.array([[0.0], [0.0], [1 / m1], [0.0]])
+        A, B, *_ = cont2discrete((A_c, b, np.eye(4), np.zeros((4, 1))), dt, method="zoh")
+        np.testing.assert_allclose(p.A[s].numpy(), A, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(p.B[s].numpy(), B, rtol=1e-10, atol=1e-14)
+        G = q * np.array([[0, 0], [0, 0], [1 / m1, 0], [0, 1 / m2]])
+        Q, _ = quad_vec(
+            lambda t, A_c=A_c, G=G: expm(A_c * t) @ G @ G.T @ expm(A_c * t).T, 0, dt, epsrel=1e-12
+        )
+        np.testing.assert_allclose(p.Q[s].numpy(), Q, rtol=1e-8, atol=1e-14)
+    assert p.C[0].tolist() == [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]
+    assert torch.linalg.eigvals(p.A).abs().max() < 1  # damped: stable
+
+
 def test_dead_time_plant_matches_its_transfer_function():
     """The augmented model's impulse response from u == that of K (z - z0) / ((z - p1)(z - p2)) z^-d
     (scipy.signal.dimpulse of the transfer function), and its DC gain is 1."""
@@ -87,7 +113,8 @@ def test_dead_time_plant_matches_its_transfer_function():
 
 
 @pytest.mark.parametrize(
-    ("name", "plugin"), [("thermal-network", "thermal_network.py"), ("dead-time", "dead_time.py")]
+    ("name", "plugin"),
+    [("thermal-network", "thermal_network.py"), ("dead-time", "dead_time.py"), ("two-mass", "two_mass.py")],
 )
 def test_kalman_innovations_are_white_with_the_filters_variance(name, plugin):
     """On 3000 simulated systems (T = 40) the KF's normalized innovations have E[e_t^2] = 1 per step (0.12,
@@ -103,7 +130,7 @@ def test_kalman_innovations_are_white_with_the_filters_variance(name, plugin):
         assert np.abs(lagged).max() < 0.025, (k, lagged)
 
 
-@pytest.mark.parametrize("toml", ["thermal_network.toml", "dead_time.toml"])
+@pytest.mark.parametrize("toml", ["thermal_network.toml", "dead_time.toml", "two_mass.toml"])
 def test_experiment_file_end_to_end(tmp_path, tiny_smoke, toml):
     out = tmp_path / "out"
     assert (
