@@ -91,6 +91,10 @@ def test_resolved_run_config_equals_the_explicit_keys():
     assert run_config(auto_preset, "smoke") == resolved
     given = run_config(auto_preset, "smoke", overrides=["model.rls_order=2"])  # a later layer's key wins
     assert (given.model.rls_order, given.model.arx_order, given.train.steps) == (2, 0, 30)
+    literal = run_config(auto_preset, "smoke", overrides=["train.steps=40"])  # the user's steps as given
+    assert literal.model == resolved.model and literal.train.steps == 40
+    scaled = run_config(dataclasses.replace(auto_preset, train={**exp.train, "train.steps": 40}), "smoke")
+    assert scaled.train.steps == auto.steps_for(40, auto.STEP_COST["identifier"])  # an experiment's budget
 
 
 def test_gru_reads_no_features():

@@ -2,6 +2,7 @@
 record (--val), the summary line, and `mop train`'s defaults (preset rule, experiment files, the ARX feature
 on records with inputs, the plan line before the first step)."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -120,7 +121,8 @@ def test_one_record_trains_through_the_cli_with_the_records_recipe(tmp_path, cap
 
 def test_training_config_layers(tmp_path):
     small, paper = PRESETS["small"], PRESETS["paper"]
-    assert training_config(None, "small").model == small.model
+    model = training_config(None, "small").model  # the preset's auto resolved on its (linear) family
+    assert dataclasses.replace(model, features="auto", rls_order=0) == small.model and model.rls_order > 0
     assert training_config(None, "paper").train == paper.train
     with_inputs = write_record(tmp_path / "u.csv", lengths=(60,))
     without = write_record(tmp_path / "y.csv", lengths=(60,), inputs=False)
@@ -141,6 +143,8 @@ def test_training_config_layers(tmp_path):
     assert small.model.features == "given" and small.model.arx_order > 0 and small.train.steps == 2100
     named = training_config(None, "small", overrides=["model.rls_order=3"])  # a named key: auto is off
     assert (named.model.features, named.model.rls_order, named.train.steps) == ("given", 3, 2500)
+    quad = training_config(None, "small", overrides=["system.family=quadrotor", "train.steps=700"])
+    assert quad.model.arx_order > 0 and quad.train.steps == 700  # auto on the family given; steps as given
     cfg = tmp_path / "c.json"
     cfg.write_text(json.dumps({"train": {"steps": 7}}))
     assert training_config(str(cfg)).train.steps == 7

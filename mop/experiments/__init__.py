@@ -76,7 +76,7 @@ def run_config(
         config = dataclasses.replace(
             config, model=dataclasses.replace(config.model, context=config.train.horizon)
         )
-    return resolve_features(config)
+    return resolve_features(config, scale_steps="train.steps" not in given)  # the user's steps as given
 
 
 def _features_setting(layers: tuple[dict, ...]) -> str:

@@ -33,6 +33,7 @@ from mop.experiments.presets import default_preset, preset_config
 from mop.identify.select import fit
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
+from mop.train.auto import resolve_features
 from mop.train.records import recorded_data
 
 # The records recipe (README, "Recorded data": measured on examples/tank_records.py, one record of 1024
@@ -172,7 +173,8 @@ def training_config(
         config = with_records(base_config(source, preset), data, val)
         chosen = source is not None or preset is not None
         config = with_recorded_features(config, list(overrides), chosen)
-        return apply_overrides(given_features(config, list(overrides)), list(overrides))
+        config = apply_overrides(given_features(config, list(overrides)), list(overrides))
+        return resolve_features(config, scale_steps="train.steps" not in parse_overrides(list(overrides)))
     if source is not None or preset is not None:
         given = source if source is not None else f"--preset {preset}"
         raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")

@@ -22,7 +22,8 @@ linear-inputs ARX(1, 2) 1.307 (ARX(2, 2) 1.407), quadrotor ARX(3, 1), rlc-circui
 
 The step budget follows the step cost: with a feature on, train.steps becomes steps / cost rounded to two
 significant digits, cost the product of the STEP_COST factors of the features chosen, so the training
-takes the plain model's time (as the quadrotor's 2100 steps for its 2500 did by hand).
+takes the plain model's time (as the quadrotor's 2100 steps for its 2500 did by hand). The budget of a
+preset or an experiment is in plain-model steps; a train.steps given on the command line is taken as is.
 Recorded data (data.path) and architectures that read no features (the GRU) keep the given keys.
 """
 
@@ -121,8 +122,9 @@ def steps_for(steps: int, cost: float) -> int:
     return steps if cost == 1.0 else max(1, int(float(f"{steps / cost:.2g}")))
 
 
-def apply_choice(config: RunConfig, choice: FeatureChoice) -> RunConfig:
-    """config with model.features = "given", the choice's keys and train.steps for its step cost."""
+def apply_choice(config: RunConfig, choice: FeatureChoice, scale_steps: bool = True) -> RunConfig:
+    """config with model.features = "given", the choice's keys and (scale_steps) train.steps for its step
+    cost."""
     model = dataclasses.replace(
         config.model,
         features="given",
@@ -131,17 +133,19 @@ def apply_choice(config: RunConfig, choice: FeatureChoice) -> RunConfig:
         arx_order=choice.input_order,
         rls_offset=False,
     )
-    train = dataclasses.replace(config.train, steps=steps_for(config.train.steps, choice.cost))
+    steps = steps_for(config.train.steps, choice.cost) if scale_steps else config.train.steps
+    train = dataclasses.replace(config.train, steps=steps)
     return dataclasses.replace(config, model=model, train=train)
 
 
-def resolve_features(config: RunConfig) -> RunConfig:
-    """config with model.features = "auto" resolved (the module docstring); others unchanged."""
+def resolve_features(config: RunConfig, scale_steps: bool = True) -> RunConfig:
+    """config with model.features = "auto" resolved (the module docstring); others unchanged.
+    scale_steps=False keeps train.steps as it is (a number of steps the user gave on the command line)."""
     if config.model.features != "auto":
         return config
     if config.data is not None or not reads_features(config.model.arch):
         return dataclasses.replace(config, model=dataclasses.replace(config.model, features="given"))
-    return apply_choice(config, family_choice(config))
+    return apply_choice(config, family_choice(config), scale_steps)
 
 
 def for_arch(config: RunConfig, arch: str) -> RunConfig:
