@@ -132,7 +132,8 @@ def test_training_config_layers(tmp_path):
     )
     assert all(getattr(recipe.model, k.split(".")[1]) == v for k, v in RECORDED_MODEL.items())
     assert training_config(None, None, str(with_inputs), overrides=["train.steps=9"]).train.steps == 9
-    assert training_config(None, "small", str(with_inputs)).model == small.model  # --preset: its own model
+    preset_model = dataclasses.replace(small.model, features="given")  # auto on records: the keys as given
+    assert training_config(None, "small", str(with_inputs)).model == preset_model  # --preset: its own model
     assert training_config(None, None, str(without)).model.rls_order == 0  # no inputs: no ARX feature
     off = training_config(None, None, str(with_inputs), overrides=["model.rls_order=0"])
     assert off.model.rls_order == 0 and off.model.arx_order == 0  # a named feature key: no recipe at all
