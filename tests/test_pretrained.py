@@ -407,3 +407,23 @@ def test_class_model_predicts_and_simulates_any_units_zero_shot(name, tmp_path, 
         got, want = out["b", key][:, start:], 1000 * out["a", key][:, start:] + 5
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-2)
     assert np.sqrt(((out["a", "ysim"] - y[:, 300:]) ** 2).mean()) < 0.5 * y[:, 300:].std()
+
+
+@pytest.mark.slow
+def test_zero_shot_experiment_file_evaluates_the_shipped_class_model_untrained(tmp_path):
+    """examples/class_zero_shot.toml at the smoke preset: every condition (its class, noisy, the neighbouring
+    Wiener-Hammerstein class) runs pretrained:lti-siso, nothing is trained, and the lti-siso condition's
+    simulation RMSE is the shipped model's own simulation of those test systems (recomputed here)."""
+    from mop.experiments.evaluating import test_trajectories
+
+    out = tmp_path / "zs"
+    toml = Path(__file__).resolve().parents[1] / "examples" / "class_zero_shot.toml"
+    assert main(["reproduce", str(toml), "--preset", "smoke", "--out", str(out), "--quiet"]) == 0
+    data = json.loads((out / "eval.json").read_text())
+    assert set(data["runs"].values()) == {"pretrained:lti-siso"} and len(data["runs"]) == 3
+    assert not (tmp_path / "runs").exists()
+    cond = data["conditions"]["lti-siso"]
+    traj = test_trajectories(load_config("pretrained:lti-siso").system, cond["num_systems"], 499, seed=0)
+    sim = mop.load("pretrained:lti-siso").simulate(traj, 400).double()
+    rmse = float(((sim - traj.y[:, 400:].double()) ** 2).mean((1, 2)).sqrt().mean())
+    assert cond["simulation"]["rmse"]["mop"]["simulation_rmse"] == pytest.approx(rmse, rel=1e-6)
