@@ -69,7 +69,9 @@ def test_the_default_schedule_and_refusals(tmp_path, capsys):
     base = from_dict(RunConfig, json.loads((src / "config.json").read_text()))
     assert config.train.steps == FINE_TUNE_STEPS and config.train.warmup_steps == 0
     assert config.train.lr == pytest.approx(base.train.lr * FINE_TUNE_LR_FACTOR)
-    assert config.model == base.model
+    assert config.model == base.model and config.train.horizon == base.train.horizon == 20
+    short = training_config(None, data=record(tmp_path / "s.npz", 2, T=150), init=str(src))
+    assert short.train.horizon == 15  # the last ceil(0.1 x 151) = 16 steps validate: windows of 16 fit
     capsys.readouterr()
     out = tmp_path / "bad"
     argv = [

@@ -57,10 +57,13 @@ def test_gap_forecast_equals_one_predict_per_origin_and_step(arch, horizon, step
 
 
 def test_gap_simulation_is_the_forecast_from_the_context():
+    """Within the model's context (T <= C); beyond it the simulation goes in half-overlapping windows
+    (mop.models.simulate.gap_simulation, tests/test_recordnorm.py) and the forecast slides its window."""
     p = gap_model("gpt", 2)
-    traj = trajectories(12, 2, False)
-    sim = p.simulate(traj, 4)  # (B, T+1-c, m): y_4..y_12 from y_0..y_3 and the inputs
-    f = p.forecast(traj, 9)  # f[:, 4, j] forecasts y_{4+j}
+    T = p.cfg.context
+    traj = trajectories(T, 2, False)
+    sim = p.simulate(traj, 4)  # (B, T+1-c, m): y_4..y_T from y_0..y_3 and the inputs
+    f = p.forecast(traj, T - 3)  # f[:, 4, j] forecasts y_{4+j}
     torch.testing.assert_close(sim, f[:, 4], rtol=0, atol=1e-10)
 
 

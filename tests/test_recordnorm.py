@@ -147,3 +147,27 @@ def test_masked_arx_feature_across_a_gap_is_the_arx_simulation(norm):
     sim = arx_forecast(zs[..., :1], zs[..., 1:], 2, 2, steps=30 - c, origin=c, offset=True)[:, c]  # (B, K, 1)
     sim = sim * (scale[..., :1] if norm == "causal" else 1.0) + (shift[..., :1] if norm == "causal" else 0.0)
     torch.testing.assert_close(out[:, c - 1 :], sim, rtol=1e-9, atol=1e-9)
+
+
+def test_gap_simulation_beyond_the_context_goes_in_half_overlapping_windows():
+    """T = 50 > context 20, simulation from c = 8: y_8..y_20 are the one-window simulation of y_0..y_20;
+    every later output is predicted by a window of 20 inputs starting at a multiple of 10 that reads the
+    outputs before it as measured (checked against that window's own predict); and the whole simulation is
+    equivariant to the record's units."""
+    options = dict(input_dim=3, observation_mask=True, rls_order=2, arx_order=2, rls_offset=True)
+    model = trained_like(tiny(**options, forecast_mode="gap"))
+    z = record(T=51)
+    traj = Trajectories(z[..., :1], z[..., 1:])
+    p = LearnedPredictor(model)
+    sim = p.simulate(traj, 8)  # (B, 43, 1): y_8..y_50
+    y = traj.y.clone()
+    y[:, 8:] = float("nan")
+    torch.testing.assert_close(sim[:, :13], p.predict(Trajectories(y[:, :21], traj.u[:, :21]))[:, 8:])
+    filled = torch.cat([traj.y[:, :8], sim], 1)  # y_0..y_50, simulated from 8 on
+    for start, new in ((10, range(21, 31)), (20, range(31, 41)), (30, range(41, 51))):
+        window = filled[:, start : start + 21].clone()
+        window[:, new[0] - start :] = float("nan")
+        pred = p.predict(Trajectories(window, traj.u[:, start : start + 21]))
+        torch.testing.assert_close(sim[:, new[0] - 8 : new[-1] - 7], pred[:, new[0] - start :])
+    moved = p.simulate(Trajectories(50 * traj.y + 7, 3 * traj.u - 1), 8)
+    torch.testing.assert_close(moved, 50 * sim + 7, rtol=1e-9, atol=1e-7)

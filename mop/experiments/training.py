@@ -25,7 +25,15 @@ import dataclasses
 import json
 from pathlib import Path
 
-from mop.config import DataConfig, RunConfig, apply_overrides, apply_settings, from_dict, parse_overrides
+from mop.config import (
+    DataConfig,
+    RunConfig,
+    TrainConfig,
+    apply_overrides,
+    apply_settings,
+    from_dict,
+    parse_overrides,
+)
 from mop.errors import MopError
 from mop.experiments import get_experiment, run_config
 from mop.experiments.files import is_experiment_file, load_experiment
@@ -156,7 +164,22 @@ def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConf
     if data is not None and source.data is not None and source.data.fitted:
         kept = {k: getattr(source.data, k) for k in ("y_mean", "y_std", "u_mean", "u_std")}
         data = dataclasses.replace(data, **kept)
+    if data is not None:
+        train = _record_horizon(train, data)
     return dataclasses.replace(config, train=train, data=data)
+
+
+def _record_horizon(train: TrainConfig, data: DataConfig) -> TrainConfig:
+    """A source trained on longer windows than the record's split holds trains on the longest that fit
+    both sides (train.simulate_after scaled alike), so `--init` works on a short record as it is."""
+    split = recorded_data(data)
+    fits = min(max(len(a) for a in split.train_parts), max(len(a) for a in split.val_parts)) - 1
+    if not 2 <= fits < train.horizon:
+        return train
+    after = (
+        min(max(round(train.simulate_after * fits / train.horizon), 1), fits) if train.simulate_after else 0
+    )
+    return dataclasses.replace(train, horizon=fits, simulate_after=after)
 
 
 def training_config(

@@ -4,7 +4,8 @@ the k-step forecast (mop.models.forecast) share.
 simulate(p, traj, c) -> (B, T+1-c, m): out[:, j] predicts y_{c+j} from z_0..z_{c-1} and then the model's own
 predicted outputs with the given inputs, [yhat_c, u_c], .., [yhat_{c+j-1}, u_{c+j-1}] (a forecast from origin
 c). The one chooser, simulation_path, takes
-- "gap" (model.forecast_mode = "gap"): one predict with y_c..y_T read as missing;
+- "gap" (model.forecast_mode = "gap"): one predict with y_c..y_T read as missing (gap_simulation: beyond a
+  context-limited model's context, in windows of C inputs advancing by C/2);
 - "stream" where stepping the model's stream cache equals its forward (a recurrent model; a transformer
   with T <= context): the cache steps once per input (streamed_rollout);
 - "window" otherwise: one forward per simulated step on the last C inputs (windowed_rollout).
@@ -67,9 +68,7 @@ def simulate(p: ModelPredictor, traj: Trajectories, context: int) -> Tensor:
     """(B, T+1-c, m) free-run simulation from c = context (see the module docstring)."""
     path = simulation_path(p, traj.horizon, context)
     if path == "gap":
-        y = traj.y.clone()
-        y[:, context:] = float("nan")
-        return p.predict(Trajectories(y, traj.u))[:, context:]
+        return gap_simulation(p, traj, context)
     z = traj.model_inputs().double()  # (B, T+1, d_in) in data units
     u = None if traj.u is None else traj.u.double()
     count = traj.horizon - context
@@ -85,3 +84,27 @@ def simulate(p: ModelPredictor, traj: Trajectories, context: int) -> Tensor:
         pred = p.last_output(hist if limit is None else hist[:, -limit:])  # y_c from z_{<c}
         out = [pred, *windowed_rollout(p, hist, pred, u, context, count)]
     return torch.stack(out, dim=1).to(traj.y.dtype)
+
+
+def gap_simulation(p: ModelPredictor, traj: Trajectories, context: int) -> Tensor:
+    """simulate for model.forecast_mode = "gap": y_c..y_T read as missing, one predict while T <= C (the
+    model's context) or the model is not context-limited. Beyond it, windows of C inputs (outputs
+    y_s..y_{s+C}) start at s = 0, S, 2S, ... (S = C // 2): each predicts the outputs its predecessor did not
+    reach, reading the ones before as measured (the record's up to c, the simulated ones after), so every
+    simulated output sees at least C - S steps and the cost is about 2 T / C forwards. (B, T+1-c, m)."""
+    y = traj.y.clone()
+    y[:, context:] = float("nan")
+    C, T = p.cfg.context, traj.horizon
+    if not p.model.context_limited or T <= C:
+        return p.predict(Trajectories(y, traj.u))[:, context:]
+    stride, done = max(C // 2, 1), 0  # y_0..y_done are measured or simulated
+    for start in range(0, T, stride):
+        end = min(start + C, T)  # the window's outputs y_start..y_end: C inputs
+        u = None if traj.u is None else traj.u[:, start : end + 1]
+        pred = p.predict(Trajectories(y[:, start : end + 1], u))  # (B, end - start + 1, m)
+        new = max(done + 1, context)
+        y[:, new : end + 1] = pred[:, new - start :].to(y)
+        done = end
+        if end == T:
+            break
+    return y[:, context:]
