@@ -82,6 +82,7 @@ def test_torchrun_two_ranks_train_like_one_process(tmp_path):
     ]
     command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2"]
     command += ["-m", "mop", "train", "--out", str(tmp_path / "ddp"), *overrides]
+    command += ["model.features=given"]  # as the config's default (left out of to_dict): no preset's auto
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
