@@ -38,6 +38,7 @@ from mop.errors import MopError
 from mop.experiments import get_experiment, run_config
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.presets import default_preset, preset_config
+from mop.identify.arx import ARX
 from mop.identify.select import fit
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
@@ -111,7 +112,7 @@ def recorded_recipe(config: RunConfig) -> dict[str, object]:
     data = recorded_data(config.data)
     m = data.output_dim
     parts = [(a[:, :m], a[:, m:]) for a in data.train_parts]
-    orders = fit("arx", parts, source=config.data.path).orders
+    orders = fit(ARX.kind, parts, source=config.data.path).orders
     return {
         **RECORDED_MODEL,
         "train.steps": RECORDED_STEPS,
