@@ -2,13 +2,12 @@
 
     extras = ANALYSES.get("calibration")(result, predictors, reference)  # into the condition's eval.json
 
-An analysis sees the condition's test trajectories, its predictors and their errors; it returns a dict.
-It renders and describes itself through its registry metadata, so the runner names none:
+An analysis sees a condition's trajectories, predictors and errors, returns a dict, and renders itself:
     markdown(extras) -> str        its section of the condition in report.md ("" for none)
     to_json(results) -> dict       entries it adds to eval.json over all conditions (e.g. "sweeps")
     sections(entries) -> list[str] report.md sections of those entries
-The measures that read an analysis's extras (coverage, matrix_power_max, slope) are registered here too,
-beside it, so mop.experiments.measures names no analysis; figures read extras through the accessors below.
+The measures that read an analysis's extras (coverage, matrix_power_max, slope) are registered here too;
+figures read extras through the accessors below.
 """
 
 from __future__ import annotations
