@@ -6,8 +6,7 @@ An analysis sees a condition's trajectories, predictors and errors, returns a di
     markdown(extras) -> str        its section of the condition in report.md ("" for none)
     to_json(results) -> dict       entries it adds to eval.json over all conditions (e.g. "sweeps")
     sections(entries) -> list[str] report.md sections of those entries
-The measures that read an analysis's extras (coverage, matrix_power_max, slope) are registered here too;
-figures read extras through the accessors below.
+Measures reading these extras (coverage, matrix_power_max, slope) are registered here; figures use accessors.
 """
 
 from __future__ import annotations
