@@ -104,7 +104,7 @@ def held_out_records(tmp_path, num: int, T: int = 600) -> list[tuple[str, Trajec
     params = family.sample(num, generator=generator(99))
     out = []
     for i in range(num):
-        p = {k: v[i : i + 1] for k, v in params.items()}
+        p = params.select(slice(i, i + 1))
         fit, test = (family.simulate(p, T, generator=generator(100 + 2 * i + j)) for j in (0, 1))
         path = tmp_path / f"sys{i}.npz"
         np.savez(path, y=fit.y.numpy(), u=fit.u.numpy())
