@@ -83,6 +83,13 @@ def simulate_all(predictor, data: Data, context: int, family: str = "", params=N
     return out
 
 
+def observed_norms(e: np.ndarray) -> np.ndarray:
+    """||e_t|| over the measured channels (e NaN where y was missing) for the steps with any measured:
+    e (T, m) -> (T',)."""
+    seen = ~np.isnan(e).all(axis=-1)
+    return np.sqrt(np.nansum(e[seen] ** 2, axis=-1))
+
+
 @dataclasses.dataclass(frozen=True)
 class Scores:
     """Figures of merit of predictions of one or more records (see the module docstring)."""
@@ -104,10 +111,9 @@ def scores(y: list[np.ndarray] | np.ndarray, yhat: list[np.ndarray] | np.ndarray
     spread = np.sqrt(np.nanmean((y - np.nanmean(y, axis=0)) ** 2, axis=0))  # (m,) population std
     with np.errstate(divide="ignore", invalid="ignore"):
         nrmse = np.where(spread > 0, rmse / spread, np.nan)
-    seen = ~np.isnan(e).all(axis=-1)
-    norms = np.sqrt(np.nansum(e[seen] ** 2, axis=-1))
+    norms = observed_norms(e)
     return Scores(
-        steps=int(seen.sum()),
+        steps=len(norms),
         rmse=float(np.sqrt(np.nanmean(e**2))),
         nrmse=float(np.mean(nrmse)),
         fit=float(100 * (1 - np.mean(nrmse))),

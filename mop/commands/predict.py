@@ -38,7 +38,7 @@ from mop.predictors import (
     needs_system,
 )
 from mop.pretrained import is_pretrained
-from mop.records import predict_all, scores, simulate_all
+from mop.records import observed_norms, predict_all, scores, simulate_all
 from mop.runs import load_predictor
 from mop.systems import FAMILIES
 from mop.systems.base import (
@@ -189,13 +189,6 @@ def write_output(path: Path, names: list[str], yhat: list[np.ndarray]) -> None:
                         w.writerow([name, t, j, *[f"{v:.7g}" for v in r]])
     else:
         raise MopError(f"--out {path}: use a .csv or .npz file name")
-
-
-def observed_norms(e: np.ndarray) -> np.ndarray:
-    """||e_t|| over the measured channels (e NaN where y was missing) for the steps with any measured:
-    e (T, m) -> (T',)."""
-    seen = ~np.isnan(e).all(axis=-1)
-    return np.sqrt(np.nansum(e[seen] ** 2, axis=-1))
 
 
 def print_errors(names, data, yhat) -> None:

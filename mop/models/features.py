@@ -66,6 +66,11 @@ def input_count(cfg: ModelConfig) -> int:
     return cfg.input_dim - cfg.output_dim * (2 if cfg.observation_mask else 1)
 
 
+def regressor_count(cfg: ModelConfig) -> int:
+    """d = p m + q k (+ 1 with rls_offset): the RLS / ARX feature's regressors (mop.filters.arx's order)."""
+    return cfg.rls_order * cfg.output_dim + cfg.arx_order * input_count(cfg) + int(cfg.rls_offset)
+
+
 def check_features(cfg: ModelConfig) -> None:
     """One-line errors for feature options the model's inputs cannot serve."""
     if cfg.arx_order > 0 and input_count(cfg) <= 0:
@@ -80,7 +85,7 @@ def check_features(cfg: ModelConfig) -> None:
             "model.rls_order > 0, and neither model.record_norm nor an observation mask"
         )
     prior = feature_prior(cfg)
-    d = cfg.rls_order * cfg.output_dim + cfg.arx_order * input_count(cfg) + int(cfg.rls_offset)
+    d = regressor_count(cfg)
     if prior is not None and prior[0].shape[0] != d:
         raise MopError(
             f"model.rls_prior holds {prior[0].shape[0]} rows of coefficients, the feature reads {d}"
@@ -220,7 +225,7 @@ class FeatureState:
         self.cfg, self.m, self.t = cfg, cfg.output_dim, 0
         self.sum_sq = torch.zeros(batch_size, 1, device=device, dtype=dtype)
         p, q, self.k = cfg.rls_order, cfg.arx_order, input_count(cfg)
-        d = p * cfg.output_dim + q * self.k + (1 if cfg.rls_offset else 0)
+        d = regressor_count(cfg)
         if p > 0:
             f64 = dict(device=device, dtype=torch.float64)
             self.theta = torch.zeros(batch_size, d, self.m, **f64)
