@@ -251,6 +251,9 @@ class TrainConfig:
     score_dropped: bool = False
     simulate_after: int = 0  # c > 0: y_s.. dropped and scored, s ~ U{c..T}: a simulation loss (data.py)
     init: str = ""  # a run directory or pretrained:NAME whose weights step 0 starts from (mop.train.init)
+    # True: model.safetensors holds the weights of the lowest validation loss, step 0's included (so a model
+    # that starts as its feature ends no worse than it on the validation systems), not the last (loop.py)
+    keep_best: bool = False
 
     @property
     def drops_outputs(self) -> bool:

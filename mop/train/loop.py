@@ -27,6 +27,7 @@ import torch.distributed as dist
 from torch import Tensor, nn
 
 from mop.atomic import clean_orphans
+from mop.checkpoint import load_model_weights, save_model
 from mop.config import RunConfig
 from mop.errors import MopError
 from mop.models import build_model
@@ -74,6 +75,7 @@ class TrainState:
     world: int = 1
     val: tuple[Tensor, Tensor] | None = None  # (N, T, d_in), (N, T, m)
     log: MetricsLog | None = None
+    best: tuple[int, float] | None = None  # train.keep_best: (step, val_loss) of model.safetensors' weights
 
 
 def train(
@@ -177,6 +179,10 @@ def _start(config: RunConfig, out_dir: Path, device: torch.device, rank: int, wo
         state.val = validation_batch(config, device)
         write_input_stats(out_dir, state.val[0])
         state.log = MetricsLog(out_dir, step)
+        if config.train.keep_best:
+            state.best = state.log.best_val()  # resumed: the best before the checkpoint (metrics kept to it)
+            if state.best is None:  # step 0: the model as it starts is the first candidate
+                _validate(state)
     return state
 
 
@@ -215,7 +221,9 @@ def _loop(state: TrainState, progress: bool) -> None:
                 )
     bar.close()
     if state.rank == 0:
-        write_done(state.out_dir, state.step)
+        write_done(state.out_dir, state.step, None if state.best is None else state.best[0])
+    if state.best is not None:  # the caller gets the kept weights
+        load_model_weights(state.out_dir / "model.safetensors", state.model)
 
 
 def _diverged(state: TrainState, loss: float, since: int, last_good: int) -> str:
@@ -243,13 +251,28 @@ def _checkpoint(state: TrainState) -> None:
     cfg = state.config.train
     if state.rank == 0:
         if state.step % cfg.checkpoint_every == 0 or state.step == cfg.steps:
-            val_loss = validation_loss(state.model, state.val, cfg, state.device)
-            state.log.log({"step": state.step, "val_loss": val_loss})
+            _validate(state)
         save_training_state(
-            state.out_dir, state.step, state.model, state.optimizer, state.data.generator, state.device
+            state.out_dir,
+            state.step,
+            state.model,
+            state.optimizer,
+            state.data.generator,
+            state.device,
+            with_model=not cfg.keep_best,
         )
     if state.world > 1:
         dist.barrier()
+
+
+def _validate(state: TrainState) -> None:
+    """Rank 0: log the validation loss; with train.keep_best write model.safetensors when it is the lowest
+    so far (before the checkpoint, so a resume from an earlier checkpoint recomputes the same choice)."""
+    val_loss = validation_loss(state.model, state.val, state.config.train, state.device)
+    state.log.log({"step": state.step, "val_loss": val_loss})
+    if state.config.train.keep_best and (state.best is None or val_loss < state.best[1]):
+        save_model(state.out_dir / "model.safetensors", state.model)
+        state.best = (state.step, val_loss)
 
 
 @contextlib.contextmanager

@@ -146,8 +146,10 @@ def write_config(out_dir: Path, config: RunConfig) -> None:
     write_json(out_dir / "config.json", to_dict(config))
 
 
-def write_done(out_dir: Path, step: int) -> None:
-    write_json(out_dir / "done.json", {"step": step})
+def write_done(out_dir: Path, step: int, kept_step: int | None = None) -> None:
+    """done.json: the last step, and with train.keep_best the step whose weights model.safetensors holds."""
+    kept = {} if kept_step is None else {"kept": kept_step}
+    write_json(out_dir / "done.json", {"step": step, **kept})
 
 
 class MetricsLog:
@@ -166,6 +168,15 @@ class MetricsLog:
                         kept.append(line)
         write_text(self.path, "".join(line + "\n" for line in kept))
         self.writer = SummaryWriter(str(out_dir / "tb"), purge_step=resume_step + 1 if resume_step else None)
+
+    def best_val(self) -> tuple[int, float] | None:
+        """(step, val_loss) of the lowest validation loss logged so far (the earliest on a tie), or None."""
+        best = None
+        for line in self.path.read_text().splitlines():
+            record = json.loads(line)
+            if "val_loss" in record and (best is None or record["val_loss"] < best[1]):
+                best = (record["step"], record["val_loss"])
+        return best
 
     def log(self, record: dict) -> None:
         with open(self.path, "a") as handle:
@@ -189,10 +200,12 @@ def save_training_state(
     optimizer: torch.optim.Optimizer,
     generator: torch.Generator,
     device: torch.device,
+    with_model: bool = True,
 ) -> None:
-    """checkpoint.safetensors (model, AdamW, RNG states, step), then model.safetensors."""
+    """checkpoint.safetensors (model, AdamW, RNG states, step), then model.safetensors (with_model)."""
     save_checkpoint(out_dir / "checkpoint.safetensors", step, model, optimizer, _rng_state(generator, device))
-    save_model(out_dir / "model.safetensors", model)
+    if with_model:
+        save_model(out_dir / "model.safetensors", model)
 
 
 def restore_training_state(
