@@ -9,14 +9,16 @@ Layers, later wins:
    the feature, the
    records recipe (recorded_recipe): a 1 x 32 model for RECORDED_STEPS steps whose ARX(p, q) feature with an
    intercept starts from the least-squares ARX of the training part (model.rls_prior = "fit"), the orders
-   those `mop fit arx` chooses on that part (held-out free-run simulation);
+   those `mop fit arx` chooses on that part (held-out free-run simulation); the weights kept are those of
+   the lowest validation loss, the fitted ARX's at step 0 included (train.keep_best);
 4. the dotted key=value overrides.
 With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.train.init) the base is the
 source's own RunConfig (its model, so the architecture is the source's; its data normalisation kept, where
 it was trained on recorded data), layer 3 is skipped, and FINE_TUNE sets a short schedule before the
 overrides: FINE_TUNE_STEPS steps at a tenth of the source's learning rate, constant, no warm-up (the weights
 are trained already: a warm-up from zero and the source's full rate would first move them away from what
-they learned; 500 steps of batch 16 on a 2-core CPU are minutes).
+they learned; 500 steps of batch 16 on a 2-core CPU are minutes), keeping the weights of the lowest
+validation loss, the source's at step 0 included (train.keep_best: never worse than the source there).
 """
 
 from __future__ import annotations
@@ -120,6 +122,7 @@ def recorded_recipe(config: RunConfig) -> dict[str, object]:
         "model.arx_order": orders["q"],
         "model.rls_offset": True,
         "model.rls_prior": "fit",
+        "train.keep_best": True,
     }
 
 
@@ -160,6 +163,7 @@ def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConf
         lr=source.train.lr * FINE_TUNE_LR_FACTOR,
         warmup_steps=0,
         lr_schedule="constant",
+        keep_best=True,
     )
     data = config.data
     if data is not None and source.data is not None and source.data.fitted:
