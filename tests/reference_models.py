@@ -12,8 +12,16 @@ from mop.systems.base import Trajectories
 def _window_mode(p):
     """A copy of the learned predictor p that predicts with the sliding window (the definition's)."""
     window = copy.copy(p)
-    window.mode = "window"
+    window.mode = "sliding"
     return window
+
+
+def half_window_start(t: int, context: int) -> int:
+    """The first input of the window that mode "window" predicts y_{t+1} with (output position t): 0 inside
+    the context, else the latest multiple of S = C // 2 at or before t - (C - S), so the prediction reads
+    the C - S to C inputs z_start..z_t."""
+    stride = max(context // 2, 1)
+    return 0 if t < context else stride * ((t - context + stride) // stride)
 
 
 def _rows(traj, y, last: int) -> Trajectories:
@@ -40,10 +48,11 @@ def reference_forecast(p, traj, steps: int) -> torch.Tensor:
 
 
 def reference_simulate(p, traj, context: int) -> torch.Tensor:
-    """A learned predictor's free-run simulation (B, T+1-c, m) by definition: for s = c..T, y_s of a copy of
-    the data is overwritten by the sliding-window one-step prediction at s of that copy."""
+    """A learned predictor's free-run simulation (B, T+1-c, m) by definition, the forecast from origin c:
+    y_c of a copy of the data is overwritten by p's one-step prediction in its own mode, then for
+    s = c+1..T y_s by the sliding-window one-step prediction at s of that copy."""
     window = _window_mode(p)
     y = traj.y.clone()
     for s in range(context, traj.horizon + 1):
-        y[:, s] = window.predict(_rows(traj, y, s))[:, s]
+        y[:, s] = (p if s == context else window).predict(_rows(traj, y, s))[:, s]
     return y[:, context:]

@@ -13,6 +13,7 @@ from mop.models import build_model
 from mop.models.predict import stream
 from mop.models.predictor import LearnedPredictor
 from mop.systems.base import Trajectories
+from tests.reference_models import half_window_start
 from tests.test_rollout import CONTEXT, random_model, random_trajectories
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -29,20 +30,21 @@ def direct_model(arch: str, position: str = "learned", inputs: int = 0) -> torch
     return model
 
 
-def by_definition(model: torch.nn.Module, traj: Trajectories, steps: int) -> torch.Tensor:
-    """f[:, t, j] = head j+1 at the last input of one forward on the last C inputs of z_0..z_{t-1}, given
-    the future inputs u_t..u_{t+K-2} (zero beyond u_T)."""
+def by_definition(model: torch.nn.Module, traj: Trajectories, steps: int, mode: str) -> torch.Tensor:
+    """f[:, t, j] = head j+1 at the last input of one forward on the window of z_0..z_{t-1} that `mode` reads
+    (its last C inputs, or from half_window_start), given the future inputs u_t..u_{t+K-2} (0 beyond u_T)."""
     z = traj.model_inputs()[:, :-1]
     B, T1, m = traj.y.shape
     out = traj.y.new_full((B, T1, steps, m), float("nan"))
     out[:, 0] = 0.0
-    limit = CONTEXT if model.context_limited else T1
     for t in range(1, T1):
-        window = z[:, max(0, t - limit) : t]
+        start = max(0, t - CONTEXT) if mode == "sliding" else half_window_start(t - 1, CONTEXT)
+        start = start if model.context_limited else 0
+        window = z[:, start:t]
         future = None
         if traj.u is not None:  # for each window position p: u_{p+1}..u_{p+K-1}
             u = torch.cat([traj.u, traj.u.new_zeros(B, HEADS, traj.u.shape[-1])], dim=1)
-            p = range(max(0, t - limit), t)
+            p = range(start, t)
             future = torch.stack([torch.stack([u[:, q + 1 + i] for i in range(HEADS - 1)], 1) for q in p], 1)
         heads = model.forecast_heads(window, future=future)[:, -1]  # (B, K, m)
         for j in range(min(steps, T1 - t)):
@@ -53,13 +55,14 @@ def by_definition(model: torch.nn.Module, traj: Trajectories, steps: int) -> tor
 @pytest.mark.parametrize("arch,position", [("gpt", "learned"), ("gpt", "rope"), ("gru", "learned")])
 @pytest.mark.parametrize("horizon,steps", [(CONTEXT - 3, HEADS), (3 * CONTEXT + 2, 3)])
 @pytest.mark.parametrize("inputs", [0, 2])
-def test_direct_forecast_equals_one_forward_per_origin(arch, position, horizon, steps, inputs):
+@pytest.mark.parametrize("mode", ["window", "sliding"])
+def test_direct_forecast_equals_one_forward_per_origin(arch, position, horizon, steps, inputs, mode):
     model = direct_model(arch, position, inputs)
-    p = LearnedPredictor(model, chunk_size=2)  # several chunks of systems
+    p = LearnedPredictor(model, mode=mode, chunk_size=2)  # several chunks of systems
     traj = random_trajectories(5, horizon, inputs)
     fast = p.forecast(traj, steps)
     with torch.no_grad():
-        slow = by_definition(model, traj, steps)
+        slow = by_definition(model, traj, steps, mode)
     assert torch.equal(fast.isnan(), slow.isnan())
     torch.testing.assert_close(fast, slow, rtol=0, atol=1e-10, equal_nan=True)
     torch.testing.assert_close(fast[:, :, 0], p.predict(traj), rtol=0, atol=1e-10)  # head 1 is predict

@@ -1,4 +1,4 @@
-"""LearnedPredictor: protocol, indexing, window mode vs an explicit loop, stream mode, chunking."""
+"""LearnedPredictor: protocol, indexing, modes window and sliding vs explicit loops, stream mode, chunking."""
 
 import pytest
 import torch
@@ -9,6 +9,7 @@ from mop.models import build_model
 from mop.models.predictor import LearnedPredictor
 from mop.predictors import Predictor
 from mop.systems.base import Trajectories
+from tests.reference_models import half_window_start
 
 C = 8
 
@@ -30,13 +31,13 @@ def setup(T=20, readout="mean", position="learned", arch="gpt"):
     return build_model(cfg), traj
 
 
-def explicit_window(model, traj):
-    """yhat_t = last output of a forward on the last <= C inputs before t; yhat_0 = 0."""
+def explicit_window(model, traj, start=lambda t: max(0, t + 1 - C)):
+    """yhat_{t+1} = last output of a forward on z_start(t)..z_t (default: the last <= C inputs); yhat_0 = 0"""
     z = traj.model_inputs()
     out = torch.zeros_like(traj.y)
     with torch.no_grad():
-        for t in range(1, traj.y.shape[1]):
-            out[:, t] = model(z[:, max(0, t - C) : t])[:, -1]
+        for t in range(traj.y.shape[1] - 1):
+            out[:, t + 1] = model(z[:, start(t) : t + 1])[:, -1]
     return out
 
 
@@ -53,7 +54,7 @@ def test_protocol_and_indexing():
     assert torch.equal(pred.predict(later), yhat)
 
 
-@pytest.mark.parametrize("mode", ["window", "stream"])
+@pytest.mark.parametrize("mode", ["window", "sliding", "stream"])
 def test_inside_context_equals_plain_forward(mode):
     model, traj = setup(T=C)
     with torch.no_grad():
@@ -62,11 +63,30 @@ def test_inside_context_equals_plain_forward(mode):
 
 
 @pytest.mark.parametrize("position", ["learned", "rope"])
-def test_window_beyond_context_matches_explicit_loop(position):
+def test_sliding_beyond_context_matches_explicit_loop(position):
     model, traj = setup(T=20, position=position)
-    assert torch.allclose(
-        LearnedPredictor(model, chunk_size=2).predict(traj), explicit_window(model, traj), atol=1e-5
-    )
+    sliding = LearnedPredictor(model, mode="sliding", chunk_size=2).predict(traj)
+    assert torch.allclose(sliding, explicit_window(model, traj), atol=1e-5)
+
+
+@pytest.mark.parametrize("T", [C + 1, 2 * C, 23, 24])
+@pytest.mark.parametrize(("position", "readout"), [("learned", "mean"), ("rope", "gaussian")])
+def test_window_beyond_context_is_the_forward_on_each_half_window(T, position, readout):
+    """Mode "window": y_{t+1} is the model's forward on z_s..z_t, s = half_window_start(t), one forward
+    per prediction here; it reads between C/2 and C inputs, all C at the first window's end."""
+    model, traj = setup(T=T, position=position, readout=readout)
+    assert all(C // 2 <= t + 1 - half_window_start(t, C) <= C for t in range(C - 1, T))
+    p = LearnedPredictor(model, chunk_size=2)
+    expected = explicit_window(model, traj, lambda t: half_window_start(t, C))
+    torch.testing.assert_close(p.predict(traj), expected, rtol=0, atol=1e-5)
+    if readout == "gaussian":
+        run = lambda x: model.predict_distribution(x)[1]  # noqa: E731
+        with torch.no_grad():
+            z = traj.model_inputs()
+            var = [run(z[:, half_window_start(t, C) : t + 1])[:, -1] for t in range(T)]
+        torch.testing.assert_close(
+            p.predict_distribution(traj)[1][:, 1:], torch.stack(var, 1), rtol=0, atol=1e-5
+        )
 
 
 @pytest.mark.parametrize("position", ["learned", "rope"])

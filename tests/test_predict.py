@@ -6,21 +6,23 @@ from mop.cli import main
 from mop.runs import load_model, load_predictor
 from mop.systems.base import Trajectories
 from tests.reference import read_long_csv, write_long_csv
+from tests.reference_models import half_window_start
 
 
 def explicit_window(model, y: np.ndarray, context: int) -> np.ndarray:
-    """Independent of LearnedPredictor: yhat_t = last output of the model on y_{max(0,t-C)}..y_{t-1}."""
+    """Independent of LearnedPredictor: yhat_{t+1} = last output of the model on y_s..y_t, s the start of
+    mode "window"'s half-overlapping window (tests.reference_models.half_window_start)."""
     z = torch.tensor(y[None], dtype=torch.float32)
     out = np.zeros_like(y)
     with torch.no_grad():
-        for t in range(1, len(y)):
-            out[t] = model(z[:, max(0, t - context) : t])[0, -1].numpy()
+        for t in range(len(y) - 1):
+            out[t + 1] = model(z[:, half_window_start(t, context) : t + 1])[0, -1].numpy()
     return out
 
 
 def test_predict_csv_matches_explicit_window_and_lengths_differ(tiny_run, tmp_path):
     rng = np.random.default_rng(0)
-    ys = [rng.normal(size=(13, 2)), rng.normal(size=(7, 2))]  # 13 > context 10: the window slides
+    ys = [rng.normal(size=(17, 2)), rng.normal(size=(7, 2))]  # 17 > context 10: windows 0, 5, 10
     write_long_csv(tmp_path / "d.csv", ys)
     assert main(["predict", str(tiny_run), str(tmp_path / "d.csv"), "--out", str(tmp_path / "p.csv")]) == 0
     pred = read_long_csv(tmp_path / "p.csv")

@@ -12,8 +12,9 @@ by model.forecast_mode and the model's declared capabilities (mop.models.interfa
   read-out feeds back its mean only (no sampling), so the forecast is the mean path. Three paths, equal to
   float rounding:
   - "branch": all origins advance together at the cost of the new inputs (mop.models.rollout), for a model
-    that branches (prefill / branch without input features, or a branchable stream state); in mode
-    "stream" j = 0 is the stream's one-step prediction and the roll-out starts from it;
+    that branches (prefill / branch without input features, or a branchable stream state); beyond the
+    context in modes "window" and "stream" j = 0 is the mode's one-step prediction (mop.models.predict)
+    and the roll-out starts from it;
   - "stream": where stepping the stream cache equals the forward, one trunk steps over z_0..z_{T-1} and at
     each origin a copy of it steps the K-1 fed-back inputs (streamed_forecast);
   - "window": one forward per (origin, step) (windowed_forecast; a transformer with input features beyond
@@ -29,7 +30,7 @@ from torch import Tensor
 
 from mop.errors import MopError
 from mop.models.horizons import own_future_inputs
-from mop.models.predict import ModelPredictor, later_windows
+from mop.models.predict import ModelPredictor, half_stride, later_windows
 from mop.models.rollout import can_branch, forecast_batch, transformer_chunk_size
 from mop.models.simulate import streamed_rollout, windowed_rollout
 from mop.systems.base import Trajectories
@@ -64,8 +65,8 @@ def branched_forecast(p: ModelPredictor, traj: Trajectories, steps: int) -> Tens
     """All origins at once through mop.models.rollout.forecast_batch, in chunks of systems."""
     z = p.inputs(traj)  # (B, T, d_in) normalised, model dtype
     first = None
-    if p.mode == "stream" and p.model.context_limited and z.shape[1] > p.cfg.context:
-        first = p.predict(traj).double()  # (B, T+1, m) the stream's one-step predictions
+    if p.mode != "sliding" and p.model.context_limited and z.shape[1] > p.cfg.context:
+        first = p.predict(traj).double()  # (B, T+1, m) the mode's one-step predictions
         if p.normalization is not None:
             first = p.normalization.output_units(first)
         first = first.to(z)
@@ -154,8 +155,8 @@ def gap_forecast(p: ModelPredictor, traj: Trajectories, steps: int) -> Tensor:
 def direct_forecast(p: ModelPredictor, traj: Trajectories, steps: int) -> Tensor:
     """Forecasts read from the model's k-step heads (model.forecast_mode = "direct", model.horizons >= K):
     f[:, t, j] is head j+1 at the last input of z_0..z_{t-1}, the model's mean of y_{t+j} (j = 0 is
-    predict(traj)). One forward per window, with the window semantics of predict (mode "window"; a
-    context-limited model reads the last C inputs); nothing is fed back. f[:, 0, j] is the data-free
+    predict(traj) in modes "window" and "sliding"). One forward per window, with the window semantics of
+    predict (_heads); nothing is fed back. f[:, 0, j] is the data-free
     prediction (0, or y_mean when normalised); entries with t + j > T are NaN.
     """
     if not p.model.has_direct_heads:
@@ -183,14 +184,17 @@ def direct_forecast(p: ModelPredictor, traj: Trajectories, steps: int) -> Tensor
 
 
 def _heads(p: ModelPredictor, z: Tensor) -> Tensor:
-    """z (B, T, d_in) -> the k-step heads (B, T, K, m) with the window semantics of predict: position
-    t >= C reads the window z_{t-C+1}..z_t, and every head its future inputs u_{t+1}.. from z."""
+    """z (B, T, d_in) -> the k-step heads (B, T, K, m) with the window semantics of predict: beyond the
+    context, position t reads the window of mode "window" (half_stride) or, in mode "sliding",
+    z_{t-C+1}..z_t; every head its future inputs u_{t+1}.. from z."""
     B, T, _ = z.shape
     C, m, K = p.cfg.context, p.cfg.output_dim, p.cfg.horizons
     model = p.model
     if not model.context_limited or T <= C:
         return model.forecast_heads(z)  # the future inputs are z's own, shifted
     future = own_future_inputs(z, p.cfg)  # (B, T, K-1, k)
+    if p.mode != "sliding":
+        return half_stride(lambda x, f: model.forecast_heads(x, future=f), (z, future), C, p.chunk_size)
     first = model.forecast_heads(z[:, :C], future=future[:, :C])  # (B, C, K, m)
     windows = later_windows(z, C)  # (B (T-C), C, d_in)
     later = future[:, C:].reshape(B * (T - C), 1, *future.shape[2:])  # (B (T-C), 1, K-1, k)

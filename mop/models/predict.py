@@ -3,12 +3,19 @@
 The model reads z_t = [y_t, u_t] (traj.model_inputs()) for t = 0..T-1 and predicts y_1..y_T.
 Trajectories longer than the training context C (T > C) are handled by `mode` (the one chooser here,
 ModelPredictor._chunk):
-- "window" (the paper's code): yhat_t uses the last C inputs z_{t-C}..z_{t-1}; one forward per window,
-  windows batched.
+- "window" (the default): half-overlapping windows (half_stride): windows of C inputs start every
+  S = C // 2 steps, the first equal to the forward on z_0..z_{C-1}, each later one supplying only the
+  outputs at its positions >= C - S, so yhat_{t+1} reads between C - S and C inputs, the last C - S to C of
+  z_0..z_t; about 2 T / C forwards per record, linear in T.
+- "sliding" (the paper's code): yhat_{t+1} reads exactly the last C inputs z_{t-C+1}..z_t; one forward per
+  step (sliding_window, windows batched), so T - C + 1 forwards per record. Kept as the reference the
+  default is measured against (tests, mop bench predict).
 - "stream": one step at a time with the model's stream cache (see mop.models.transformer), constant cost
-  per step. Equal to "window" for t <= C; beyond C it is the rolling-cache approximation documented there.
-For T <= C both modes equal a single forward pass. A model without a context limit (context_limited = False,
-the GRU) runs the full recurrence in both modes (streaming it is exact).
+  per step. Equal to the others for t <= C; beyond C it is the rolling-cache approximation documented there.
+For T <= C all modes equal a single forward pass. A model without a context limit (context_limited = False,
+the GRU) runs the full recurrence in every mode (streaming it is exact). Every window, as the forward,
+starts the model's input features afresh (a record_norm model's running moments, the RLS / ARX feature:
+mop.models.features), from the window's first input.
 
 Normalised inputs and the out-of-range warning: mop.models.normalization; yhat[:, 0] is then y_mean.
 
@@ -21,7 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import torch
@@ -34,6 +41,8 @@ from mop.models.normalization import InputStats, Normalization, out_of_range
 from mop.models.registry import predictor_names
 from mop.pretrained import fitting_hint
 from mop.systems.base import Trajectories
+
+MODES = ("window", "sliding", "stream")  # the paths beyond the context (see the module docstring)
 
 
 class ModelPredictor:
@@ -49,8 +58,8 @@ class ModelPredictor:
         source: str = "",
         input_stats: InputStats | None = None,
     ) -> None:
-        if mode not in ("window", "stream"):
-            raise MopError(f"predictor mode must be 'window' or 'stream', got {mode!r}")
+        if mode not in MODES:
+            raise MopError(f"predictor mode must be one of {', '.join(MODES)}, got {mode!r}")
         if mode == "stream" and not model.supports_stream:
             raise MopError(f"model arch {model.cfg.arch!r} does not stream; use mode 'window'")
         if chunk_size <= 0:
@@ -127,13 +136,20 @@ class ModelPredictor:
         return mu, var
 
     def _chunk(self, z: Tensor, gaussian: bool) -> tuple[Tensor, Tensor | None]:
-        """The path of one chunk of systems: the stream, one forward, or the sliding window."""
+        """The path of one chunk of systems: the stream, one forward or windows (the module docstring)."""
         T, C = z.shape[1], self.cfg.context
         if self.mode == "stream" and (T > C or not self.model.context_limited):
             return stream(self.model, z, gaussian)  # a recurrent model streams its state: exact
         if not self.model.context_limited or T <= C:
             return self.model.predict_distribution(z) if gaussian else (self.model(z), None)
-        return sliding_window(self.model, z, gaussian, C, self.chunk_size)
+        if self.mode == "sliding":
+            return sliding_window(self.model, z, gaussian, C, self.chunk_size)
+        if not gaussian:
+            return half_stride(self.model, (z,), C, self.chunk_size), None
+        both = half_stride(
+            lambda x: torch.cat(self.model.predict_distribution(x), -1), (z,), C, self.chunk_size
+        )
+        return both.split(self.cfg.output_dim, -1)  # (B, T, m) mean and var
 
     def _pad(self, out: Tensor, like: Tensor, fill: float, scale: Tensor | None = None) -> Tensor:
         """Prepend the data-free prediction for y_0 (fill, or `scale` (m,)): (B, T, m) -> (B, T+1, m)."""
@@ -227,3 +243,42 @@ def sliding_window(
     mu = torch.cat([mu0, torch.cat(mus).view(B, T - context, -1)], dim=1)  # (B, T, m)
     var = torch.cat([var0, torch.cat(vars_).view(B, T - context, -1)], dim=1) if gaussian else None
     return mu, var
+
+
+def half_windows(steps: int, context: int) -> list[tuple[int, int]]:
+    """Half-overlapping windows over `steps` inputs: (start, end), the window's inputs z_start..z_{end-1},
+    start = 0, S, 2S, .. (S = C // 2, at least 1; C = context) up to the first that reaches the last input;
+    end = min(start + C, steps). Window k's outputs at positions >= its predecessor's end - start (>= C - S:
+    after at least C - S of its inputs) are the ones its predecessor did not reach."""
+    stride, spans = max(context // 2, 1), []
+    for start in range(0, steps, stride):
+        spans.append((start, min(start + context, steps)))
+        if spans[-1][1] == steps:
+            break
+    return spans
+
+
+def half_stride(
+    fn: Callable[..., Tensor], inputs: tuple[Tensor, ...], context: int, windows_per_batch: int = 256
+) -> Tensor:
+    """fn's outputs over half_windows: inputs each (B, T, ...) cut alike into the windows (the full ones
+    batched, windows_per_batch at a time), fn maps window inputs each (b, L, ...) to (b, L, ...); output
+    position t (B, T, ...) is taken from the one window that supplies it (half_windows). The first window
+    covers positions 0..C-1, so for T <= C this is fn on the whole of inputs."""
+    B, T = inputs[0].shape[:2]
+    spans = half_windows(T, context)
+    full = [s for s, e in spans if e - s == context]
+    windows = []  # one (B, L, ..) per span
+    if full:
+        cut = [torch.stack([x[:, s : s + context] for s in full], 1).flatten(0, 1) for x in inputs]
+        batches = range(0, cut[0].shape[0], windows_per_batch)
+        outs = torch.cat([fn(*(x[i : i + windows_per_batch] for x in cut)) for i in batches])
+        windows = list(outs.unflatten(0, (B, len(full))).unbind(1))  # (B n, C, ..) -> n x (B, C, ..)
+    if len(windows) < len(spans):  # the last window is shorter
+        s, e = spans[-1]
+        windows.append(fn(*(x[:, s:e] for x in inputs)))
+    pieces, done = [], 0  # outputs 0..done-1 are taken
+    for (s, e), out in zip(spans, windows, strict=True):
+        pieces.append(out[:, done - s :])
+        done = e
+    return torch.cat(pieces, 1)  # (B, T, ..)

@@ -8,7 +8,8 @@ c). The one chooser, simulation_path, takes
   context-limited model's context, in windows of C inputs advancing by C/2);
 - "stream" where stepping the model's stream cache equals its forward (a recurrent model; a transformer
   with T <= context): the cache steps once per input (streamed_rollout);
-- "window" otherwise: one forward per simulated step on the last C inputs (windowed_rollout).
+- "window" otherwise: one forward per simulated step on the last C inputs (windowed_rollout), from the
+  one-step prediction of y_c in the predictor's mode (mop.models.predict), as the forecast from origin c.
 All in data units; the model's normalisation is applied by the predictor (mop.models.predict).
 """
 
@@ -19,7 +20,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from mop.models.predict import ModelPredictor
+from mop.models.predict import ModelPredictor, half_windows
 from mop.systems.base import Trajectories
 
 
@@ -55,6 +56,11 @@ def streamed_rollout(
     return preds
 
 
+def rows(traj: Trajectories, last: int) -> Trajectories:
+    """Steps 0..last of traj (outputs y_0..y_last, the inputs alike)."""
+    return Trajectories(traj.y[:, : last + 1], None if traj.u is None else traj.u[:, : last + 1])
+
+
 def simulation_path(p: ModelPredictor, horizon: int, context: int) -> str:
     """ "gap", "stream" or "window" (see the module docstring) for T = horizon and c = context."""
     if p.cfg.forecast_mode == "gap":
@@ -79,32 +85,28 @@ def simulate(p: ModelPredictor, traj: Trajectories, context: int) -> Tensor:
                 pred = p.step(z[:, t], cache)  # after z_{c-1}: the prediction of y_c
             out = [pred, *streamed_rollout(p, cache, pred, u, context, count)]
     else:
-        hist = z[:, :context]
-        limit = p.cfg.context if p.model.context_limited else None
-        pred = p.last_output(hist if limit is None else hist[:, -limit:])  # y_c from z_{<c}
-        out = [pred, *windowed_rollout(p, hist, pred, u, context, count)]
+        pred = p.predict(rows(traj, context))[:, context].double().cpu()  # (B, m): y_c from z_{<c}
+        out = [pred, *windowed_rollout(p, z[:, :context], pred, u, context, count)]
     return torch.stack(out, dim=1).to(traj.y.dtype)
 
 
 def gap_simulation(p: ModelPredictor, traj: Trajectories, context: int) -> Tensor:
     """simulate for model.forecast_mode = "gap": y_c..y_T read as missing, one predict while T <= C (the
     model's context) or the model is not context-limited. Beyond it, windows of C inputs (outputs
-    y_s..y_{s+C}) start at s = 0, S, 2S, ... (S = C // 2): each predicts the outputs its predecessor did not
-    reach, reading the ones before as measured (the record's up to c, the simulated ones after), so every
-    simulated output sees at least C - S steps and the cost is about 2 T / C forwards. (B, T+1-c, m)."""
+    y_s..y_{s+C}) start at s = 0, S, 2S, ... (S = C // 2; mop.models.predict.half_windows): each predicts
+    the outputs its predecessor did not reach, reading the ones before as measured (the record's up to c,
+    the simulated ones after), so every simulated output sees at least C - S steps and the cost is about
+    2 T / C forwards. (B, T+1-c, m)."""
     y = traj.y.clone()
     y[:, context:] = float("nan")
     C, T = p.cfg.context, traj.horizon
     if not p.model.context_limited or T <= C:
         return p.predict(Trajectories(y, traj.u))[:, context:]
-    stride, done = max(C // 2, 1), 0  # y_0..y_done are measured or simulated
-    for start in range(0, T, stride):
-        end = min(start + C, T)  # the window's outputs y_start..y_end: C inputs
+    done = 0  # y_0..y_done are measured or simulated
+    for start, end in half_windows(T, C):  # the window's outputs y_start..y_end: C inputs or fewer
         u = None if traj.u is None else traj.u[:, start : end + 1]
         pred = p.predict(Trajectories(y[:, start : end + 1], u))  # (B, end - start + 1, m)
         new = max(done + 1, context)
         y[:, new : end + 1] = pred[:, new - start :].to(y)
         done = end
-        if end == T:
-            break
     return y[:, context:]

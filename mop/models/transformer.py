@@ -24,7 +24,7 @@ circular cache of `context` slots per layer, so every step costs O(context) howe
     training); the recommended setting for long streams.
   * position="learned": the new input gets the last learned embedding, index min(t, context-1); the cached
     keys keep the positions they were written with.
-  Use LearnedPredictor(mode="window") for the paper's exact semantics.
+  Use LearnedPredictor(mode="sliding") for the paper's exact sliding window (mop.models.predict).
 """
 
 from __future__ import annotations
