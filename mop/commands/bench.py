@@ -12,6 +12,7 @@ BENCHMARKS = {
     "stream": "streaming (KV cache) vs. window recomputation, predictions per second",
     "recipe": "MOP/KF MSE ratio reached within wall-clock budgets, training recipe vs. recipe",
     "forecast": "k-step forecast time against T and K beside one-step predict, learned model and filters",
+    "predict": "one-step predict of long records per mode (window, stream, sliding): seconds and RMSE",
 }
 
 
