@@ -112,7 +112,8 @@ def load_normalization(run_dir: str | os.PathLike) -> Normalization | None:
 
 def register_learned(name: str, arch: str, skip_presets: tuple[str, ...] = ()) -> None:
     """Register predictor `name`: a trained run of model architecture `arch` (mop.models), loaded from the
-    run directory given as make_predictor(name, run_dir=...); mode "window" (the paper's) or "stream".
+    run directory given as make_predictor(name, run_dir=...); mode "window", "sliding" (the paper's) or
+    "stream" (mop.models.predict).
     make_predictor(name, run_dir=..., model=m) wraps the trained model `m` handed over by the trainer
     instead of loading the weights again (the run's config.json still gives a data run's scaling).
     skip_presets: presets under which experiments train it only when asked."""

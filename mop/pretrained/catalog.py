@@ -42,7 +42,7 @@ CATALOG: tuple[ShippedModel, ...] = (
         "dense linear Gaussian systems (the paper's Fig. 2a family); also the model of `switching`",
         f"{LINEAR_DIMS}; {SHIFT}; systems with structure the family lacks (upper-triangular A: use "
         "pretrained:upper-triangular, and even that is worse than RLS); trajectories longer than 50 steps "
-        "are handled by the sliding window (see `mop reproduce switching`)",
+        "are predicted in windows of 50 steps starting every 25 (see `mop reproduce switching`)",
     ),
     ShippedModel(
         "linear-gaussian",
