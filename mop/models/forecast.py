@@ -30,7 +30,7 @@ from torch import Tensor
 
 from mop.errors import MopError
 from mop.models.horizons import own_future_inputs
-from mop.models.predict import ModelPredictor, half_stride, later_windows
+from mop.models.predict import ModelPredictor, half_stride, half_windows, later_windows
 from mop.models.rollout import can_branch, forecast_batch, transformer_chunk_size
 from mop.models.simulate import streamed_rollout, windowed_rollout
 from mop.systems.base import Trajectories
@@ -134,22 +134,39 @@ def gap_forecast(p: ModelPredictor, traj: Trajectories, steps: int) -> Tensor:
     y_{t+j} from y_0..y_{t-1} (and their gaps) and u_0..u_{t+j-1}, with the window semantics of predict.
     Nothing predicted is fed back, so errors do not compound through the inputs; a model trained with
     bursts of dropped outputs that are still scored (train.score_dropped) learns exactly this (a
-    multi-step loss). Origins are batched in groups of GAP_ORIGINS, each cut to the rows it reads.
+    multi-step loss). Origins are batched in groups of GAP_ORIGINS, each cut to the rows it reads; beyond
+    the context in mode "window" also to the window of predict that supplies the targets (_gap_spans), so
+    the cost is about T + K T / (C / 2) forwards of at most C inputs per record, linear in T.
     """
     B, T1, m = traj.y.shape
     out = traj.y.new_full((B, T1, steps, m), float("nan"))
-    for first in range(0, T1, GAP_ORIGINS):
-        origins = range(first, min(first + GAP_ORIGINS, T1))
-        rows = min(origins[-1] + steps, T1)  # the last origin reads up to row origins[-1] + K - 1
-        y = traj.y[:, :rows].repeat(len(origins), 1, 1)  # (G*B, rows, m), origin-major
-        for i, t in enumerate(origins):
-            y[i * B : (i + 1) * B, t : t + steps - 1] = float("nan")
-        u = None if traj.u is None else traj.u[:, :rows].repeat(len(origins), 1, 1)
-        yhat = p.predict(Trajectories(y, u)).view(len(origins), B, rows, m)
-        for i, t in enumerate(origins):
-            j = min(steps, rows - t)
-            out[:, t, :j] = yhat[i, :, t : t + j]
+    for start, stop, first in _gap_spans(p, T1 - 1):
+        origins = range(max(first - steps + 1, 0), stop)  # those with a target y_t..y_{t+K-1} in the span
+        for g in range(origins.start, origins.stop, GAP_ORIGINS):
+            group = range(g, min(g + GAP_ORIGINS, stop))
+            rows = min(group[-1] + steps, stop)  # the last origin reads up to row group[-1] + K - 1
+            y = traj.y[:, start:rows].repeat(len(group), 1, 1)  # (G*B, rows - start, m), origin-major
+            for i, t in enumerate(group):
+                y[i * B : (i + 1) * B, max(t - start, 0) : max(t + steps - 1 - start, 0)] = float("nan")
+            u = None if traj.u is None else traj.u[:, start:rows].repeat(len(group), 1, 1)
+            yhat = p.predict(Trajectories(y, u)).view(len(group), B, rows - start, m)
+            for i, t in enumerate(group):
+                for target in range(max(t, first), min(t + steps, rows)):
+                    out[:, t, target - t] = yhat[i, :, target - start]
     return out
+
+
+def _gap_spans(p: ModelPredictor, horizon: int) -> list[tuple[int, int, int]]:
+    """(start, stop, first): rows y_start..y_{stop-1} that one predict reads, supplying the targets
+    y_first..y_{stop-1}; the whole record, or beyond a context-limited model's context in mode "window" the
+    half-overlapping windows of predict (mop.models.predict.half_windows), each a single forward."""
+    if p.mode != "window" or not p.model.context_limited or horizon <= p.cfg.context:
+        return [(0, horizon + 1, 0)]
+    spans, first = [], 0
+    for start, end in half_windows(horizon, p.cfg.context):  # inputs z_start..z_{end-1}: targets to y_end
+        spans.append((start, end + 1, first))
+        first = end + 1
+    return spans
 
 
 def direct_forecast(p: ModelPredictor, traj: Trajectories, steps: int) -> Tensor:
