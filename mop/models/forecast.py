@@ -173,8 +173,8 @@ def direct_forecast(p: ModelPredictor, traj: Trajectories, steps: int) -> Tensor
     """Forecasts read from the model's k-step heads (model.forecast_mode = "direct", model.horizons >= K):
     f[:, t, j] is head j+1 at the last input of z_0..z_{t-1}, the model's mean of y_{t+j} (j = 0 is
     predict(traj) in modes "window" and "sliding"). One forward per window, with the window semantics of
-    predict (_heads); nothing is fed back. f[:, 0, j] is the data-free
-    prediction (0, or y_mean when normalised); entries with t + j > T are NaN.
+    predict (_heads); nothing is fed back. f[:, 0, j] is the data-free prediction (0, or y_mean when
+    normalised); entries with t + j > T are NaN.
     """
     if not p.model.has_direct_heads:
         raise MopError(f"model arch {p.cfg.arch!r} has no k-step heads; use model.forecast_mode='rollout'")
