@@ -6,7 +6,9 @@ rls, last). Predictors that know the system (needs_system=True, e.g. kalman, ekf
 string array and the `param_<name>` arrays of an .npz written by `mop simulate`.
 
 Output: CSV long format `trajectory,t,yhat0..` or NPZ yhat (B, T+1, m) (all trajectories of one length).
-Trajectories of unequal lengths run in padded batches (see batches), equal to one at a time.
+Trajectories of unequal lengths run in padded batches (see batches), equal to one at a time. A learned model
+reads trajectories longer than its context C in windows of C steps starting every C/2 (mode "window" of
+mop.models.predict), or with --stream through its KV cache.
 With --steps K: k-step forecasts, forecast[t, j] predicting y_{t+j} from y_<t (j = 0..K-1, j = 0 the one-step
 prediction; see mop.predictors.forecast): NPZ yhat (B, T+1, K, m) with NaN where t + j > T; CSV
 `trajectory,t,j,yhat0..` with one row per (t, j), t + j <= T. Prints per-trajectory RMSE and mean ||e|| over
@@ -57,7 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("data", help="trajectories: .csv (trajectory,t,y0..,u0..) or .npz (y, u[, param_*])")
     parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
-    parser.add_argument("--stream", action="store_true", help="KV-cache streaming (constant cost per step)")
+    parser.add_argument(
+        "--stream",
+        action="store_true",
+        help="KV-cache streaming (constant cost per step; beyond a learned model's context an approximation, "
+        "less accurate than the default windows)",
+    )
     parser.add_argument("--steps", type=int, help="k-step forecasts for k = 1..STEPS (see above)")
     parser.add_argument(
         "--simulate",
