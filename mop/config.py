@@ -143,7 +143,11 @@ class ModelConfig:
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
-    rls_prior: str | list[float] = "none"  # the feature's theta_0: "none" (0), "fit" (trainer) or a list
+    # the feature's theta_0: "none" (0), "fit" (the ARX fitted on recorded data, by the trainer), "family"
+    # (the family's empirical-Bayes prior, mop.train.auto) or the list of coefficients (d rows of m)
+    rls_prior: str | list[float] = "none"
+    # the feature's P_0 with a list rls_prior: None (1e-3 I, a fitted ARX) or the (d, d) matrix, row-major
+    rls_prior_cov: list[float] | None = None
     # "given": input_scale / rls_order / arx_order as set; "auto": chosen from the family's shapes and data,
     # train.steps scaled by the feature's step cost (mop.train.auto; resolved before training, so saved)
     features: str = "given"

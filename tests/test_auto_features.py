@@ -30,16 +30,22 @@ def ar_data(num: int, horizon: int, seed: int, lag: int = 3, input_lag: int | No
     return y, u
 
 
+def orders(choice: auto.FeatureChoice) -> tuple[bool, int, int]:
+    return choice.scale, choice.order, choice.input_order
+
+
 def test_output_only_data_gets_rls_ar_of_its_order():
     """No inputs: RLS-AR(p) with p the process's own order (3; AR(1), AR(2) cannot represent it)."""
     y, _ = ar_data(256, 50, seed=0, lag=3)
-    assert auto.choose_features(y, None) == auto.FeatureChoice(scale=False, order=3, input_order=0)
+    fit = ar_data(256, 200, seed=10, lag=3)
+    assert orders(auto.choose_features(y, None, fit)) == (False, 3, 0)
 
 
 def test_data_with_inputs_gets_arx_with_the_input_lags_it_needs():
     """u_{t-2} drives y_{t+1}: ARX with q = 3 input regressors (u_t, u_{t-1}, u_{t-2}); the output lag 1."""
     y, u = ar_data(256, 50, seed=1, lag=1, input_lag=2)
-    assert auto.choose_features(y, u) == auto.FeatureChoice(scale=False, order=1, input_order=3)
+    fit = ar_data(256, 200, seed=11, lag=1, input_lag=2)
+    assert orders(auto.choose_features(y, u, fit)) == (False, 1, 3)
 
 
 def test_running_scale_where_outputs_are_far_from_unit_scale():
@@ -48,12 +54,12 @@ def test_running_scale_where_outputs_are_far_from_unit_scale():
     assert auto.scale_far_from_unit(100 * y)  # the median RMS far from 1
     spread = torch.logspace(-1.5, 1.5, 256, dtype=torch.float64)[:, None, None]  # sizes over 3 decades
     assert auto.scale_far_from_unit(y * spread)
-    assert auto.choose_features(y * spread, None).scale
+    assert auto.choose_features(y * spread, None, (y * spread, None)).scale
 
 
 def test_training_that_drops_outputs_gets_no_identifier():
     y, u = ar_data(64, 50, seed=3, lag=1, input_lag=0)
-    assert auto.choose_features(y, u, drops_outputs=True) == auto.FeatureChoice()
+    assert auto.choose_features(y, u, (y, u), drops_outputs=True) == auto.FeatureChoice()
 
 
 @pytest.mark.parametrize(
@@ -84,6 +90,8 @@ def test_resolved_run_config_equals_the_explicit_keys():
         f"model.rls_order={m.rls_order}",
         f"model.arx_order={m.arx_order}",
         f'model.input_scale="{m.input_scale}"',  # JSON: the string "none", not null
+        f"model.rls_prior={json.dumps(m.rls_prior)}",  # the family's prior (test_family_prior.py)
+        f"model.rls_prior_cov={json.dumps(m.rls_prior_cov)}",
     ]
     explicit = run_config(exp, "smoke", overrides=[*keys, f"train.steps={resolved.train.steps}"])
     assert resolved == explicit and config_hash(resolved) == config_hash(explicit)
@@ -123,6 +131,8 @@ def test_auto_run_trains_the_same_weights_as_the_explicit_run(tmp_path, one_thre
     keys = [
         f"model.rls_order={m.rls_order}",
         f"model.arx_order={m.arx_order}",
+        f"model.rls_prior={json.dumps(m.rls_prior)}",
+        f"model.rls_prior_cov={json.dumps(m.rls_prior_cov)}",
         f"train.steps={chosen.train.steps}",
     ]
     explicit_cfg = apply_overrides(RunConfig(), [*base, *keys])

@@ -52,7 +52,13 @@ from mop.train.records import recorded_data
 # that ARX; the 2 x 64 small-preset model trained 2500 steps overfits one record (one-step RMSE 2.5x ARX's)
 RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2}
 RECORDED_STEPS = 1000
-FEATURE_KEYS = ("model.rls_order", "model.arx_order", "model.rls_offset", "model.rls_prior")
+FEATURE_KEYS = (
+    "model.rls_order",
+    "model.arx_order",
+    "model.rls_offset",
+    "model.rls_prior",
+    "model.rls_prior_cov",
+)
 
 
 def base_config(source: str | None, preset: str | None) -> RunConfig:

@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
-from mop.filters.rls import _best_order, _rls_run_gaps, regressors, rls_loop
+from mop.filters.rls import Prior, _best_order, _rls_run_gaps, regressors, rls_loop
 from mop.predictors import PREDICTORS, nan_beyond_horizon
 from mop.systems.base import Trajectories
 
@@ -50,14 +50,14 @@ def _arx_run(
     p: int,
     q: int,
     offset: bool = False,
-    prior: tuple[Tensor, float] | None = None,
+    prior: Prior | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1}).
 
     y with NaN (missing outputs): mop.filters.rls._rls_run_gaps with the input lags (and the constant) as
     complete extra regressors, so pairs with a missing target or output regressor are skipped and missing
     regressors are filled with the model's own one-step predictions (phi then holds the filled outputs).
-    prior: (theta_0 (d, m), p0) for rls_loop (complete data only)."""
+    prior: (theta_0 (d, m), P_0) for rls_loop (complete data only)."""
     r = p if u is None else max(p, q)
     if torch.isnan(y).any():
         if prior is not None:
@@ -72,10 +72,10 @@ def arx_predict(
     p: int = 2,
     q: int = 2,
     offset: bool = False,
-    prior: tuple[Tensor, float] | None = None,
+    prior: Prior | None = None,
 ) -> Tensor:
     """One-step ARX(p, q) predictions yhat (B, T, m) for y (B, T, m), u (B, T, k) or None; offset: with a
-    constant regressor (an intercept); prior: theta_0 (d, m) and P_0 = p0 I of the recursion (rls_loop)."""
+    constant regressor (an intercept); prior: theta_0 (d, m) and P_0 of the recursion (rls_loop)."""
     return _arx_run(y, u, p, q, offset, prior)[0]
 
 

@@ -51,18 +51,32 @@ def _rls_run(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     return rls_loop(y, regressors(y, order), order)
 
 
+# The recursion's starting point: (theta_0 (d, m), P_0), P_0 a number p0 (P_0 = p0 I) or a (d, d) matrix
+Prior = tuple[Tensor, float | Tensor]
+
+
+def initial_state(prior: Prior | None, B: int, d: int, m: int, like: Tensor) -> tuple[Tensor, Tensor]:
+    """(theta (B, d, m), P (B, d, d)) at the start of the recursion, in like's dtype and device: theta_0 = 0
+    and P_0 = I without a prior; prior: its theta_0 and P_0 (p0 I for a number). With the pairs (phi_s,
+    y_{s+1}) theta is then the ridge solution pulled towards theta_0 with weight P_0^-1, i.e. the posterior
+    mean under the Gaussian prior theta ~ N(theta_0, sigma^2 P_0) and noise variance sigma^2."""
+    eye = torch.eye(d, dtype=like.dtype, device=like.device)
+    if prior is None:
+        return like.new_zeros(B, d, m), eye.repeat(B, 1, 1)
+    theta0, p0 = prior
+    P = p0.to(like).expand(B, d, d).clone() if isinstance(p0, Tensor) else p0 * eye.repeat(B, 1, 1)
+    return theta0.to(like).expand(B, d, m).clone(), P
+
+
 def rls_loop(
-    y: Tensor, phi: Tensor, start: int, prior: tuple[Tensor, float] | None = None
+    y: Tensor, phi: Tensor, start: int, prior: Prior | None = None
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """The complete-data recursion shared by RLS and ARX: y (B, T, m), regressors phi (B, T, d) with
     phi[:, t] predicting y_{t+1}; yhat_0 = 0, yhat_t = y_{t-1} for 1 <= t <= start, then theta (B, d, m)
-    from theta_0 = 0, P_0 = I (prior: theta_0 (d, m) and P_0 = p0 I, the ridge solution pulled towards
-    theta_0) and the pairs (phi_{s-1}, y_s), s < t. Returns (yhat, phi, {t: theta})."""
+    from theta_0, P_0 (initial_state: 0 and I without a prior) and the pairs (phi_{s-1}, y_s), s < t.
+    Returns (yhat, phi, {t: theta})."""
     B, T, m = y.shape
-    d = phi.shape[-1]
-    theta = y.new_zeros(B, d, m) if prior is None else prior[0].to(y).expand(B, d, m).clone()
-    P = torch.eye(d, dtype=y.dtype, device=y.device).repeat(B, 1, 1)  # (B, d, d)
-    P = P if prior is None else prior[1] * P
+    theta, P = initial_state(prior, B, phi.shape[-1], m, y)
     preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(start + 1, T))]
     thetas = {}
     for t in range(start + 1, T):

@@ -39,7 +39,7 @@ from torch import Tensor
 from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.filters.arx import arx_predict
-from mop.filters.rls import regressors, rls_predict, rls_update
+from mop.filters.rls import Prior, initial_state, regressors, rls_predict, rls_update
 from mop.models.recordnorm import RecordStats, normalise, running_moments
 
 # P_0 of the RLS / ARX feature started from fitted coefficients (model.rls_prior): a window's 50 pairs of
@@ -75,20 +75,27 @@ def check_features(cfg: ModelConfig) -> None:
     """One-line errors for feature options the model's inputs cannot serve."""
     if cfg.arx_order > 0 and input_count(cfg) <= 0:
         raise MopError("model.arx_order reads input lags, but the model has no inputs u; use rls_order alone")
-    if isinstance(cfg.rls_prior, str) and cfg.rls_prior not in ("none", "fit"):
+    if isinstance(cfg.rls_prior, str) and cfg.rls_prior not in ("none", "fit", "family"):
         raise MopError(
-            f"model.rls_prior must be 'none', 'fit' or a list of coefficients, got {cfg.rls_prior!r}"
+            "model.rls_prior must be 'none', 'fit', 'family' or a list of coefficients, "
+            f"got {cfg.rls_prior!r}"
         )
     if cfg.rls_prior != "none" and (cfg.rls_order == 0 or cfg.record_norm != "none" or cfg.observation_mask):
         raise MopError(
             "model.rls_prior starts the RLS / ARX feature from fitted coefficients: it needs "
             "model.rls_order > 0, and neither model.record_norm nor an observation mask"
         )
-    prior = feature_prior(cfg)
     d = regressor_count(cfg)
-    if prior is not None and prior[0].shape[0] != d:
+    listed = isinstance(cfg.rls_prior, list)
+    if listed and len(cfg.rls_prior) != d * cfg.output_dim:
         raise MopError(
-            f"model.rls_prior holds {prior[0].shape[0]} rows of coefficients, the feature reads {d}"
+            f"model.rls_prior holds {len(cfg.rls_prior) // max(cfg.output_dim, 1)} rows of coefficients, "
+            f"the feature reads {d}"
+        )
+    if cfg.rls_prior_cov is not None and (not listed or len(cfg.rls_prior_cov) != d * d):
+        raise MopError(
+            f"model.rls_prior_cov is the feature's P_0, {d} x {d} = {d * d} numbers beside a list "
+            f"model.rls_prior; got {len(cfg.rls_prior_cov)} beside rls_prior={cfg.rls_prior!r:.40}"
         )
     if cfg.record_norm != "none" and (cfg.input_scale != "none" or cfg.readout != "mean"):
         raise MopError(
@@ -112,13 +119,16 @@ def observed_outputs(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor |
     return torch.where(seen, y, torch.full_like(y, float("nan"))), seen
 
 
-def feature_prior(cfg: ModelConfig) -> tuple[Tensor, float] | None:
-    """(theta_0 (d, m) float64, PRIOR_P0) of the RLS / ARX feature where model.rls_prior holds the fitted
-    coefficients (d = p m + q k [+ 1] rows, in mop.filters.arx's regressor order), else None."""
+def feature_prior(cfg: ModelConfig) -> Prior | None:
+    """(theta_0 (d, m) float64, P_0) of the RLS / ARX feature where model.rls_prior holds the coefficients
+    (d = p m + q k [+ 1] rows, in mop.filters.arx's regressor order), else None. P_0: the (d, d) matrix
+    model.rls_prior_cov, or PRIOR_P0 (times I) without it."""
     if not isinstance(cfg.rls_prior, list):
         return None
     theta = torch.tensor(cfg.rls_prior, dtype=torch.float64).reshape(-1, cfg.output_dim)
-    return theta, PRIOR_P0
+    if cfg.rls_prior_cov is None:
+        return theta, PRIOR_P0
+    return theta, torch.tensor(cfg.rls_prior_cov, dtype=torch.float64).reshape(theta.shape[0], -1)
 
 
 def rls_next(
@@ -127,7 +137,7 @@ def rls_next(
     u: Tensor | None = None,
     input_order: int = 0,
     offset: bool = False,
-    prior: tuple[Tensor, float] | None = None,
+    prior: Prior | None = None,
 ) -> Tensor:
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
     u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
@@ -228,14 +238,8 @@ class FeatureState:
         d = regressor_count(cfg)
         if p > 0:
             f64 = dict(device=device, dtype=torch.float64)
-            self.theta = torch.zeros(batch_size, d, self.m, **f64)
-            self.P = torch.eye(d, **f64).repeat(batch_size, 1, 1)
-            prior = feature_prior(cfg)
-            if prior is not None:  # as rls_loop: theta_0 and P_0 = p0 I
-                self.theta, self.P = (
-                    prior[0].to(device).expand(batch_size, d, self.m).clone(),
-                    prior[1] * self.P,
-                )
+            like = torch.zeros((), **f64)
+            self.theta, self.P = initial_state(feature_prior(cfg), batch_size, d, self.m, like)  # as rls_loop
             self.recent = torch.zeros(batch_size, p + 1, self.m, **f64)
             self.recent_u = torch.zeros(batch_size, q + 1, self.k if q > 0 else 0, **f64)
         # with an observation mask the RLS feature skips pairs next to gaps (mop.filters.rls._rls_run_gaps):
