@@ -122,7 +122,9 @@ def test_one_record_trains_through_the_cli_with_the_records_recipe(tmp_path, cap
 def test_training_config_layers(tmp_path):
     small, paper = PRESETS["small"], PRESETS["paper"]
     model = training_config(None, "small").model  # the preset's auto resolved on its (linear) family
-    assert dataclasses.replace(model, features="auto", rls_order=0) == small.model and model.rls_order > 0
+    off = {"rls_order": 0, "rls_prior": "none", "rls_prior_cov": None}
+    unresolved = dataclasses.replace(model, features="auto", **off)
+    assert unresolved == small.model and model.rls_order > 0 and model.rls_prior_cov is not None
     assert training_config(None, "paper").train == paper.train
     with_inputs = write_record(tmp_path / "u.csv", lengths=(60,))
     without = write_record(tmp_path / "y.csv", lengths=(60,), inputs=False)
