@@ -148,6 +148,9 @@ class ModelConfig:
     rls_prior: str | list[float] = "none"
     # the feature's P_0 with a list rls_prior: None (1e-3 I, a fitted ARX) or the (d, d) matrix, row-major
     rls_prior_cov: list[float] | None = None
+    # without a listed rls_prior, the feature's P_0 = rls_p0 I, i.e. a ridge 1 / rls_p0 towards 0 (1: the
+    # paper's RLS); larger: closer to least squares, for data a model identifies exactly (no noise)
+    rls_p0: float = 1.0
     # "given": input_scale / rls_order / arx_order as set; "auto": chosen from the family's shapes and data,
     # train.steps scaled by the feature's step cost (mop.train.auto; resolved before training, so saved)
     features: str = "given"
@@ -175,6 +178,7 @@ class ModelConfig:
         )
         check(self.input_dim >= 0 and self.output_dim >= 0, "model.input_dim/output_dim must be >= 0")
         check(0 <= self.dropout < 1, f"model.dropout must be in [0, 1), got {self.dropout}")
+        check(self.rls_p0 > 0, f"model.rls_p0 must be > 0 (P_0 = rls_p0 I), got {self.rls_p0}")
         for name, choices in MODEL_CHOICES.items():
             check_choice(f"model.{name}", getattr(self, name), choices)
         check_int("model.rls_order", self.rls_order, 0, 20, " (0 = off)")

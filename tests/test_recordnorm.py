@@ -70,7 +70,14 @@ def test_predictions_are_equivariant_to_the_records_units(a, b, c, d):
         torch.testing.assert_close(model(w), a * model(z) + b, rtol=1e-9, atol=1e-9 * (a + abs(b)))
 
 
-@pytest.mark.parametrize("options", [{}, {"rls_order": 3, "arx_order": 2, "rls_offset": True}])
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        {"rls_order": 3, "arx_order": 2, "rls_offset": True},
+        {"rls_order": 3, "arx_order": 2, "rls_p0": 1e4},
+    ],
+)
 def test_equivariant_through_the_predictor_beyond_the_context_window_and_stream(options):
     """T = 50 > context 20: the sliding window (each window normalised by its own statistics) and the stream
     are both equivariant, and the stream equals the forward inside the context."""
@@ -89,7 +96,10 @@ def test_equivariant_through_the_predictor_beyond_the_context_window_and_stream(
 MASKED = {"rls_order": 2, "arx_order": 2, "rls_offset": True, "observation_mask": True, "input_dim": 3}
 
 
-@pytest.mark.parametrize("options", [{}, {"rls_order": 2, "arx_order": 2, "rls_offset": True}, MASKED])
+@pytest.mark.parametrize(
+    "options",
+    [{}, {"rls_order": 2, "arx_order": 2, "rls_offset": True}, MASKED, {**MASKED, "rls_p0": 1e4}],
+)
 def test_stream_equals_forward_and_is_causal(options):
     """Streamed (one input at a time) equals the forward; with an observation mask also with outputs missing
     from step 12 on (the stream recomputes the feature once a gap has come)."""

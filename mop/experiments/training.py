@@ -58,6 +58,7 @@ FEATURE_KEYS = (
     "model.rls_offset",
     "model.rls_prior",
     "model.rls_prior_cov",
+    "model.rls_p0",
 )
 
 

@@ -57,12 +57,10 @@ def _arx_run(
     y with NaN (missing outputs): mop.filters.rls._rls_run_gaps with the input lags (and the constant) as
     complete extra regressors, so pairs with a missing target or output regressor are skipped and missing
     regressors are filled with the model's own one-step predictions (phi then holds the filled outputs).
-    prior: (theta_0 (d, m), P_0) for rls_loop (complete data only)."""
+    prior: (theta_0 (d, m), P_0) for the recursion (rls_loop, _rls_run_gaps)."""
     r = p if u is None else max(p, q)
     if torch.isnan(y).any():
-        if prior is not None:
-            raise MopError("an ARX prior (model.rls_prior) needs complete outputs; fill the gaps")
-        return _rls_run_gaps(y, p, extra=known_regressors(y, u, q, offset), start=r)
+        return _rls_run_gaps(y, p, extra=known_regressors(y, u, q, offset), start=r, prior=prior)
     return rls_loop(y, arx_regressors(y, u, p, q, offset), r, prior)
 
 

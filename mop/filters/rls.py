@@ -87,7 +87,7 @@ def rls_loop(
 
 
 def _rls_run_gaps(
-    y: Tensor, order: int, extra: Tensor | None = None, start: int | None = None
+    y: Tensor, order: int, extra: Tensor | None = None, start: int | None = None, prior: Prior | None = None
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """_rls_run for y (B, T, m) with NaN where an output is missing.
 
@@ -96,15 +96,15 @@ def _rls_run_gaps(
     measured and no entry of phi_{t-2} was filled in; so each channel keeps its own P (B, m, d, d) (equal
     to the shared P of rls_update while nothing is missing). Start-up as without gaps: yhat_t = y~_{t-1}
     for 1 <= t <= start (default: order). extra (B, T, e): complete regressors appended to phi_t (ARX's
-    input lags [u_t; ...; u_{t-q+1}]).
+    input lags [u_t; ...; u_{t-q+1}]). prior: theta_0 and P_0 (initial_state; each channel's P starts at P_0).
     """
     B, T, m = y.shape
     start = order if start is None else start
     d = order * m + (0 if extra is None else extra.shape[-1])
     seen = ~torch.isnan(y)  # (B, T, m)
     filled = torch.zeros_like(y)
-    theta = y.new_zeros(B, d, m)
-    P = torch.eye(d, dtype=y.dtype, device=y.device).repeat(B, m, 1, 1)  # (B, m, d, d)
+    theta, P = initial_state(prior, B, d, m, y)
+    P = P[:, None].repeat(1, m, 1, 1)  # (B, m, d, d)
     preds, thetas = [], {}
 
     def lagged(s: int, values: Tensor) -> Tensor:  # (B, p m): [v_s; v_{s-1}; ...], zero before step 0

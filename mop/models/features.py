@@ -92,6 +92,8 @@ def check_features(cfg: ModelConfig) -> None:
             f"model.rls_prior holds {len(cfg.rls_prior) // max(cfg.output_dim, 1)} rows of coefficients, "
             f"the feature reads {d}"
         )
+    if listed and cfg.rls_p0 != 1.0:
+        raise MopError("model.rls_p0 sets P_0 without a listed model.rls_prior; use rls_prior_cov with one")
     if cfg.rls_prior_cov is not None and (not listed or len(cfg.rls_prior_cov) != d * d):
         raise MopError(
             f"model.rls_prior_cov is the feature's P_0, {d} x {d} = {d * d} numbers beside a list "
@@ -121,10 +123,12 @@ def observed_outputs(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor |
 
 def feature_prior(cfg: ModelConfig) -> Prior | None:
     """(theta_0 (d, m) float64, P_0) of the RLS / ARX feature where model.rls_prior holds the coefficients
-    (d = p m + q k [+ 1] rows, in mop.filters.arx's regressor order), else None. P_0: the (d, d) matrix
-    model.rls_prior_cov, or PRIOR_P0 (times I) without it."""
+    (d = p m + q k [+ 1] rows, in mop.filters.arx's regressor order): P_0 the (d, d) matrix
+    model.rls_prior_cov, or PRIOR_P0 (times I) without it. Without them (0, model.rls_p0) where rls_p0 is
+    not 1, else None (the recursion's own theta_0 = 0, P_0 = I)."""
     if not isinstance(cfg.rls_prior, list):
-        return None
+        zeros = torch.zeros(regressor_count(cfg), cfg.output_dim, dtype=torch.float64)
+        return None if cfg.rls_p0 == 1.0 else (zeros, cfg.rls_p0)
     theta = torch.tensor(cfg.rls_prior, dtype=torch.float64).reshape(-1, cfg.output_dim)
     if cfg.rls_prior_cov is None:
         return theta, PRIOR_P0
@@ -184,7 +188,7 @@ def _framed_feature(y: Tensor, u: Tensor | None, mean: Tensor, std: Tensor, cfg:
     shift, scale = feature_frame(mean[:, r : r + 1], std[:, r : r + 1])  # (B, 1, m + k) each
     ys = (y.double() - shift[..., :m]) / scale[..., :m]
     us = None if u is None else (u.double() - shift[..., m:]) / scale[..., m:]
-    rs = rls_next(ys, cfg.rls_order, us, cfg.arx_order, cfg.rls_offset)
+    rs = rls_next(ys, cfg.rls_order, us, cfg.arx_order, cfg.rls_offset, feature_prior(cfg))
     return (rs * scale[..., :m] + shift[..., :m]).to(y.dtype)
 
 

@@ -67,7 +67,7 @@ SCALE_SPREAD = 5.0  # q90 / q10 of the per-system RMS above 5: sizes too differe
 # (mop.filters.rls.rls_loop), whose own time (4.2 to 12 ms a batch for d = 2 to 15 regressors, T = 50,
 # batch 64) is small against the step.
 STEP_COST = {"scale": 77 / 74, "identifier": 97.8 / 83.7}
-FEATURE_KEYS = ("input_scale", "rls_order", "arx_order", "rls_offset", "rls_prior", "rls_prior_cov")
+FEATURE_KEYS = ("input_scale", "rls_order", "arx_order", "rls_offset", "rls_prior", "rls_prior_cov", "rls_p0")
 
 
 @dataclasses.dataclass(frozen=True)
