@@ -38,14 +38,18 @@ def test_output_only_data_gets_rls_ar_of_its_order():
     """No inputs: RLS-AR(p) with p the process's own order (3; AR(1), AR(2) cannot represent it)."""
     y, _ = ar_data(256, 50, seed=0, lag=3)
     fit = ar_data(256, 200, seed=10, lag=3)
-    assert orders(auto.choose_features(y, None, fit)) == (False, 3, 0)
+    choice = auto.choose_features(y, None, fit)
+    assert orders(choice) == (False, 3, 0)
+    assert choice.prior_theta == () == choice.prior_cov  # output-only: the paper's start (module docstring)
 
 
 def test_data_with_inputs_gets_arx_with_the_input_lags_it_needs():
     """u_{t-2} drives y_{t+1}: ARX with q = 3 input regressors (u_t, u_{t-1}, u_{t-2}); the output lag 1."""
     y, u = ar_data(256, 50, seed=1, lag=1, input_lag=2)
     fit = ar_data(256, 200, seed=11, lag=1, input_lag=2)
-    assert orders(auto.choose_features(y, u, fit)) == (False, 1, 3)
+    choice = auto.choose_features(y, u, fit)
+    assert orders(choice) == (False, 1, 3)
+    assert len(choice.prior_theta) == 2 * (1 * 2 + 3 * 1) and len(choice.prior_cov) == 5 * 5  # m = 2, k = 1
 
 
 def test_running_scale_where_outputs_are_far_from_unit_scale():

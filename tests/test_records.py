@@ -124,7 +124,7 @@ def test_training_config_layers(tmp_path):
     model = training_config(None, "small").model  # the preset's auto resolved on its (linear) family
     off = {"rls_order": 0, "rls_prior": "none", "rls_prior_cov": None}
     unresolved = dataclasses.replace(model, features="auto", **off)
-    assert unresolved == small.model and model.rls_order > 0 and model.rls_prior_cov is not None
+    assert unresolved == small.model and model.rls_order > 0 and model.rls_prior == "none"  # output-only
     assert training_config(None, "paper").train == paper.train
     with_inputs = write_record(tmp_path / "u.csv", lengths=(60,))
     without = write_record(tmp_path / "y.csv", lengths=(60,), inputs=False)
