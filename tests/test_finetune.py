@@ -72,6 +72,10 @@ def test_the_default_schedule_and_refusals(tmp_path, capsys):
     assert config.model == base.model and config.train.horizon == base.train.horizon == 20
     short = training_config(None, data=record(tmp_path / "s.npz", 2, T=150), init=str(src))
     assert short.train.horizon == 15  # the last ceil(0.1 x 151) = 16 steps validate: windows of 16 fit
+    # the windows follow the split the overrides ask for: half the record validates, so 20 fit again
+    halves = ["data.validation_fraction=0.5"]
+    wide = training_config(None, data=str(tmp_path / "s.npz"), init=str(src), overrides=halves)
+    assert wide.train.horizon == 20
     capsys.readouterr()
     out = tmp_path / "bad"
     argv = [

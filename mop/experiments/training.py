@@ -162,7 +162,8 @@ FINE_TUNE_LR_FACTOR = 0.1
 
 
 def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConfig:
-    """The fine-tuning layer: train.init, the short schedule, and the source's fitted normalisation."""
+    """The fine-tuning layer: train.init, the short schedule, and the source's fitted normalisation (the
+    windows are fitted to the record's split after the overrides: training_config)."""
     train = dataclasses.replace(
         config.train,
         init=str(init),
@@ -176,8 +177,6 @@ def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConf
     if data is not None and source.data is not None and source.data.fitted:
         kept = {k: getattr(source.data, k) for k in ("y_mean", "y_std", "u_mean", "u_std")}
         data = dataclasses.replace(data, **kept)
-    if data is not None:
-        train = _record_horizon(train, data)
     return dataclasses.replace(config, train=train, data=data)
 
 
@@ -215,7 +214,11 @@ def training_config(
         raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
     base = load_config(init)
     config = with_fine_tuning(with_records(base, data, val), base, init)
-    return apply_overrides(config, list(overrides))
+    config = apply_overrides(config, list(overrides))
+    if config.data is not None and "train.horizon" not in parse_overrides(list(overrides)):
+        # the windows fit the split the overrides ask for (data.validation_fraction, data.split)
+        config = dataclasses.replace(config, train=_record_horizon(config.train, config.data))
+    return config
 
 
 def feature_line(config: RunConfig) -> str | None:
