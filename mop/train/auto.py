@@ -141,13 +141,13 @@ def best_orders(
 
 
 def choose_features(
-    y: Tensor, u: Tensor | None, fit: tuple[Tensor, Tensor | None], drops_outputs: bool = False
+    y: Tensor, u: Tensor | None, fit: tuple[Tensor, Tensor | None] | None, drops_outputs: bool = False
 ) -> FeatureChoice:
     """The rule: y (N, T+1, m), u (N, T+1, k) or None (no inputs), the prior's trajectories fit = (y, u)
-    (N', T'+1, ...) -> FeatureChoice. The family's prior where there are inputs (ARX) only: on output-only
-    families it improved the identifier but not the model trained on it (colored-noise, small preset,
-    seed 0: the RLS-AR(4) feature from the prior 1.61 x the exact optimum against RLS-AR(2)'s 2.19 without,
-    yet MOP 1.392 against 1.201)."""
+    (N', T'+1, ...; None: no prior) -> FeatureChoice. The family's prior where there are inputs (ARX)
+    only: on output-only families it improved the identifier but not the model trained on it
+    (colored-noise, small preset, seed 0: the RLS-AR(4) feature from the prior 1.61 x the exact optimum
+    against RLS-AR(2)'s 2.19 without, yet MOP 1.392 against 1.201)."""
     scale = scale_far_from_unit(y)
     if drops_outputs:
         return FeatureChoice(scale=scale)
@@ -162,15 +162,21 @@ def choose_features(
 def _family_choice(system_json: str, horizon: int, drops_outputs: bool) -> FeatureChoice:
     family = make_family(from_dict(SystemConfig, json.loads(system_json)), dtype=torch.float64)
     traj = family.generate(AUTO_SYSTEMS, horizon, generator=generator(AUTO_SEED))
-    fit = family.generate(AUTO_SYSTEMS, PRIOR_HORIZON * horizon, generator=generator(PRIOR_SEED))
-    return choose_features(traj.y, traj.u, (fit.y, fit.u), drops_outputs)
+    needs_prior = traj.u is not None and not drops_outputs  # choose_features: the prior where ARX is chosen
+    fit = _prior_sample(system_json, horizon) if needs_prior else None
+    return choose_features(traj.y, traj.u, fit, drops_outputs)
 
 
 @functools.lru_cache(maxsize=32)
-def _given_prior(system_json: str, horizon: int, p: int, q: int) -> tuple[tuple[float, ...], ...]:
+def _prior_sample(system_json: str, horizon: int) -> tuple[Tensor, Tensor | None]:
+    """(y, u) of the AUTO_SYSTEMS trajectories of PRIOR_HORIZON * horizon steps the prior is fitted on."""
     family = make_family(from_dict(SystemConfig, json.loads(system_json)), dtype=torch.float64)
     fit = family.generate(AUTO_SYSTEMS, PRIOR_HORIZON * horizon, generator=generator(PRIOR_SEED))
-    theta, cov = family_prior(fit.y, fit.u, p, q)
+    return fit.y, fit.u
+
+
+def _given_prior(system_json: str, horizon: int, p: int, q: int) -> tuple[tuple[float, ...], ...]:
+    theta, cov = family_prior(*_prior_sample(system_json, horizon), p, q)
     return tuple(theta.flatten().tolist()), tuple(cov.flatten().tolist())
 
 
