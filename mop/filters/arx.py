@@ -169,28 +169,25 @@ class ARXPredictor:
         if p0 <= 0:
             raise MopError(f"arx: p0 must be > 0 (P_0 = p0 I), got {p0}")
 
-    def _prior(self, traj: Trajectories) -> Prior | None:
-        """(0, p0) for the recursion, None for the paper's P_0 = I."""
-        if self.p0 == 1.0:
-            return None
-        k = 0 if traj.u is None else traj.u.shape[-1]
-        d = self.order * traj.y.shape[-1] + self.input_order * k + int(self.offset)
-        return torch.zeros(d, traj.y.shape[-1], dtype=torch.float64), self.p0
+    @property
+    def _prior(self) -> Prior | None:
+        """(theta_0 = 0, p0) for the recursion, None for the paper's P_0 = I."""
+        return None if self.p0 == 1.0 else (None, self.p0)
 
     def predict(self, traj: Trajectories) -> Tensor:
         p, q = self.order, self.input_order
-        out = arx_predict(traj.y.double(), _u(traj), p, q, self.offset, self._prior(traj))
+        out = arx_predict(traj.y.double(), _u(traj), p, q, self.offset, self._prior)
         return out.to(traj.y.dtype)
 
     def forecast(self, traj: Trajectories, steps: int) -> Tensor:
         """(B, T+1, K, m): the fitted ARX iterated on its predictions with the known inputs."""
-        p, q, prior = self.order, self.input_order, self._prior(traj)
+        p, q, prior = self.order, self.input_order, self._prior
         out = arx_forecast(traj.y.double(), _u(traj), p, q, steps, offset=self.offset, prior=prior)
         return out.to(traj.y.dtype)
 
     def simulate(self, traj: Trajectories, context: int) -> Tensor:
         """(B, T+1-c, m): forecast[:, c] alone (the model fitted to y_<c, rolled out with the inputs)."""
-        steps, p, q, prior = traj.horizon + 1 - context, self.order, self.input_order, self._prior(traj)
+        steps, p, q, prior = traj.horizon + 1 - context, self.order, self.input_order, self._prior
         out = arx_forecast(traj.y.double(), _u(traj), p, q, steps, context, self.offset, prior)
         return out[:, context].to(traj.y.dtype)
 

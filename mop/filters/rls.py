@@ -51,8 +51,9 @@ def _rls_run(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     return rls_loop(y, regressors(y, order), order)
 
 
-# The recursion's starting point: (theta_0 (d, m), P_0), P_0 a number p0 (P_0 = p0 I) or a (d, d) matrix
-Prior = tuple[Tensor, float | Tensor]
+# The recursion's starting point: (theta_0 (d, m) or None for 0, P_0), P_0 a number p0 (P_0 = p0 I) or a
+# (d, d) matrix
+Prior = tuple[Tensor | None, float | Tensor]
 
 
 def initial_state(prior: Prior | None, B: int, d: int, m: int, like: Tensor) -> tuple[Tensor, Tensor]:
@@ -65,7 +66,8 @@ def initial_state(prior: Prior | None, B: int, d: int, m: int, like: Tensor) -> 
         return like.new_zeros(B, d, m), eye.repeat(B, 1, 1)
     theta0, p0 = prior
     P = p0.to(like).expand(B, d, d).clone() if isinstance(p0, Tensor) else p0 * eye.repeat(B, 1, 1)
-    return theta0.to(like).expand(B, d, m).clone(), P
+    theta = like.new_zeros(B, d, m) if theta0 is None else theta0.to(like).expand(B, d, m).clone()
+    return theta, P
 
 
 def rls_loop(

@@ -124,11 +124,10 @@ def observed_outputs(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor |
 def feature_prior(cfg: ModelConfig) -> Prior | None:
     """(theta_0 (d, m) float64, P_0) of the RLS / ARX feature where model.rls_prior holds the coefficients
     (d = p m + q k [+ 1] rows, in mop.filters.arx's regressor order): P_0 the (d, d) matrix
-    model.rls_prior_cov, or PRIOR_P0 (times I) without it. Without them (0, model.rls_p0) where rls_p0 is
-    not 1, else None (the recursion's own theta_0 = 0, P_0 = I)."""
+    model.rls_prior_cov, or PRIOR_P0 (times I) without it. Without them (None: theta_0 = 0, model.rls_p0)
+    where rls_p0 is not 1, else None (the recursion's own theta_0 = 0, P_0 = I)."""
     if not isinstance(cfg.rls_prior, list):
-        zeros = torch.zeros(regressor_count(cfg), cfg.output_dim, dtype=torch.float64)
-        return None if cfg.rls_p0 == 1.0 else (zeros, cfg.rls_p0)
+        return None if cfg.rls_p0 == 1.0 else (None, cfg.rls_p0)
     theta = torch.tensor(cfg.rls_prior, dtype=torch.float64).reshape(-1, cfg.output_dim)
     if cfg.rls_prior_cov is None:
         return theta, PRIOR_P0
