@@ -53,14 +53,8 @@ from mop.train.records import recorded_data
 # that ARX; the 2 x 64 small-preset model trained 2500 steps overfits one record (one-step RMSE 2.5x ARX's)
 RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2}
 RECORDED_STEPS = 1000
-FEATURE_KEYS = (
-    "model.rls_order",
-    "model.arx_order",
-    "model.rls_offset",
-    "model.rls_prior",
-    "model.rls_prior_cov",
-    "model.rls_p0",
-)
+# the identifier's keys (mop.train.auto's feature keys but the running scale): naming one turns the recipe off
+FEATURE_KEYS = tuple(f"model.{key}" for key in AUTO_KEYS if key != "input_scale")
 
 
 def base_config(source: str | None, preset: str | None) -> RunConfig:
