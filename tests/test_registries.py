@@ -80,7 +80,7 @@ def _trajectories_for(name: str, tiny_run_family) -> object:
     for family in candidates:
         traj = make_family(SystemConfig(family=family), torch.float64).generate(5, 12, generator=generator(2))
         try:
-            make_predictor(name).predict(traj)
+            make_predictor(name, shared={"system": SystemConfig(family=family)}).predict(traj)
             return traj
         except MopError:
             continue
@@ -94,7 +94,8 @@ def test_every_predictor_is_causal(name, tiny_run):
         5, 12, generator=generator(2)
     )
     traj = _trajectories_for(name, tiny)
-    options = {"run_dir": str(tiny_run)} if is_learned(name) else {"seed": 0}
+    family = SystemConfig(family=traj.family or "linear")  # the Bayes mixture's family: the test systems'
+    options = {"run_dir": str(tiny_run)} if is_learned(name) else {"seed": 0, "system": family}
     predictor = make_predictor(name, shared=options)
     yhat = predictor.predict(traj)
     assert yhat.shape == traj.y.shape and torch.isfinite(yhat).all()

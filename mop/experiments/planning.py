@@ -18,9 +18,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-from mop.config import RunConfig, to_dict
+from mop.config import RunConfig, SystemConfig, to_dict
 from mop.errors import NoPretrainedModel
 from mop.experiments import run_config
+from mop.experiments.evaluating import test_system
 from mop.experiments.spec import Condition, Experiment
 from mop.experiments.validate import evaluated
 from mop.predictors import PREDICTORS, is_learned, make_predictor
@@ -62,11 +63,12 @@ def condition_config(session: Session, condition: Condition, arch: str = "gpt") 
     return run_config(session.exp, session.preset, session.train_seed, arch, condition, session.overrides)
 
 
-def classical_predictor(name: str, preset: str, seed: int):
+def classical_predictor(name: str, preset: str, seed: int, system: SystemConfig | None = None):
     """Classical predictor `name` with the options its registry entry gives under `preset` (preset_options,
-    e.g. n4sid-kf re-identifying every 10 steps on the CPU presets) and the seed, where it takes one."""
+    e.g. n4sid-kf re-identifying every 10 steps on the CPU presets), the seed and the test systems' family
+    config `system` (the Bayes predictor over the family), where it takes them."""
     per_preset = PREDICTORS.meta(name).get("preset_options", {})  # the entry's own options
-    return make_predictor(name, shared={"seed": seed}, **per_preset.get(preset, {}))
+    return make_predictor(name, shared={"seed": seed, "system": system}, **per_preset.get(preset, {}))
 
 
 def _with_arch(trained: RunConfig, name: str) -> RunConfig:
@@ -130,7 +132,7 @@ def condition_predictors(session: Session, condition: Condition, trained: RunCon
     return [
         learned_predictor(session, name, condition, trained)
         if is_learned(name)
-        else classical_predictor(name, session.preset, session.seed)
+        else classical_predictor(name, session.preset, session.seed, test_system(trained, condition))
         for name in wanted(session, condition)
     ]
 

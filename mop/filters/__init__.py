@@ -5,6 +5,7 @@ simple baselines."""
 
 from mop.filters import (  # noqa: F401 (each module registers its predictors)
     arx,
+    bayes,
     colored,
     ekf,
     gaussian,

@@ -140,13 +140,14 @@ def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[s
     best, reference = exp.best_predictor, exp.reference
     if best not in names:
         raise MopError(f"experiment {exp.name}: its best predictor {best} is not evaluated; list it")
-    predictors = [model, *(classical_predictor(n, entry.preset, entry.seed) for n in names)]
+    system = test_system(config, condition)
+    predictors = [model, *(classical_predictor(n, entry.preset, entry.seed, system) for n in names)]
     result = evaluate_condition(
         exp, condition, predictors, config, preset=entry.preset, seed=entry.seed, progress=progress
     )
     shown = [p for p in predictors if p.name in (model.name, reference, best)]
     ref = next(p for p in predictors if p.name == reference)
-    system, horizon = test_system(config, condition), result.traj.y.shape[1] - 1
+    horizon = result.traj.y.shape[1] - 1
     simulates = SIMULATION in exp.analyses  # a class model: scored in free-run simulation
     return {
         "evaluation": _evaluation(result, model.name, reference, best, entry.seed),

@@ -1,0 +1,110 @@
+"""The Bayes predictor over a family of linear-Gaussian systems: what the best predictor that does not know
+the system, only the family it comes from, can reach (an estimate of it, by importance sampling).
+
+A test system is one draw theta ~ p(theta) of its family. The predictor that minimises the expected squared
+error given the past and the family alone is the posterior mean
+
+    E[y_t | y_{<t}, u_{<t}] = sum_j w_j(t) yhat_t^(j),   w_j(t) ∝ p(y_{<t} | u_{<t}, theta_j),
+
+over theta_1..theta_M drawn from the family's prior (its sampler, another seed than the test systems):
+yhat^(j) and the likelihood are those of system j's Kalman filter (prediction-error decomposition,
+p(y_{<t} | theta_j) = prod_{s<t} N(y_s; yhat_s^(j), S_s^(j))). As M -> infinity this is the Bayes-optimal
+predictor; with finite M it is still a predictor that reads only the past and the family, so its error is an
+achievable one: no predictor trained on the family needs to be worse than it (the effective sample size
+1 / sum_j w_j^2, reported by bayes_mixture, says how close to the limit M is). The Kalman filter that knows
+the system is below every such predictor; the gap between the two is the price of not knowing the system.
+
+Cost: M Kalman filters per test trajectory, O(N M T n^2); the gains, which do not depend on the data, are
+computed once per drawn system. Linear-Gaussian families only (the StateSpace's f affine in x and u, C
+constant): the built-in linear families and plugins such as examples/two_mass.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from mop.config import SystemConfig
+from mop.errors import MopError
+from mop.filters.linear_gaussian import LinearSystems, linear_systems, predictor_gains
+from mop.predictors import PREDICTORS
+from mop.systems import generator, make_family
+from mop.systems.base import Trajectories
+
+BANK_SEED_OFFSET = 7_000_003  # the drawn systems: apart from the test, training and validation streams
+
+
+def _chunk_terms(bank: LinearSystems, y: Tensor, u: Tensor | None) -> tuple[Tensor, Tensor]:
+    """For the M systems of bank and N trajectories y (N, T+1, m), u (N, T+1, k)|None: each system's
+    one-step predictions yhat (M, N, T+1, m) and the log-likelihood of the outputs before t,
+    log p(y_{<t}) (M, N, T+1)."""
+    T1, m = y.shape[1], y.shape[2]
+    K, S_inv, logdet = predictor_gains(bank, T1 - 1)
+    mean = bank.m0[:, None].expand(-1, y.shape[0], -1).clone()  # (M, N, n)
+    preds, loglik = [], [y.new_zeros(bank.A.shape[0], y.shape[0])]
+    for t in range(T1):
+        yhat = mean @ bank.C.mT  # (M, N, m)
+        e = y[None, :, t] - yhat
+        quad = ((e @ S_inv[:, t]) * e).sum(-1)  # (M, N)
+        preds.append(yhat)
+        loglik.append(loglik[-1] - 0.5 * (quad + logdet[:, t, None] + m * math.log(2 * math.pi)))
+        mean = mean @ bank.A.mT + e @ K[:, t].mT
+        if bank.B is not None and u is not None:
+            mean = mean + u[None, :, t] @ bank.B.mT
+    return torch.stack(preds, 2), torch.stack(loglik[:-1], 2)
+
+
+def bayes_mixture(
+    bank: LinearSystems, y: Tensor, u: Tensor | None, chunk: int = 512
+) -> tuple[Tensor, Tensor]:
+    """(yhat (N, T+1, m), ess (N, T+1)): the likelihood-weighted mean of the bank's Kalman predictions of
+    y_t from y_{<t}, u_{<t} (the module docstring), and the weights' effective sample size, for y (N, T+1, m)
+    complete, u (N, T+1, k) or None. The bank is processed in chunks of `chunk` systems (memory
+    O(chunk N T m)); the result does not depend on the chunking up to float rounding."""
+    if torch.isnan(y).any():
+        raise MopError("bayes: the outputs have gaps (NaN); the Bayes mixture needs complete outputs")
+    y = y.double()
+    u = None if u is None else u.double()
+    lse = lse2 = None
+    num = None
+    M = bank.A.shape[0]
+    for lo in range(0, M, chunk):
+        preds, loglik = _chunk_terms(bank[lo : lo + chunk], y, u)
+        c_lse = torch.logsumexp(loglik, 0)  # (N, T+1)
+        c_num = (torch.softmax(loglik, 0)[..., None] * preds).sum(0)  # (N, T+1, m): the chunk's mean
+        c_lse2 = torch.logsumexp(2 * loglik, 0)
+        if lse is None:
+            lse, lse2, num = c_lse, c_lse2, c_num
+            continue
+        total = torch.logaddexp(lse, c_lse)
+        num = (lse - total).exp()[..., None] * num + (c_lse - total).exp()[..., None] * c_num
+        lse, lse2 = total, torch.logaddexp(lse2, c_lse2)
+    return num, (2 * lse - lse2).exp()
+
+
+def draw_bank(system: SystemConfig, size: int, seed: int) -> LinearSystems:
+    """`size` systems of the family `system` (its sampler, seed + BANK_SEED_OFFSET)."""
+    family = make_family(system, dtype=torch.float64)
+    params = family.sample(size, generator=generator(seed + BANK_SEED_OFFSET))
+    return linear_systems(family.state_space(params), family.input_dim)
+
+
+@PREDICTORS.register("bayes", skip_presets=("smoke", "small"))
+class BayesPredictor:
+    """The Bayes predictor over the test systems' family (bayes_mixture over `bank_size` systems drawn from
+    it): the best any predictor that knows the family but not the system can do, up to the bank's size.
+    `system` is the family's config (an experiment passes its test family's)."""
+
+    name = "bayes"
+
+    def __init__(self, system: SystemConfig | None = None, bank_size: int = 20_000, seed: int = 0) -> None:
+        if system is None:
+            raise MopError("bayes: needs the family the systems come from (system=SystemConfig)")
+        self.system, self.bank_size, self.seed = system, bank_size, seed
+        self.ess: Tensor | None = None
+
+    def predict(self, traj: Trajectories) -> Tensor:
+        yhat, self.ess = bayes_mixture(draw_bank(self.system, self.bank_size, self.seed), traj.y, traj.u)
+        return yhat.to(traj.y.dtype)
