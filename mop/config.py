@@ -219,6 +219,7 @@ TRAIN_CHOICES: dict[str, tuple[str, ...]] = {
     "lr_schedule": ("constant", "cosine"),
     "precision": ("auto", "fp32", "bf16"),
     "compile": ("auto", "on", "off"),
+    "target": ("outputs", "optimal"),
 }
 
 
@@ -262,6 +263,9 @@ class TrainConfig:
     # True: model.safetensors holds the weights of the lowest validation loss, step 0's included (so a model
     # that starts as its feature ends no worse than it on the validation systems), not the last (loop.py)
     keep_best: bool = False
+    # what the one-step loss compares the prediction of y_t with: "outputs", y_t itself (the paper's), or
+    # "optimal", the prediction of y_t by the Kalman filter that knows the training system (data.py)
+    target: str = "outputs"
 
     @property
     def drops_outputs(self) -> bool:
@@ -293,6 +297,12 @@ class TrainConfig:
         )
         for name, choices in TRAIN_CHOICES.items():
             check_choice(f"train.{name}", getattr(self, name), choices)
+        check(
+            self.target == "outputs" or not self.drops_outputs,
+            "train.target=optimal scores one-step predictions against the Kalman filter's; it does not "
+            "combine with dropped outputs (missing_rate, missing_burst_rate, simulate_after): use "
+            "train.target=outputs",
+        )
 
 
 @dataclasses.dataclass(frozen=True)
