@@ -1,4 +1,4 @@
-"""mop.filters.linear_gaussian against the Kalman filter of mop.filters.kalman (itself tested against filterpy)
+"""mop.filters.linear_gaussian against the Kalman filter of mop.filters.kalman (tested against filterpy)
 and against the families' own matrices."""
 
 import math
