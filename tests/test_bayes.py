@@ -54,9 +54,11 @@ def test_a_bank_of_the_true_system_is_its_kalman_filter():
     traj = family.generate(1, 20, generator=generator(2))
     one = linear_systems(family.state_space(traj.params), 1)
     bank = type(one)(*(None if v is None else v.expand(3, *v.shape[1:]) for v in vars(one).values()))
-    many = family.simulate(traj.params.__class__(**{
-        k: v.expand(6, *v.shape[1:]) for k, v in vars(traj.params).items()
-    }), 20, generator=generator(4))
+    many = family.simulate(
+        traj.params.__class__(**{k: v.expand(6, *v.shape[1:]) for k, v in vars(traj.params).items()}),
+        20,
+        generator=generator(4),
+    )
     yhat, ess = bayes_mixture(bank, many.y, many.u)
     torch.testing.assert_close(yhat, KalmanPredictor().predict(many), rtol=1e-9, atol=1e-9)
     torch.testing.assert_close(ess, torch.full_like(ess, 3.0))
