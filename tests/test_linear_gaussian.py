@@ -1,6 +1,7 @@
 """mop.filters.linear_gaussian against the Kalman filter of mop.filters.kalman (tested against filterpy)
 and against the families' own matrices."""
 
+import dataclasses
 import math
 
 import pytest
@@ -9,7 +10,7 @@ import torch
 from mop.config import SystemConfig
 from mop.errors import MopError
 from mop.filters.kalman import kalman_filter
-from mop.filters.linear_gaussian import kalman_means, linear_systems, predictor_gains
+from mop.filters.linear_gaussian import family_systems, kalman_means, linear_systems, predictor_gains
 from mop.systems import generator, make_family
 
 
@@ -60,3 +61,24 @@ def test_kalman_means_refuse_gaps():
     y[0, 3] = math.nan
     with pytest.raises(MopError, match="gaps"):
         kalman_means(linear_systems(family.state_space(traj.params), 0), y, None)
+
+
+def test_dynamics_that_change_in_time_are_refused():
+    family = _family("linear")
+    model = family.state_space(family.sample(3, generator=generator(0)))
+    A2 = 0.5 * model.jacobian(None, None, 0)
+    changing = dataclasses.replace(
+        model, f=lambda x, u, t: x @ (A2 if t >= 4 else model.jacobian(x, u, 0)).mT
+    )
+    linear_systems(changing, 0, horizon=3)  # the same up to t = 3
+    with pytest.raises(MopError, match="change in time"):
+        linear_systems(changing, 0, horizon=10)
+
+
+@pytest.mark.parametrize(
+    ("name", "match"), [("colored-noise", "only approximates"), ("switching", "varies in time")]
+)
+def test_family_systems_refuses_inexact_or_switching_families(name, match):
+    family = _family(name)
+    with pytest.raises(MopError, match=match):
+        family_systems(family, family.sample(2, generator=generator(0)), 50)

@@ -28,7 +28,7 @@ from torch import Tensor
 
 from mop.config import SystemConfig
 from mop.errors import MopError
-from mop.filters.linear_gaussian import LinearSystems, linear_systems, predictor_gains
+from mop.filters.linear_gaussian import LinearSystems, family_systems, predictor_gains
 from mop.predictors import PREDICTORS
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
@@ -84,11 +84,12 @@ def bayes_mixture(
     return num, (2 * lse - lse2).exp()
 
 
-def draw_bank(system: SystemConfig, size: int, seed: int) -> LinearSystems:
-    """`size` systems of the family `system` (its sampler, seed + BANK_SEED_OFFSET)."""
+def draw_bank(system: SystemConfig, size: int, seed: int, horizon: int = 0) -> LinearSystems:
+    """`size` systems of the family `system` (its sampler, seed + BANK_SEED_OFFSET), checked linear and
+    time-invariant over t = 0..horizon (mop.filters.linear_gaussian.family_systems)."""
     family = make_family(system, dtype=torch.float64)
     params = family.sample(size, generator=generator(seed + BANK_SEED_OFFSET))
-    return linear_systems(family.state_space(params), family.input_dim)
+    return family_systems(family, params, horizon)
 
 
 @PREDICTORS.register("bayes", skip_presets=("smoke", "small"))
@@ -106,5 +107,6 @@ class BayesPredictor:
         self.ess: Tensor | None = None
 
     def predict(self, traj: Trajectories) -> Tensor:
-        yhat, self.ess = bayes_mixture(draw_bank(self.system, self.bank_size, self.seed), traj.y, traj.u)
+        bank = draw_bank(self.system, self.bank_size, self.seed, traj.horizon)
+        yhat, self.ess = bayes_mixture(bank, traj.y, traj.u)
         return yhat.to(traj.y.dtype)

@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
-from mop.systems.base import StateSpace
+from mop.systems.base import StateSpace, SystemFamily, SystemParams
 
 AFFINE_TOLERANCE = 1e-9
 
@@ -44,9 +44,21 @@ class LinearSystems:
         return LinearSystems(**{k: None if v is None else v[index] for k, v in parts.items()})
 
 
-def linear_systems(model: StateSpace, input_dim: int) -> LinearSystems:
+def family_systems(family: SystemFamily, params: SystemParams, horizon: int) -> LinearSystems:
+    """The systems `params` of `family` as matrices (linear_systems, time invariance checked over
+    t = 0..horizon); MopError where the family's state space is not the exact model of its systems."""
+    if not family.exact_state_space:
+        raise MopError(
+            f"the {family.name} family's state space only approximates its systems, so its Kalman filter is "
+            "not their optimum; this needs a family whose state space is exact"
+        )
+    return linear_systems(family.state_space(params), family.input_dim, horizon)
+
+
+def linear_systems(model: StateSpace, input_dim: int, horizon: int = 0) -> LinearSystems:
     """The StateSpace of M systems as matrices: A = df/dx, B u = f(0, u); MopError where f is not linear in x
-    and u (checked at seeded random points), has a constant term, or C varies in time."""
+    and u (checked at seeded random points), has a constant term, changes over t = 0..horizon, or C varies
+    in time."""
     if callable(model.C):
         raise MopError("the family's output matrix varies in time; this filter needs a fixed C")
     M, n = model.m0.shape
@@ -68,6 +80,9 @@ def linear_systems(model: StateSpace, input_dim: int) -> LinearSystems:
         raise MopError("the family's dynamics are not linear; this filter needs a linear-Gaussian family")
     if offset.abs().max() > AFFINE_TOLERANCE * scale:
         raise MopError("the family's dynamics have a constant term; this filter takes x -> A x + B u only")
+    first = model.f(x, u, 0)
+    if any((model.f(x, u, t) - first).abs().max() > AFFINE_TOLERANCE * scale for t in range(1, horizon + 1)):
+        raise MopError("the family's dynamics change in time; this filter needs time-invariant systems")
     return LinearSystems(
         A.double(),
         None if B is None else B.double(),

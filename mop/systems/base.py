@@ -98,6 +98,9 @@ class SystemFamily:
     name: ClassVar[str] = ""
     Config: ClassVar[type[SystemConfig]] = SystemConfig
     Params: ClassVar[type[SystemParams]] = SystemParams  # each family declares its own (register_family)
+    # False where state_space only approximates the simulated systems (colored-noise: the paper's white-noise
+    # Kalman filter), so no predictor may treat its filter as the optimum (mop.filters.linear_gaussian)
+    exact_state_space: ClassVar[bool] = True
     state_dim: int
     output_dim: int
     input_dim: int = 0

@@ -26,6 +26,8 @@ class ColoredNoiseConfig(LinearConfig):
 
 @register_family("colored-noise", ColoredNoiseConfig)
 class ColoredNoiseFamily(LinearFamily):
+    exact_state_space = False  # state_space is the white-noise approximation (the paper's KF)
+
     def __init__(self, config: ColoredNoiseConfig, dtype: torch.dtype = torch.float32) -> None:
         super().__init__(config, dtype)
         self.window = config.color_window

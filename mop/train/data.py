@@ -30,7 +30,7 @@ from torch import Tensor
 
 from mop.config import RunConfig, TrainConfig
 from mop.errors import MopError
-from mop.filters.linear_gaussian import kalman_means, linear_systems
+from mop.filters.linear_gaussian import family_systems, kalman_means
 from mop.missing import drop_mask, drop_outputs, masked_inputs
 from mop.systems import make_family
 from mop.train.records import recorded_data
@@ -58,7 +58,7 @@ class TrainingData:
         self.family = make_family(config.system)
         if self.cfg.target == "optimal":  # refuse a family without a linear-Gaussian model before step 1
             probe = self.family.sample(1, generator=torch.Generator(device=device).manual_seed(0))
-            linear_systems(self.family.state_space(probe), self.family.input_dim)
+            family_systems(self.family, probe, self.cfg.horizon)
         if self.cfg.num_source_systems > 0:
             self.inputs, self.targets = self._draw(self.cfg.num_source_systems)  # (M, T, d_in), (M, T, m)
 
@@ -70,8 +70,7 @@ class TrainingData:
 
     def _optimal(self, traj) -> Tensor:
         """(B, T+1, m): the Kalman filter's predictions of y_t for each system of traj (train.target)."""
-        systems = linear_systems(self.family.state_space(traj.params), self.family.input_dim)
-        return kalman_means(systems, traj.y, traj.u)
+        return kalman_means(family_systems(self.family, traj.params, 0), traj.y, traj.u)
 
     def batch(self) -> tuple[Tensor, Tensor]:
         """(inputs (B, T, d_in), targets (B, T, m)); with a model that has an observation mask, targets hold
