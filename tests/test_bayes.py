@@ -9,7 +9,7 @@ from scipy.special import softmax
 from scipy.stats import multivariate_normal
 
 from mop.config import SystemConfig
-from mop.errors import MopError
+from mop.errors import MopError, MopWarning
 from mop.filters.bayes import bayes_mixture, draw_bank
 from mop.filters.kalman import KalmanPredictor, kalman_filter
 from mop.filters.linear_gaussian import linear_systems
@@ -77,3 +77,10 @@ def test_predictor_takes_the_family_from_the_experiment():
     assert float(bayes.ess[:, 30].median()) > 20
     with pytest.raises(MopError, match="needs the family"):
         make_predictor("bayes", shared={"seed": 0})
+
+
+def test_a_collapsed_bank_is_said():
+    """linear-inputs draws whole matrices: 50 systems cannot cover its posterior, and the predictor says so."""
+    traj = make_family(SYSTEM, torch.float64).generate(8, 30, generator=generator(1))
+    with pytest.warns(MopWarning, match="effective sample size"):
+        make_predictor("bayes", shared={"system": SYSTEM}, bank_size=50).predict(traj)

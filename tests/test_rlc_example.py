@@ -132,11 +132,14 @@ def test_rlc_experiment_file_end_to_end(tmp_path, tiny_smoke):
         "--out",
         str(out),
         "--quiet",
+        "--bayes",  # the Bayes mixture over the family, which the smoke and small presets leave out
     ]
     assert cli.main(argv) == 0
     data = json.loads((out / "eval.json").read_text())
     assert data["experiment"] == "rlc-circuit" and data["num_systems"] == 6
-    assert {"mop", "kalman", "arx", "n4sid-kf", "last", "zero"} <= set(data["predictors"])
+    assert {"mop", "kalman", "bayes", "arx", "n4sid-kf", "last", "zero"} <= set(data["predictors"])
+    bayes, arx = (data["predictors"][k]["window_error"] for k in ("bayes", "arx"))
+    assert all(bayes[w] < arx[w] for w in bayes)  # knowing the family beats identifying from nothing
     assert data["claims"][0]["claim"].startswith("MOP is within 10% of the Kalman filter")
     kf, last = (data["predictors"][k]["window_error"] for k in ("kalman", "last"))
     assert all(np.isfinite(v) for v in kf.values())

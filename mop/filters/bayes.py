@@ -14,26 +14,37 @@ achievable one: no predictor trained on the family needs to be worse than it (th
 1 / sum_j w_j^2, reported by bayes_mixture, says how close to the limit M is). The Kalman filter that knows
 the system is below every such predictor; the gap between the two is the price of not knowing the system.
 
+Sampling from the prior works where the family has few unknowns (physical parameters): measured on the
+small preset's N = 500 test systems, M = 20000, MSE ratio to the KF over t in [20, 50] (median ESS at t = 50):
+rlc-circuit 1.031 (MOP 1.099), thermal-network 1.069 (21; MOP 1.139), two-mass 1.072 (57; MOP 1.144),
+dead-time 1.256 (3.7; MOP 1.389). Where the family draws whole random matrices (linear-inputs: 40 unknowns)
+the weights collapse on one system (ESS 1.0) and the mixture is far from the limit (6.9, worse than ARX);
+the predictor warns below a median ESS of LOW_ESS.
+
 Cost: M Kalman filters per test trajectory, O(N M T n^2); the gains, which do not depend on the data, are
-computed once per drawn system. Linear-Gaussian families only (the StateSpace's f affine in x and u, C
-constant): the built-in linear families and plugins such as examples/two_mass.py.
+computed once per drawn system (2 to 3 min for M = 20000, N = 500, T = 50 on one core). Linear-Gaussian
+families whose state space is their exact model (mop.filters.linear_gaussian.family_systems): the built-in
+linear families and plugins such as examples/two_mass.py. `mop reproduce FILE --bayes` adds it where an
+experiment lists it (the smoke and small presets leave it out unless asked).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 
 import torch
 from torch import Tensor
 
 from mop.config import SystemConfig
-from mop.errors import MopError
+from mop.errors import MopError, MopWarning
 from mop.filters.linear_gaussian import LinearSystems, family_systems, predictor_gains
 from mop.predictors import PREDICTORS
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
 
 BANK_SEED_OFFSET = 7_000_003  # the drawn systems: apart from the test, training and validation streams
+LOW_ESS = 10.0  # a median ESS at the last step below this: warn that the mixture is far from the limit
 
 
 def _chunk_terms(bank: LinearSystems, y: Tensor, u: Tensor | None) -> tuple[Tensor, Tensor]:
@@ -109,4 +120,15 @@ class BayesPredictor:
     def predict(self, traj: Trajectories) -> Tensor:
         bank = draw_bank(self.system, self.bank_size, self.seed, traj.horizon)
         yhat, self.ess = bayes_mixture(bank, traj.y, traj.u)
+        ess = float(self.ess[:, -1].median())
+        if ess < LOW_ESS:
+            warnings.warn(
+                MopWarning(
+                    f"bayes: the median effective sample size of its {self.bank_size} systems is {ess:.1f} "
+                    f"at t = {traj.horizon}: the family has too many unknowns for sampling from its prior, "
+                    "so the mixture is far from the Bayes predictor (its error is only an upper bound of "
+                    "the Bayes error); a larger bank_size moves it closer"
+                ),
+                stacklevel=2,
+            )
         return yhat.to(traj.y.dtype)

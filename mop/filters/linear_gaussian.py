@@ -23,6 +23,7 @@ from mop.errors import MopError
 from mop.systems.base import StateSpace, SystemFamily, SystemParams
 
 AFFINE_TOLERANCE = 1e-9
+STEADY_TOLERANCE = 1e-13  # max |P_{t+1} - P_t| <= 1e-13 (1 + max |P_t|): P_t is the fixed point, K_t final
 
 
 @dataclass(frozen=True)
@@ -98,7 +99,8 @@ def predictor_gains(
     systems: LinearSystems, horizon: int, likelihood: bool = True
 ) -> tuple[Tensor, Tensor | None, Tensor | None]:
     """For t = 0..horizon: the predictor gains K_t (M, T+1, n, m) (the module docstring's recursion) and,
-    with likelihood, S_t^{-1} (M, T+1, m, m) and log det S_t (M, T+1) (else None, None)."""
+    with likelihood, S_t^{-1} (M, T+1, m, m) and log det S_t (M, T+1) (else None, None). Once P_t stops
+    changing (STEADY_TOLERANCE, all M systems) the later steps repeat the last gain."""
     A, C, Q, R, P = systems.A, systems.C, systems.Q, systems.R, systems.P0
     gains, inverses, logdets = [], [], []
     for _ in range(horizon + 1):
@@ -110,8 +112,15 @@ def predictor_gains(
         if likelihood:
             inverses.append(torch.cholesky_inverse(L))
             logdets.append(2 * L.diagonal(dim1=-2, dim2=-1).log().sum(-1))
-        P = A @ P @ A.mT + Q - K @ APC.mT
-        P = 0.5 * (P + P.mT)
+        P_next = A @ P @ A.mT + Q - K @ APC.mT
+        P_next = 0.5 * (P_next + P_next.mT)
+        if (P_next - P).abs().max() <= STEADY_TOLERANCE * (1 + P.abs().max()):  # at the Riccati fixed point
+            break
+        P = P_next
+    repeat = horizon + 1 - len(gains)  # steps left after the fixed point: the same K, S as the last step
+    gains += gains[-1:] * repeat
+    inverses += inverses[-1:] * repeat
+    logdets += logdets[-1:] * repeat
     if not likelihood:
         return torch.stack(gains, 1), None, None
     return torch.stack(gains, 1), torch.stack(inverses, 1), torch.stack(logdets, 1)
