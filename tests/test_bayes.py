@@ -13,7 +13,7 @@ from mop.errors import MopError, MopWarning
 from mop.filters.bayes import bayes_mixture, draw_bank
 from mop.filters.kalman import KalmanPredictor, kalman_filter
 from mop.filters.linear_gaussian import linear_systems
-from mop.predictors import make_predictor
+from mop.predictors import forecast, make_predictor, nan_beyond_horizon
 from mop.systems import generator, make_family
 
 SYSTEM = SystemConfig(family="linear-inputs", state_dim=2, output_dim=2, input_dim=1)
@@ -42,7 +42,8 @@ def _reference(bank, y, u):
 def test_mixture_equals_brute_force_bayes():
     bank = draw_bank(SYSTEM, 5, seed=3)
     traj = make_family(SYSTEM, torch.float64).generate(4, 12, generator=generator(8))
-    yhat, ess = bayes_mixture(bank, traj.y, traj.u, chunk=2)  # chunks of 2, 2, 1 combined
+    f, ess = bayes_mixture(bank, traj.y, traj.u, chunk=2)  # chunks of 2, 2, 1 combined
+    yhat = f[:, :, 0]
     ref_yhat, ref_ess = _reference(bank, traj.y, traj.u)
     np.testing.assert_allclose(yhat.numpy(), ref_yhat, rtol=1e-8, atol=1e-10)
     np.testing.assert_allclose(ess.numpy(), ref_ess, rtol=1e-8)
@@ -59,8 +60,11 @@ def test_a_bank_of_the_true_system_is_its_kalman_filter():
         20,
         generator=generator(4),
     )
-    yhat, ess = bayes_mixture(bank, many.y, many.u)
-    torch.testing.assert_close(yhat, KalmanPredictor().predict(many), rtol=1e-9, atol=1e-9)
+    f, ess = bayes_mixture(bank, many.y, many.u, steps=4)
+    kf = KalmanPredictor()
+    torch.testing.assert_close(f[:, :, 0], kf.predict(many), rtol=1e-9, atol=1e-9)
+    ref = forecast(kf, many, 4)  # the KF's own roll-out with the future inputs
+    torch.testing.assert_close(nan_beyond_horizon(f.clone()), ref, rtol=1e-9, atol=1e-9, equal_nan=True)
     torch.testing.assert_close(ess, torch.full_like(ess, 3.0))
 
 
@@ -80,7 +84,7 @@ def test_predictor_takes_the_family_from_the_experiment():
 
 
 def test_a_collapsed_bank_is_said():
-    """linear-inputs draws whole matrices: 50 systems cannot cover its posterior, and the predictor says so."""
+    """linear-inputs draws whole matrices: 50 systems cannot cover its posterior; the predictor says so."""
     traj = make_family(SYSTEM, torch.float64).generate(8, 30, generator=generator(1))
     with pytest.warns(MopWarning, match="effective sample size"):
         make_predictor("bayes", shared={"system": SYSTEM}, bank_size=50).predict(traj)

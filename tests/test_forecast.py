@@ -133,9 +133,14 @@ def test_rls_rollout_is_exact_on_a_noiseless_ar2():
     assert (f[0, 5:, 3] - f[0, 5:, 0]).abs().nansum() > 0  # the horizons differ (not a copy of j = 0)
 
 
+BAYES_FAMILY = SystemConfig(family="linear-inputs", state_dim=1, output_dim=1, input_dim=1)
+
+
 def _trajectory_for(name: str, tiny_run) -> Trajectories:
     if is_learned(name):
         return generate("linear", n=2, horizon=14, output_dim=2, state_dim=2)  # 14 > context 10
+    if name == "bayes":  # the Bayes mixture needs a time-invariant family: one of few unknowns
+        return generate("linear-inputs", n=2, horizon=14, state_dim=1, output_dim=1, input_dim=1)
     return generate("switching", n=2, horizon=14, switch_time=6)
 
 
@@ -145,7 +150,7 @@ def test_every_forecast_is_causal_and_starts_at_predict(name, tiny_run, tiny_gru
     t <= 7 (an independent check for every predictor, including those whose forecast repeats predict);
     j = 0 is the one-step prediction; NaN exactly where t + j > T."""
     run_dir = {"mop": tiny_run, "gru": tiny_gru}.get(name)
-    options = {"run_dir": run_dir, "num_particles": 50, "seed": 0}
+    options = {"run_dir": run_dir, "num_particles": 50, "seed": 0, "system": BAYES_FAMILY}
     traj = _trajectory_for(name, tiny_run)
     f = forecast(make_predictor(name, shared=options), traj, K)
     T = traj.horizon
@@ -243,7 +248,7 @@ def test_forecast_from_a_start_origin_equals_the_full_forecast_there(name, tiny_
     """forecast(..., start=s): NaN for origins t < s and, from s on, the full forecast's values (for the
     particle filter, which skips the earlier roll-outs, exactly: each origin draws from its own generator)."""
     run_dir = {"mop": tiny_run, "gru": tiny_gru}.get(name)
-    options = {"run_dir": run_dir, "num_particles": 50, "seed": 0}
+    options = {"run_dir": run_dir, "num_particles": 50, "seed": 0, "system": BAYES_FAMILY}
     traj = _trajectory_for(name, tiny_run)
     full = forecast(make_predictor(name, shared=options), traj, K)
     part = forecast(make_predictor(name, shared=options), traj, K, start=6)

@@ -47,50 +47,58 @@ BANK_SEED_OFFSET = 7_000_003  # the drawn systems: apart from the test, training
 LOW_ESS = 10.0  # a median ESS at the last step below this: warn that the mixture is far from the limit
 
 
-def _chunk_terms(bank: LinearSystems, y: Tensor, u: Tensor | None) -> tuple[Tensor, Tensor]:
+def _chunk_terms(bank: LinearSystems, y: Tensor, u: Tensor | None, steps: int) -> tuple[Tensor, Tensor]:
     """For the M systems of bank and N trajectories y (N, T+1, m), u (N, T+1, k)|None: each system's
-    one-step predictions yhat (M, N, T+1, m) and the log-likelihood of the outputs before t,
-    log p(y_{<t}) (M, N, T+1)."""
+    forecasts f (M, N, T+1, K, m), f[..., t, j] its Kalman prediction of y_{t+j} from y_{<t} (and the inputs
+    up to u_{t+j-1}; zero past T), and the log-likelihood of the outputs before t, log p(y_{<t}) (M, N, T+1).
+    """
     T1, m = y.shape[1], y.shape[2]
     K, S_inv, logdet = predictor_gains(bank, T1 - 1)
     mean = bank.m0[:, None].expand(-1, y.shape[0], -1).clone()  # (M, N, n)
-    preds, loglik = [], [y.new_zeros(bank.A.shape[0], y.shape[0])]
+    means, loglik = [], [y.new_zeros(bank.A.shape[0], y.shape[0])]
     for t in range(T1):
-        yhat = mean @ bank.C.mT  # (M, N, m)
-        e = y[None, :, t] - yhat
+        means.append(mean)
+        e = y[None, :, t] - mean @ bank.C.mT  # (M, N, m)
         quad = ((e @ S_inv[:, t]) * e).sum(-1)  # (M, N)
-        preds.append(yhat)
         loglik.append(loglik[-1] - 0.5 * (quad + logdet[:, t, None] + m * math.log(2 * math.pi)))
         mean = mean @ bank.A.mT + e @ K[:, t].mT
         if bank.B is not None and u is not None:
             mean = mean + u[None, :, t] @ bank.B.mT
-    return torch.stack(preds, 2), torch.stack(loglik[:-1], 2)
+    x = torch.stack(means, 2)  # (M, N, T+1, n): the prior mean of x_t at each origin t
+    out = [x @ bank.C[:, None].mT]
+    for j in range(1, steps):  # the time update with no measurement: x <- A x + B u_{t+j-1}
+        x = x @ bank.A[:, None].mT
+        if bank.B is not None and u is not None:
+            ahead = torch.zeros_like(u)
+            ahead[:, : T1 - j + 1] = u[:, j - 1 :]  # origin t reads u_{t+j-1}
+            x = x + ahead[None] @ bank.B[:, None].mT
+        out.append(x @ bank.C[:, None].mT)
+    return torch.stack(out, 3), torch.stack(loglik[:-1], 2)
 
 
 def bayes_mixture(
-    bank: LinearSystems, y: Tensor, u: Tensor | None, chunk: int = 512
+    bank: LinearSystems, y: Tensor, u: Tensor | None, chunk: int = 512, steps: int = 1
 ) -> tuple[Tensor, Tensor]:
-    """(yhat (N, T+1, m), ess (N, T+1)): the likelihood-weighted mean of the bank's Kalman predictions of
-    y_t from y_{<t}, u_{<t} (the module docstring), and the weights' effective sample size, for y (N, T+1, m)
-    complete, u (N, T+1, k) or None. The bank is processed in chunks of `chunk` systems (memory
-    O(chunk N T m)); the result does not depend on the chunking up to float rounding."""
+    """(f (N, T+1, K, m), ess (N, T+1)), K = steps: the likelihood-weighted mean of the bank's Kalman
+    forecasts, f[:, t, j] of y_{t+j} from y_{<t} (and the inputs up to u_{t+j-1}; j = 0 the one-step
+    prediction; the module docstring), weighted by p(y_{<t}), and the weights' effective sample size, for y
+    (N, T+1, m) complete, u (N, T+1, k) or None. The bank is processed in chunks of `chunk` systems (memory
+    O(chunk N T K m)); the result does not depend on the chunking up to float rounding."""
     if torch.isnan(y).any():
         raise MopError("bayes: the outputs have gaps (NaN); the Bayes mixture needs complete outputs")
     y = y.double()
     u = None if u is None else u.double()
-    lse = lse2 = None
-    num = None
-    M = bank.A.shape[0]
-    for lo in range(0, M, chunk):
-        preds, loglik = _chunk_terms(bank[lo : lo + chunk], y, u)
+    lse = lse2 = num = None
+    for lo in range(0, bank.A.shape[0], chunk):
+        preds, loglik = _chunk_terms(bank[lo : lo + chunk], y, u, steps)
         c_lse = torch.logsumexp(loglik, 0)  # (N, T+1)
-        c_num = (torch.softmax(loglik, 0)[..., None] * preds).sum(0)  # (N, T+1, m): the chunk's mean
+        c_num = (torch.softmax(loglik, 0)[..., None, None] * preds).sum(0)  # (N, T+1, K, m): chunk's mean
         c_lse2 = torch.logsumexp(2 * loglik, 0)
         if lse is None:
             lse, lse2, num = c_lse, c_lse2, c_num
             continue
         total = torch.logaddexp(lse, c_lse)
-        num = (lse - total).exp()[..., None] * num + (c_lse - total).exp()[..., None] * c_num
+        num = (lse - total).exp()[..., None, None] * num + (c_lse - total).exp()[..., None, None] * c_num
         lse, lse2 = total, torch.logaddexp(lse2, c_lse2)
     return num, (2 * lse - lse2).exp()
 
@@ -118,8 +126,13 @@ class BayesPredictor:
         self.ess: Tensor | None = None
 
     def predict(self, traj: Trajectories) -> Tensor:
+        return self.forecast(traj, 1)[:, :, 0]
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        """(B, T+1, K, m): the mixture's k-step forecasts (bayes_mixture; entries past T are dropped by
+        mop.predictors.forecast)."""
         bank = draw_bank(self.system, self.bank_size, self.seed, traj.horizon)
-        yhat, self.ess = bayes_mixture(bank, traj.y, traj.u)
+        f, self.ess = bayes_mixture(bank, traj.y, traj.u, chunk=max(1, 512 // steps), steps=steps)
         ess = float(self.ess[:, -1].median())
         if ess < LOW_ESS:
             warnings.warn(
@@ -131,4 +144,4 @@ class BayesPredictor:
                 ),
                 stacklevel=2,
             )
-        return yhat.to(traj.y.dtype)
+        return f.to(traj.y.dtype)
