@@ -107,3 +107,27 @@ def test_prior_errors():
         build_model(tiny(rls_order=0, arx_order=0, rls_offset=False, rls_prior="fit"))
     with pytest.raises(MopError, match="'none', 'fit', 'family' or a list"):
         build_model(tiny(rls_prior="fitted"))
+
+
+def test_a_class_model_with_a_prior_runs_it_in_the_data_units_across_gaps_and_streams_alike():
+    """A class model (record_norm, observation mask) given a listed prior (a fine-tune's model.rls_prior=fit):
+    at initialisation it is mop.filters.arx's recursion from that prior on the data as given (not in the
+    record's frame, where fitted coefficients do not hold), outputs missing from step 15 on (a free-run
+    simulation: each missing output filled with the feature's own prediction), and streaming it equals its
+    forward."""
+    theta = [0.9, -0.2, 0.5, 0.1, 0.05]
+    cfg = tiny(rls_prior=theta, record_norm="causal", observation_mask=True, input_dim=3)
+    model = build_model(cfg).double().eval()
+    g = torch.Generator().manual_seed(1)
+    z = torch.randn(3, 30, 2, generator=g, dtype=torch.float64) * 4.0 + 7.0  # far from the record frame
+    y = z[..., :1].clone()
+    y[:, 15:] = float("nan")
+    prior = (torch.tensor(theta, dtype=torch.float64)[:, None], 1e-3)
+    expect = arx_predict(y, z[..., 1:], 2, 2, True, prior)  # (3, 30, 1): expect[:, t] predicts y_t
+    seen = ~torch.isnan(y)
+    inputs = torch.cat([torch.where(seen, y, torch.zeros_like(y)), z[..., 1:], seen.double()], dim=-1)
+    with torch.no_grad():
+        torch.testing.assert_close(model(inputs[:, :-1]), expect[:, 1:], rtol=1e-10, atol=1e-10)
+        for p in model.parameters():
+            p.normal_(0.0, 0.3)
+        torch.testing.assert_close(stream(model, inputs)[0], model(inputs), rtol=1e-9, atol=1e-9)

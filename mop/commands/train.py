@@ -12,6 +12,7 @@ from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
 from mop.experiments.training import feature_line, training_config
 from mop.train import train
+from mop.train.data import validates_tails
 from mop.train.records import recorded_data
 
 EPILOG = """examples:
@@ -79,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         source, overrides = None, [source, *overrides]
     config = training_config(source, args.preset, args.data, args.val, overrides, args.init)
     if config.data is not None:
-        print(recorded_data(config.data).summary(config.train.horizon))
+        print(recorded_data(config.data).summary(config.train.horizon, validates_tails(config)))
         print(feature_line(config) or "feature: none (the network reads the record alone)")
     out = train(
         config,

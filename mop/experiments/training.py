@@ -20,12 +20,15 @@ overrides: FINE_TUNE_STEPS steps at a tenth of the source's learning rate, const
 are trained already: a warm-up from zero and the source's full rate would first move them away from what
 they learned; 500 steps of batch 16 on a 2-core CPU are minutes), keeping the weights of the lowest
 validation loss, the source's at step 0 included (train.keep_best: never worse than the source there).
+After the overrides, a class model's in-context ARX feature starts from the record's least-squares ARX
+(with_record_prior), and its windows fit the record's split (_record_horizon).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 from mop.config import (
@@ -46,6 +49,7 @@ from mop.identify.select import fit
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.auto import resolve_features
+from mop.train.init import PRIOR_KEYS
 from mop.train.records import recorded_data
 
 # The records recipe (README, "Recorded data": measured on examples/tank_records.py, one record of 1024
@@ -174,11 +178,32 @@ def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConf
     return dataclasses.replace(config, train=train, data=data)
 
 
+def with_record_prior(config: RunConfig, overrides: list[str]) -> RunConfig:
+    """Fine-tuning a class model (model.record_norm: its ARX feature identifies the record in context) on a
+    record with complete outputs: the feature starts from the ARX fitted by least squares on the training
+    part (model.rls_prior = "fit", P_0 = 1e-3 I in the run's normalised units), as the records recipe's
+    does, so from its first steps the model reads the record's ARX rather than one identified from those
+    steps alone, unless an override names the prior (PRIOR_KEYS)."""
+    m, named = config.model, parse_overrides(overrides)
+    if config.data is None or m.record_norm == "none" or m.rls_order == 0 or m.rls_prior != "none":
+        return config
+    if any(f"model.{key}" in named for key in PRIOR_KEYS) or recorded_data(config.data).num_missing:
+        return config
+    model = dataclasses.replace(m, rls_prior="fit", rls_p0=1.0, rls_prior_cov=None)
+    return dataclasses.replace(config, model=model)
+
+
 def _record_horizon(train: TrainConfig, data: DataConfig) -> TrainConfig:
     """A source trained on longer windows than the record's split holds trains on the longest that fit
-    both sides (train.simulate_after scaled alike), so `--init` works on a short record as it is."""
+    both sides (train.simulate_after scaled alike), so `--init` works on a short record as it is. With a
+    validation record (--val) the windows are those the split in time would give, as long as the last
+    data.validation_fraction of the estimation record: the same fine-tune with or without --val (windows
+    of 500 steps on one record of 1024 fit its tail and simulate the validation record worse, README)."""
     split = recorded_data(data)
-    fits = min(max(len(a) for a in split.train_parts), max(len(a) for a in split.val_parts)) - 1
+    longest = [max(len(a) for a in split.train_parts), max(len(a) for a in split.val_parts)]
+    if split.split == "file":
+        longest.append(max(math.ceil(data.validation_fraction * len(a)) for a in split.train_parts))
+    fits = min(longest) - 1
     if not 2 <= fits < train.horizon:
         return train
     after = (
@@ -208,7 +233,7 @@ def training_config(
         raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
     base = load_config(init)
     config = with_fine_tuning(with_records(base, data, val), base, init)
-    config = apply_overrides(config, list(overrides))
+    config = with_record_prior(apply_overrides(config, list(overrides)), list(overrides))
     if config.data is not None and "train.horizon" not in parse_overrides(list(overrides)):
         # the windows fit the split the overrides ask for (data.validation_fraction, data.split)
         config = dataclasses.replace(config, train=_record_horizon(config.train, config.data))

@@ -80,10 +80,10 @@ def check_features(cfg: ModelConfig) -> None:
             "model.rls_prior must be 'none', 'fit', 'family' or a list of coefficients, "
             f"got {cfg.rls_prior!r}"
         )
-    if cfg.rls_prior != "none" and (cfg.rls_order == 0 or cfg.record_norm != "none" or cfg.observation_mask):
+    if cfg.rls_prior != "none" and cfg.rls_order == 0:
         raise MopError(
             "model.rls_prior starts the RLS / ARX feature from fitted coefficients: it needs "
-            "model.rls_order > 0, and neither model.record_norm nor an observation mask"
+            "model.rls_order > 0"
         )
     d = regressor_count(cfg)
     listed = isinstance(cfg.rls_prior, list)
@@ -173,18 +173,22 @@ def feature_start(cfg: ModelConfig) -> int:
     return max(cfg.rls_order, cfg.arx_order)
 
 
-def feature_frame(mean: Tensor, std: Tensor) -> tuple[Tensor, Tensor]:
+def feature_frame(mean: Tensor, std: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor]:
     """record_norm: the fixed frame (shift, scale) (B, m + k) the RLS / ARX feature runs in: each channel's
     mean and std over steps 0..r (feature_start; std 0 -> 1). Known at step r, before the first fit, so
     causal; a fixed affine map of each channel, so the feature (its ridge prior P_0 = I included) is
-    equivariant to the record's units."""
+    equivariant to the record's units. With a listed model.rls_prior (coefficients fitted on one record in
+    its normalised units: a fine-tuned class model) the frame is those units (shift 0, scale 1), where the
+    coefficients hold."""
+    if isinstance(cfg.rls_prior, list):
+        return torch.zeros_like(mean), torch.ones_like(std)
     return mean, torch.where(std > 0, std, torch.ones_like(std))
 
 
 def _framed_feature(y: Tensor, u: Tensor | None, mean: Tensor, std: Tensor, cfg: ModelConfig) -> Tensor:
     """The RLS / ARX feature (B, T, m) of y (B, T, m), u (B, T, k)|None run in feature_frame, in y's units."""
     m, r = cfg.output_dim, min(feature_start(cfg), y.shape[1] - 1)
-    shift, scale = feature_frame(mean[:, r : r + 1], std[:, r : r + 1])  # (B, 1, m + k) each
+    shift, scale = feature_frame(mean[:, r : r + 1], std[:, r : r + 1], cfg)  # (B, 1, m + k) each
     ys = (y.double() - shift[..., :m]) / scale[..., :m]
     us = None if u is None else (u.double() - shift[..., m:]) / scale[..., m:]
     rs = rls_next(ys, cfg.rls_order, us, cfg.arx_order, cfg.rls_offset, feature_prior(cfg))
@@ -283,7 +287,7 @@ class FeatureState:
         base = None
         if self.cfg.rls_order > 0:
             if self.t == r:  # the frame is fixed now; the buffers move into it
-                self._enter_frame(*feature_frame(mean, std))
+                self._enter_frame(*feature_frame(mean, std, self.cfg))
             zs = z[:, : m + k].double()
             zs = zs if self.t < r else (zs - self.shift) / self.scale
             rs = self._rls_step(zs[:, :m], zs[:, m : m + k] if self.cfg.arx_order > 0 else zs[:, :0])

@@ -9,6 +9,10 @@ time, or against a separate validation file) and fits per-channel mean/std on th
 samples windows of train.horizon + 1 steps uniformly over all valid (part, start) pairs of the normalised
 training parts; num_source_systems is unused (the file fixes the systems).
 
+Validation on a record split in time or a validation record, for a model that simulates across a gap and
+is trained for it (validates_tails): a free-run simulation (each held-out tail after the recorded steps
+before it; each validation window from step train.simulate_after on).
+
 Missing outputs: with train.missing_rate / missing_burst_rate / simulate_after > 0 (model.observation_mask)
 every batch has outputs dropped at random (with_drop_outs, from the same generator); outputs missing in a
 recorded file (NaN) stay missing. Targets then hold NaN where missing and the loss counts only the measured
@@ -125,12 +129,45 @@ def simulated_tail(shape: torch.Size, after: int, generator: torch.Generator) ->
     return (torch.arange(T1, device=dev)[None, :] >= start)[..., None]
 
 
+def validates_tails(config: RunConfig) -> bool:
+    """True where the validation loss is a free-run simulation: on recorded data split in time or given a
+    validation record, for a model that simulates across a gap of outputs (model.forecast_mode = "gap")
+    and is trained for it (train.simulate_after > 0), so train.keep_best keeps the weights that simulate
+    best. Split in time: each held-out tail after the steps before it; a validation record: each of its
+    validation windows from step train.simulate_after on (validation_batch)."""
+    if config.data is None or config.model.forecast_mode != "gap" or config.train.simulate_after <= 0:
+        return False
+    return recorded_data(config.data).split in ("time", "file")
+
+
+def tail_batch(windows: Tensor, cuts: Tensor, output_dim: int) -> tuple[Tensor, Tensor]:
+    """Windows (N, T+1, m + k) [y, u] and cuts (N,) -> (masked inputs (N, T, m + k + m) with y_s missing
+    from s = cut on, targets (N, T, m) = y_1..y_T where s >= cut, NaN before): the loss is the MSE of the
+    gap simulation of y_cut..y_T from the steps before and the inputs."""
+    m = output_dim
+    steps = torch.arange(windows.shape[1], device=windows.device)[None, :, None]  # (1, T+1, 1)
+    tail = steps >= cuts.to(windows.device)[:, None, None]  # (N, T+1, 1)
+    y = drop_outputs(windows[..., :m], tail)
+    z = torch.cat([y[:, :-1], windows[:, :-1, m:]], dim=-1)
+    scored = torch.where(tail, windows[..., :m], torch.full_like(windows[..., :m], float("nan")))
+    return masked_inputs(z, m), scored[:, 1:].contiguous()
+
+
 def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, Tensor]:
     """Held-out systems (a generator seeded apart from training) for the validation loss.
 
-    Recorded data: the validation windows of mop.train.records (RecordedData.validation_windows).
+    Recorded data: the validation windows of mop.train.records (RecordedData.validation_windows); where
+    validates_tails, the held-out tails after the steps before them (RecordedData.tail_windows, tail_batch).
     """
     g = torch.Generator(device=device).manual_seed(config.train.seed + 1_000_003)
+    if validates_tails(config):
+        cfg, data = config.train, recorded_data(config.data)
+        if data.split == "time":
+            windows, cuts = data.tail_windows(config.data, cfg.horizon, cfg.simulate_after)
+        else:
+            windows = data.validation_steps(config.data, cfg.horizon)
+            cuts = torch.full((windows.shape[0],), min(cfg.simulate_after, cfg.horizon), dtype=torch.long)
+        return tail_batch(windows.to(device), cuts, config.model.output_dim)
     if config.data is not None:
         val = recorded_data(config.data).validation(config.data, config.train.horizon, device)
     else:

@@ -20,13 +20,19 @@ from mop.errors import MopError
 from mop.pretrained import resolve_run_dir
 from mop.runs import load_config, retrain_hint
 
+# the feature's starting coefficients: data the run fits (model.rls_prior=fit), no weights of the network
+PRIOR_KEYS = ("rls_prior", "rls_prior_cov", "rls_p0")
+
 
 def check_init(config: RunConfig) -> None:
-    """One-line MopError unless train.init's model has the run's architecture (every model key)."""
+    """One-line MopError unless train.init's model has the run's architecture (every model key but the
+    feature's prior, PRIOR_KEYS)."""
     if not config.train.init:
         return
     source = load_config(config.train.init).model
     for field in dataclasses.fields(source):
+        if field.name in PRIOR_KEYS:
+            continue
         ours, theirs = getattr(config.model, field.name), getattr(source, field.name)
         if ours != theirs:
             raise MopError(

@@ -13,7 +13,9 @@ before the other splits existed), else "time".
 
 Every part is an array (L, m + k) of [y_t, u_t] in the file's units. The validation batch of the "time" and
 "file" splits is every window of train.horizon + 1 steps of the validation parts, thinned evenly to at most
-MAX_VALIDATION_WINDOWS. Per-channel mean / std are fitted on the training parts only.
+MAX_VALIDATION_WINDOWS (for a model validated by simulation, mop.train.data.validates_tails, the "time"
+split's tails after the steps before them instead: tail_windows). Per-channel mean / std are fitted on the
+training parts only.
 """
 
 from __future__ import annotations
@@ -175,10 +177,13 @@ class RecordedData:
             f"T = {longest - 1}); lower train.horizon or record longer trajectories"
         )
 
-    def check_lengths(self, horizon: int) -> None:
-        """MopError unless both sides hold a part of at least horizon + 1 steps."""
+    def check_lengths(self, horizon: int, tails: bool = False) -> None:
+        """MopError unless both sides hold a part of at least horizon + 1 steps (tails, split in time: the
+        validation side is the held-out tails after the steps before them, tail_windows: a whole trajectory
+        that long)."""
         self._long_enough(self.train_parts, horizon, "training")
-        self._long_enough(self.val_parts, horizon, "validation")
+        if not (tails and self.split == "time"):
+            self._long_enough(self.val_parts, horizon, "validation")
 
     def windows(self, cfg: DataConfig, horizon: int, device: torch.device) -> Windows:
         """Every window of horizon + 1 steps of the training parts at least that long."""
@@ -209,11 +214,38 @@ class RecordedData:
 
     def validation(self, cfg: DataConfig, horizon: int, device: torch.device) -> tuple[Tensor, Tensor]:
         """The validation windows (validation_windows): inputs (N, T, d_in), targets (N, T, m)."""
+        z = self.validation_steps(cfg, horizon).to(device)  # (N, T+1, d_in)
+        return z[:, :-1].contiguous(), z[:, 1:, : self.output_dim].contiguous()
+
+    def validation_steps(self, cfg: DataConfig, horizon: int) -> Tensor:
+        """The validation windows' steps z_0..z_T (N, T+1, m + k), normalised, float32."""
         self._long_enough(self.val_parts, horizon, "validation")
         parts = self._normalised(cfg, self.val_parts)
         windows = [parts[j][s : s + horizon + 1] for j, s in self.validation_windows(horizon)]
-        z = torch.from_numpy(np.stack(windows).astype(np.float32)).to(device)  # (N, T+1, d_in)
-        return z[:, :-1].contiguous(), z[:, 1:, : self.output_dim].contiguous()
+        return torch.from_numpy(np.stack(windows).astype(np.float32))
+
+    def tail_windows(self, cfg: DataConfig, horizon: int, after: int) -> tuple[Tensor, Tensor]:
+        """The "time" split's held-out tails, each after the recorded steps before it (validation by free-run
+        simulation): for every trajectory of at least horizon + 1 steps, the horizon + 1 normalised steps
+        that start max(after, horizon + 1 - tail) steps before its held-out tail of `tail` steps (as many as
+        the training part has, at most), and the cut: the index in the window of the first held-out step.
+        Returns (windows (N, horizon + 1, m + k) float32, cuts (N,) long)."""
+        windows, cuts = [], []
+        parts = self._normalised(cfg, self.train_parts), self._normalised(cfg, self.val_parts)
+        for a, b in zip(*parts, strict=True):
+            if len(a) + len(b) < horizon + 1:
+                continue
+            before = min(len(a), max(after, horizon + 1 - len(b)))
+            windows.append(np.concatenate([a[len(a) - before :], b])[: horizon + 1])
+            cuts.append(before)
+        if not windows:
+            longest = max(len(a) + len(b) for a, b in zip(self.train_parts, self.val_parts, strict=True))
+            raise MopError(
+                f"{self.path}: no trajectory has train.horizon + 1 = {horizon + 1} steps (the longest has "
+                f"{longest}); lower train.horizon or give a validation record with --val FILE"
+            )
+        z = torch.from_numpy(np.stack(windows).astype(np.float32))
+        return z, torch.tensor(cuts, dtype=torch.long)
 
     def fit_prior(self, cfg: DataConfig, p: int, q: int, offset: bool) -> list[float]:
         """The ARX(p, q) coefficients (d, m) flattened, by least squares on the normalised training parts:
@@ -234,11 +266,17 @@ class RecordedData:
         theta = np.linalg.solve(gram, phi.T @ target)  # (d, m)
         return [float(v) for v in theta.reshape(-1)]
 
-    def summary(self, horizon: int) -> str:
-        """One line: the file, its shape, the split and the windows of horizon + 1 steps on each side."""
+    def summary(self, horizon: int, tails: bool = False) -> str:
+        """One line: the file, its shape, the split and the windows of horizon + 1 steps on each side (tails,
+        split in time: the validation side is the held-out tails, tail_windows)."""
         n_train, n_val = len(self.train_parts), len(self.val_parts)
         skipped = sum(len(a) < horizon + 1 for a in self.train_parts)
         skipped_val = sum(len(a) < horizon + 1 for a in self.val_parts)
+        tails = tails and self.split == "time"
+        if tails:
+            whole = [len(a) + len(b) for a, b in zip(self.train_parts, self.val_parts, strict=True)]
+            skipped_val = sum(n < horizon + 1 for n in whole)
+            n_tails = len(whole) - skipped_val
         split = {
             "trajectory": f"split by trajectory: {n_train} training / {n_val} validation",
             "time": f"split in time: the last {self._val_share()} steps validate",
@@ -248,7 +286,12 @@ class RecordedData:
             f"data {self.path}: {_count(self.num_trajectories, 'trajectory', 'trajectories')} "
             f"(m={self.output_dim}, k={self.input_dim}), "
             f"{split}; {window_count(self.train_parts, horizon)} training / "
-            f"{len(self.validation_windows(horizon))} validation windows of {horizon + 1} steps; "
+            + (
+                f"{n_tails} validation windows (the held-out tail simulated after the steps before it)"
+                if tails
+                else f"{len(self.validation_windows(horizon))} validation windows"
+            )
+            + f" of {horizon + 1} steps; "
             f"{skipped} / {skipped_val} shorter than train.horizon + 1 = {horizon + 1} steps skipped"
         )
 

@@ -35,6 +35,7 @@ from mop.models import check_arch
 from mop.runs import read_run_json, retrain_hint
 from mop.systems import make_family
 from mop.train.auto import resolve_features
+from mop.train.data import validates_tails
 from mop.train.records import recorded_data
 
 TRAINING_FILES = ("model.safetensors", "checkpoint.safetensors", "metrics.jsonl", "done.json", "inputs.json")
@@ -75,7 +76,7 @@ def _resolve_data(config: RunConfig) -> RunConfig:
             f"{config.data.path} has {data.num_missing} missing outputs (NaN / empty cells); train a model "
             "that reads them with model.observation_mask=true (or train.missing_rate=0.1), or fill them"
         )
-    data.check_lengths(config.train.horizon)
+    data.check_lengths(config.train.horizon, validates_tails(config))
     kept = config.train.init and config.data.fitted  # fine-tuning keeps the source's normalisation
     stats = {} if kept else data.fit()
     for name, value in stats.items():
