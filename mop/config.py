@@ -119,6 +119,7 @@ MODEL_CHOICES: dict[str, tuple[str, ...]] = {
     "input_scale": ("none", "running"),
     "features": ("given", "auto"),
     "record_norm": ("none", "causal"),
+    "residual_scale": ("none", "running"),
     "forecast_mode": ("rollout", "gap", "direct"),
     "horizon_loss": ("mean", "balanced"),
 }
@@ -140,6 +141,9 @@ class ModelConfig:
     position: str = "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact streaming)
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
     record_norm: str = "none"  # "causal": each channel by its running mean and std (mop.models.recordnorm)
+    # "running" (with record_norm and the RLS / ARX feature): the network's correction to the feature is
+    # scaled by the feature's own recent one-step error, not by the record's std (mop.models.features)
+    residual_scale: str = "none"
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
@@ -197,6 +201,11 @@ class ModelConfig:
         check(
             not self.rls_offset or self.rls_order > 0,
             "model.rls_offset adds a constant to the RLS feature: set model.rls_order > 0 too",
+        )
+        check(
+            self.residual_scale == "none" or (self.record_norm == "causal" and self.rls_order > 0),
+            "model.residual_scale scales the correction to the RLS / ARX feature by that feature's recent "
+            "error: set model.record_norm=causal and model.rls_order > 0 too",
         )
         check(
             self.horizon_loss == "mean" or self.readout == "mean",

@@ -76,6 +76,7 @@ def test_predictions_are_equivariant_to_the_records_units(a, b, c, d):
         {},
         {"rls_order": 3, "arx_order": 2, "rls_offset": True},
         {"rls_order": 3, "arx_order": 2, "rls_p0": 1e4},
+        {"rls_order": 3, "arx_order": 2, "rls_p0": 1e4, "residual_scale": "running"},
     ],
 )
 def test_equivariant_through_the_predictor_beyond_the_context_window_and_stream(options):
@@ -98,7 +99,14 @@ MASKED = {"rls_order": 2, "arx_order": 2, "rls_offset": True, "observation_mask"
 
 @pytest.mark.parametrize(
     "options",
-    [{}, {"rls_order": 2, "arx_order": 2, "rls_offset": True}, MASKED, {**MASKED, "rls_p0": 1e4}],
+    [
+        {},
+        {"rls_order": 2, "arx_order": 2, "rls_offset": True},
+        {"rls_order": 2, "arx_order": 2, "rls_offset": True, "residual_scale": "running"},
+        MASKED,
+        {**MASKED, "rls_p0": 1e4},
+        {**MASKED, "rls_p0": 1e4, "residual_scale": "running"},
+    ],
 )
 def test_stream_equals_forward_and_is_causal(options):
     """Streamed (one input at a time) equals the forward; with an observation mask also with outputs missing

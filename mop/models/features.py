@@ -22,6 +22,13 @@ model.rls_order = p > 0 (the RLS feature):
 model.record_norm = "causal" (mop.models.recordnorm): every output and input channel normalised by its
     causal running mean and std, the read-out mapped back: yhat_{t+1} = b_t + std_t(y) out_t, b_t the running
     mean of y (or the RLS feature, which the network then reads normalised alike); no extra channel.
+model.residual_scale = "running" (with record_norm and the feature): the correction is scaled by the
+    feature's own recent one-step error instead of std_t(y): yhat_{t+1} = r_{t+1} + c_t out_t with
+    c_t = sqrt(v_t + RESIDUAL_FLOOR std_t(y)^2), v_t the exponentially weighted mean of (y_s - r_s)^2 over
+    the measured s <= t, the error k measured steps back weighted RESIDUAL_DECAY^k (about the last 10; before
+    the first: std_t(y)^2), and
+    the network also reads log(c_t / std_t(y)). Where the feature is exact (a noise-free linear record) c_t
+    falls to the floor and so does the network's error; across a gap v_t keeps its last value.
 With model.observation_mask the RLS feature reads the missing outputs as missing (mop.filters.arx's gaps:
 filled with its own predictions, no update), so across a gap of outputs it is the ARX simulation.
 
@@ -47,11 +54,16 @@ from mop.models.recordnorm import RecordStats, normalise, running_moments
 # feature is the fitted ARX, nudged by each window
 PRIOR_P0 = 1e-3
 SCALE_EPS = 1e-4  # floor of s_t^2: a trajectory of zeros gets s = 0.01, not a division by zero
+RESIDUAL_DECAY = 0.9  # model.residual_scale: the weight of an error s steps back is 0.9^s
+RESIDUAL_FLOOR = 1e-6  # c_t^2 >= 1e-6 std_t(y)^2: the correction's scale is at least 1e-3 of the record's
 
 
 def extra_input_dim(cfg: ModelConfig) -> int:  # record_norm adds none
-    """Channels added to the model's input: 1 (log s_t) with the running scale, m with the RLS feature."""
-    return (1 if cfg.input_scale == "running" else 0) + (cfg.output_dim if cfg.rls_order > 0 else 0)
+    """Channels added to the model's input: 1 (log s_t) with the running scale, m with the RLS feature, m
+    more (log c_t / std_t) with the residual scale."""
+    scale = 1 if cfg.input_scale == "running" else 0
+    residual = cfg.output_dim if cfg.residual_scale == "running" else 0
+    return scale + (cfg.output_dim if cfg.rls_order > 0 else 0) + residual
 
 
 def running_scale(y: Tensor) -> Tensor:
@@ -161,7 +173,10 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
         mask = None if seen is None else torch.cat([seen, torch.ones_like(inputs[..., m : m + k] > 0)], -1)
         mean, std = running_moments(inputs[..., : m + k], mask)  # (B, T, m + k) each
         base = _framed_feature(y, u, mean, std, cfg) if cfg.rls_order > 0 else None
-        return _record_assemble(inputs, mean, std, base, seen, m)
+        residual = None
+        if cfg.residual_scale == "running":
+            residual = residual_scale(y, base, seen, std[..., :m])
+        return _record_assemble(inputs, mean, std, base, seen, m, residual)
     prior = feature_prior(cfg)
     base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset, prior) if cfg.rls_order > 0 else None
     scale = running_scale(inputs[..., :m]) if cfg.input_scale == "running" else None
@@ -196,11 +211,18 @@ def _framed_feature(y: Tensor, u: Tensor | None, mean: Tensor, std: Tensor, cfg:
 
 
 def _record_assemble(
-    inputs: Tensor, mean: Tensor, std: Tensor, base: Tensor | None, seen: Tensor | None, m: int
+    inputs: Tensor,
+    mean: Tensor,
+    std: Tensor,
+    base: Tensor | None,
+    seen: Tensor | None,
+    m: int,
+    residual: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """record_norm: (network inputs [zn, any mask channels, rn], std_t(y) (B, T, m), b (B, T, m)): zn the
-    normalised [y, u] (B, T, m + k), 0 where an output is missing; rn the normalised RLS feature; b the
-    feature, else the running mean of y."""
+    """record_norm: (network inputs [zn, any mask channels, rn (, log c / std)], the correction's scale
+    (B, T, m): std_t(y), or the residual scale c_t where given, b (B, T, m)): zn the normalised [y, u]
+    (B, T, m + k), 0 where an output is missing; rn the normalised RLS feature; b the feature, else the
+    running mean of y."""
     d = mean.shape[-1]  # m + k
     zn = normalise(inputs[..., :d], mean, std)
     if seen is not None:
@@ -209,8 +231,46 @@ def _record_assemble(
     parts = [zn, inputs[..., d:]]
     if base is not None:
         parts.append(normalise(base, mean_y, std_y))
+    scale = std_y
+    if residual is not None:
+        defined = (std_y > 0) & (residual > 0)
+        ratio = torch.where(defined, residual / torch.where(defined, std_y, torch.ones_like(std_y)), 1.0)
+        parts.append(ratio.log().to(inputs.dtype))
+        scale = residual
     b = mean_y if base is None else base.double()
-    return torch.cat(parts, dim=-1), std_y.to(inputs.dtype), b.to(inputs.dtype)
+    return torch.cat(parts, dim=-1), scale.to(inputs.dtype), b.to(inputs.dtype)
+
+
+def residual_scale(y: Tensor, base: Tensor, seen: Tensor | None, std_y: Tensor) -> Tensor:
+    """c_t (B, T, m) float64 of model.residual_scale (the module docstring) from the outputs y (B, T, m)
+    (NaN where missing), the feature base (B, T, m) (base[:, t] predicts y_{t+1}), the mask seen (B, T, m)
+    (None: all measured) and std_t(y) (B, T, m)."""
+    y, base = y.double(), base.double()
+    v = torch.zeros_like(std_y[:, 0])
+    n = torch.zeros_like(v)
+    out = []
+    for t in range(y.shape[1]):
+        if t > 0:
+            v, n = residual_update(v, n, y[:, t], base[:, t - 1], None if seen is None else seen[:, t])
+        out.append(residual_from(v, n, std_y[:, t]))
+    return torch.stack(out, 1)
+
+
+def residual_update(
+    v: Tensor, n: Tensor, y: Tensor, predicted: Tensor, seen: Tensor | None
+) -> tuple[Tensor, Tensor]:
+    """One step of the weighted error sums (B, m): v <- lam v + (1 - lam) e^2, n <- lam n + (1 - lam),
+    e = y - predicted, where y is measured (seen None: all); unchanged elsewhere."""
+    lam = RESIDUAL_DECAY
+    measured = torch.isfinite(y) if seen is None else seen & torch.isfinite(y)
+    e2 = torch.where(measured, (y - predicted) ** 2, torch.zeros_like(v))
+    return torch.where(measured, lam * v + (1 - lam) * e2, v), torch.where(measured, lam * n + (1 - lam), n)
+
+
+def residual_from(v: Tensor, n: Tensor, std_y: Tensor) -> Tensor:
+    """c = sqrt(v / n + RESIDUAL_FLOOR std^2), with std^2 in place of v / n before any error (n = 0)."""
+    mean_sq = torch.where(n > 0, v / torch.where(n > 0, n, torch.ones_like(n)), std_y**2)
+    return (mean_sq + RESIDUAL_FLOOR * std_y**2).sqrt()
 
 
 def _assemble(inputs: Tensor, scale: Tensor | None, base: Tensor | None, m: int) -> Tensor:
@@ -256,6 +316,10 @@ class FeatureState:
         self.gapped = False
         if cfg.record_norm == "causal":
             self.stats = RecordStats(batch_size, self.m + self.k, device)
+        if cfg.residual_scale == "running":  # the weighted error sums and the feature's last prediction
+            f64 = dict(device=device, dtype=torch.float64)
+            self.res_v, self.res_n = (torch.zeros(batch_size, self.m, **f64) for _ in range(2))
+            self.predicted = None
 
     def step(self, z: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """z_t (B, d_in) -> network input (B, 1, d_in + extra), s_t (B, 1, 1)|None, r_{t+1} (B, 1, m)|None."""
@@ -294,9 +358,16 @@ class FeatureState:
             if self.t >= r:
                 rs = rs * self.scale[:, :m] + self.shift[:, :m]
             base = rs.to(z.dtype)[:, None]  # (B, 1, m)
+        residual = None
+        if self.cfg.residual_scale == "running":
+            if self.predicted is not None:
+                y = z[:, :m].double()
+                self.res_v, self.res_n = residual_update(self.res_v, self.res_n, y, self.predicted, seen)
+            residual = residual_from(self.res_v, self.res_n, std[:, :m])[:, None]  # (B, 1, m)
+            self.predicted = base[:, 0].double()
         self.t += 1
         rows = (z[:, None], mean[:, None], std[:, None], base, None if seen is None else seen[:, None])
-        return _record_assemble(*rows, m)
+        return _record_assemble(*rows, m, residual)
 
     def _enter_frame(self, shift: Tensor, scale: Tensor) -> None:
         """Fix the RLS feature's frame (B, m + k) and move the buffered past outputs and inputs into it."""
