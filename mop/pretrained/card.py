@@ -96,7 +96,12 @@ def _features(model: dict[str, Any]) -> str:
     if p:
         fit = f"ARX({p}, {q})" if q else f"RLS-AR({p})"
         offset = " with an offset" if model.get("rls_offset") else ""
-        parts.append(f"the {fit} one-step prediction{offset}")
+        scaled = (
+            ", its correction scaled by that prediction's recent error"
+            if model.get("residual_scale", "none") == "running"
+            else ""
+        )
+        parts.append(f"the {fit} one-step prediction{offset}{scaled}")
     return f", reads {' and '.join(parts)}" if parts else ""
 
 
