@@ -83,8 +83,8 @@ def class_experiment(
         f"{knowing} that knows each system, {arx} (the least-squares ARX it reads), {paper_arx} (the same "
         f"by RLS from P_0 = I), arx-best and the last value; one-step RMSE and free-run "
         "simulation of y_400..y_499 after a context of 400",
-        train={**class_train(family), **(system or {}), **scaled},
-        presets={"small": small(order, lr), "smoke": {**small(order, lr), **SMOKE}},
+        train={**class_train(family), **(system or {})},
+        presets={"small": {**small(order, lr), **scaled}, "smoke": {**small(order, lr), **SMOKE, **scaled}},
         predictors=("mop", knowing, arx, paper_arx, "arx-best", "last"),
         reference="last",
         best=arx,  # the ARX the model reads (the filter that knows the system is exact on LTI: 0 / 0)
