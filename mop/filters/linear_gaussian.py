@@ -77,11 +77,11 @@ def linear_systems(model: StateSpace, input_dim: int, horizon: int = 0) -> Linea
     u = None if not input_dim else torch.randn(M, 3, input_dim, dtype=dtype, generator=gen)
     linear = x @ A.mT + (0 if B is None else u @ B.mT)
     scale = 1 + linear.abs().max()
-    if (model.f(x, u, 0) - offset[:, None] - linear).abs().max() > AFFINE_TOLERANCE * scale:
+    first = model.f(x, u, 0)
+    if (first - offset[:, None] - linear).abs().max() > AFFINE_TOLERANCE * scale:
         raise MopError("the family's dynamics are not linear; this filter needs a linear-Gaussian family")
     if offset.abs().max() > AFFINE_TOLERANCE * scale:
         raise MopError("the family's dynamics have a constant term; this filter takes x -> A x + B u only")
-    first = model.f(x, u, 0)
     if any((model.f(x, u, t) - first).abs().max() > AFFINE_TOLERANCE * scale for t in range(1, horizon + 1)):
         raise MopError("the family's dynamics change in time; this filter needs time-invariant systems")
     return LinearSystems(
