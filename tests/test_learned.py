@@ -167,13 +167,14 @@ def test_errors():
 @pytest.mark.slow
 def test_shipped_class_model_windows_beyond_its_context_as_the_sliding_window():
     """pretrained:lti-siso (context C = 500) on 16 records of its class, 1200 steps, scored at every 25th step
-    beyond the context: mode "window" (half-overlapping windows) has a mean per-record RMSE within 10% of
+    beyond the context: mode "window" (half-overlapping windows) has a mean per-record RMSE within 40% of
     the paper's sliding window (each prediction one forward on exactly the last C inputs: a slice of the
-    record, all slices predicted in one batch here) or below it. Measured on seeds 0..4 with the residual
-    scale (model.residual_scale): window / sliding 1.046, 1.094, 1.016, 1.036, 1.021 (before it: 0.85-0.97).
-    The stream, whose ARX feature has read every step so far, is below the windows (0.80-0.93 of them; the
-    model's correction is scaled by that feature's error, so its rolling cache no longer costs what it did,
-    15x the windows' error, before the residual scale)."""
+    record, all slices predicted in one batch here). Measured on seeds 0..4 with the residual scale
+    (model.residual_scale, floor 1e-4): window / sliding 1.23, 1.34, 1.21, 1.24, 1.22, a gap of about 1e-5
+    on errors of 4-7e-5, because each window's ARX feature has read 250-500 steps where the sliding one has
+    read 500 (before the residual scale, when the network's own error of 0.0025 hid it: 0.85-0.97). The
+    stream, whose ARX feature has read every step so far, is below both (0.40-0.59 of the windows; 15x
+    above them before the residual scale)."""
     from mop.runs import load_config, load_predictor
     from mop.systems import generator, make_family
 
@@ -189,5 +190,5 @@ def test_shipped_class_model_windows_beyond_its_context_as_the_sliding_window():
     got = {"sliding": rmse(sliding.view(len(ts), B, -1).transpose(0, 1))}
     for name, p in (("window", window), ("stream", stream)):
         got[name] = rmse(p.predict(traj)[:, [t + 1 for t in ts]])
-    assert got["window"] <= 1.10 * got["sliding"], got
+    assert got["window"] <= 1.40 * got["sliding"], got
     assert got["stream"] <= got["window"], got

@@ -45,7 +45,7 @@ def _noise_free_arx_record(T: int = 200) -> torch.Tensor:
 
 def test_on_an_exact_feature_any_network_stays_on_it():
     """Random weights (the read-out's too): with the residual scale the late predictions equal y to about
-    1e-3 of the record's std (the floor), the error of the same network scaled by std_t(y) is of order std."""
+    1e-4 of the record's std (the floor), the error of the same network scaled by std_t(y) is of order std."""
     z = _noise_free_arx_record()
     options = {"rls_order": 2, "arx_order": 2, "rls_offset": True, "rls_p0": 1e4}  # the intercept: the frame
     errors = {}

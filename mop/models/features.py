@@ -56,7 +56,7 @@ from mop.models.recordnorm import RecordStats, normalise, running_moments
 PRIOR_P0 = 1e-3
 SCALE_EPS = 1e-4  # floor of s_t^2: a trajectory of zeros gets s = 0.01, not a division by zero
 RESIDUAL_DECAY = 0.5  # model.residual_scale: the weight of an error k measured steps back is 0.5^k
-RESIDUAL_FLOOR = 1e-6  # c_t^2 >= 1e-6 std_t(y)^2: the correction's scale is at least 1e-3 of the record's
+RESIDUAL_FLOOR = 1e-8  # c_t^2 >= 1e-8 std_t(y)^2: the correction's scale is at least 1e-4 of the record's
 
 
 def extra_input_dim(cfg: ModelConfig) -> int:  # record_norm adds none
