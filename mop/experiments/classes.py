@@ -106,8 +106,8 @@ def class_experiment(
 
 CLASS_EXPERIMENTS = (
     # noise-free: the least-squares ARX is exact once identified, so the network's correction is scaled by
-    # the ARX's recent error (one-step / simulation RMSE 0.0025 / 0.0026 scaled by the record's std, 0.00008 /
-    # 0.00026 by the residual; on wiener-hammerstein it cost 0.6% / 2.8%: 0.2183 / 0.5105)
+    # the ARX's recent error (one-step / simulation RMSE 0.0025 / 0.0026 scaled by the record's std, 0.000032
+    # / 0.000208 by the residual, the ARX 0.000040 / 0.000253; on wiener-hammerstein it cost 0.6% / 2.8%)
     class_experiment("class-lti-siso", "lti-siso", "kalman", 15, 1e-3, residual_scale=True),
     class_experiment("class-wiener-hammerstein", "wiener-hammerstein", "ukf", 10, 3e-3),
     # input swings up to the pump's whole range (relative RMS U(0.25, 1) about u_op, the family's default
