@@ -38,7 +38,7 @@ from torch import Tensor
 
 from mop.config import SystemConfig
 from mop.errors import MopError, MopWarning
-from mop.filters.linear_gaussian import LinearSystems, family_systems, predictor_gains
+from mop.filters.linear_gaussian import LinearSystems, family_systems, filter_means, predictor_gains
 from mop.predictors import PREDICTORS
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
@@ -54,17 +54,10 @@ def _chunk_terms(bank: LinearSystems, y: Tensor, u: Tensor | None, steps: int) -
     """
     T1, m = y.shape[1], y.shape[2]
     K, S_inv, logdet = predictor_gains(bank, T1 - 1)
-    mean = bank.m0[:, None].expand(-1, y.shape[0], -1).clone()  # (M, N, n)
-    means, loglik = [], [y.new_zeros(bank.A.shape[0], y.shape[0])]
-    for t in range(T1):
-        means.append(mean)
-        e = y[None, :, t] - mean @ bank.C.mT  # (M, N, m)
-        quad = ((e @ S_inv[:, t]) * e).sum(-1)  # (M, N)
-        loglik.append(loglik[-1] - 0.5 * (quad + logdet[:, t, None] + m * math.log(2 * math.pi)))
-        mean = mean @ bank.A.mT + e @ K[:, t].mT
-        if bank.B is not None and u is not None:
-            mean = mean + u[None, :, t] @ bank.B.mT
-    x = torch.stack(means, 2)  # (M, N, T+1, n): the prior mean of x_t at each origin t
+    x, e = filter_means(bank, y[None], None if u is None else u[None], K)  # (M, N, T+1, n), (.., m)
+    quad = torch.einsum("mnti,mtij,mntj->mnt", e, S_inv, e)  # (M, N, T+1)
+    logp = -0.5 * (quad + logdet[:, None] + m * math.log(2 * math.pi))  # log N(y_t; yhat_t, S_t)
+    loglik = torch.cat([logp.new_zeros(logp.shape[:2] + (1,)), logp[..., :-1].cumsum(-1)], -1)  # y_{<t}
     out = [x @ bank.C[:, None].mT]
     for j in range(1, steps):  # the time update with no measurement: x <- A x + B u_{t+j-1}
         x = x @ bank.A[:, None].mT
@@ -73,7 +66,7 @@ def _chunk_terms(bank: LinearSystems, y: Tensor, u: Tensor | None, steps: int) -
             ahead[:, : T1 - j + 1] = u[:, j - 1 :]  # origin t reads u_{t+j-1}
             x = x + ahead[None] @ bank.B[:, None].mT
         out.append(x @ bank.C[:, None].mT)
-    return torch.stack(out, 3), torch.stack(loglik[:-1], 2)
+    return torch.stack(out, 3), loglik
 
 
 def bayes_mixture(

@@ -126,6 +126,23 @@ def predictor_gains(
     return torch.stack(gains, 1), torch.stack(inverses, 1), torch.stack(logdets, 1)
 
 
+def filter_means(systems: LinearSystems, y: Tensor, u: Tensor | None, gains: Tensor) -> tuple[Tensor, Tensor]:
+    """(prior means x (M, N, T+1, n) of x_t given y_{<t}, innovations e = y_t - C x_t (M, N, T+1, m)) of the
+    M systems' filters with predictor gains (M, T+1, n, m) (predictor_gains) on trajectories y (M|1, N, T+1,
+    m), u (M|1, N, T+1, k) or None: a leading 1 runs every system on the same N trajectories, M runs each
+    system on its own."""
+    mean = systems.m0[:, None].expand(-1, y.shape[1], -1)  # (M, N, n)
+    means, errors = [], []
+    for t in range(y.shape[2]):
+        e = y[:, :, t] - mean @ systems.C.mT  # (M, N, m)
+        means.append(mean)
+        errors.append(e)
+        mean = mean @ systems.A.mT + e @ gains[:, t].mT
+        if systems.B is not None and u is not None:
+            mean = mean + u[:, :, t] @ systems.B.mT
+    return torch.stack(means, 2), torch.stack(errors, 2)
+
+
 def kalman_means(systems: LinearSystems, y: Tensor, u: Tensor | None) -> Tensor:
     """yhat (M, T+1, m): yhat[:, t] = E[y_t | y_{<t}, u_{<t}] by each system's own Kalman filter on its own
     trajectory y (M, T+1, m) (complete), u (M, T+1, k) or None."""
@@ -133,11 +150,5 @@ def kalman_means(systems: LinearSystems, y: Tensor, u: Tensor | None) -> Tensor:
         raise MopError("kalman_means: the outputs have gaps (NaN); use mop.filters.kalman, which skips them")
     y = y.double()
     K = predictor_gains(systems, y.shape[1] - 1, likelihood=False)[0]
-    mean, preds = systems.m0[:, None], []  # (M, 1, n)
-    for t in range(y.shape[1]):
-        yhat = mean @ systems.C.mT  # (M, 1, m)
-        preds.append(yhat[:, 0])
-        mean = mean @ systems.A.mT + (y[:, t, None] - yhat) @ K[:, t].mT
-        if systems.B is not None and u is not None:
-            mean = mean + u[:, t, None].double() @ systems.B.mT
-    return torch.stack(preds, 1)
+    x, _ = filter_means(systems, y[:, None], None if u is None else u.double()[:, None], K)
+    return (x @ systems.C[:, None].mT)[:, 0]
