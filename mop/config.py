@@ -122,6 +122,7 @@ MODEL_CHOICES: dict[str, tuple[str, ...]] = {
     "residual_scale": ("none", "running"),
     "forecast_mode": ("rollout", "gap", "direct"),
     "horizon_loss": ("mean", "balanced"),
+    "gap_loss": ("pooled", "balanced"),
 }
 
 
@@ -170,6 +171,11 @@ class ModelConfig:
     horizons: int = 1
     # how the heads' losses combine: "mean", or "balanced" (each head's gradient scaled by 1 / its loss)
     horizon_loss: str = "mean"
+    # with model.observation_mask, how the one-step loss weighs the positions that read a missing output
+    # (the steps of a simulated tail, train.simulate_after) against those that read a measured one:
+    # "pooled" (every scored entry alike) or "balanced" (the geometric mean of the two groups' MSEs, so a
+    # 1% gain one step ahead counts as much as 1% in simulation; mop.models.heads.prediction_loss)
+    gap_loss: str = "pooled"
 
     def __post_init__(self) -> None:
         # the known architectures live in mop.models' registry; build_model and the trainer check them
@@ -211,6 +217,11 @@ class ModelConfig:
             self.horizon_loss == "mean" or self.readout == "mean",
             "model.horizon_loss='balanced' divides by each head's loss, which a Gaussian read-out's NLL "
             "can make zero or negative; use model.readout='mean'",
+        )
+        check(
+            self.gap_loss == "pooled" or (self.observation_mask and self.readout == "mean"),
+            "model.gap_loss='balanced' weighs positions that read a missing output against those that read "
+            "a measured one by their MSEs: set model.observation_mask=true and model.readout='mean'",
         )
         check(
             self.forecast_mode != "direct" or self.horizons > 1,

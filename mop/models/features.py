@@ -134,6 +134,14 @@ def observed_outputs(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor |
     return torch.where(seen, y, torch.full_like(y, float("nan"))), seen
 
 
+def gap_positions(inputs: Tensor, cfg: ModelConfig) -> Tensor | None:
+    """(B, T) bool, True where position t reads a missing output (any channel), for model.gap_loss
+    "balanced"; None for "pooled"."""
+    if cfg.gap_loss != "balanced":
+        return None
+    return ~observed_outputs(inputs, cfg)[1].all(-1)
+
+
 def feature_prior(cfg: ModelConfig) -> Prior | None:
     """(theta_0 (d, m) float64, P_0) of the RLS / ARX feature where model.rls_prior holds the coefficients
     (d = p m + q k [+ 1] rows, in mop.filters.arx's regressor order): P_0 the (d, d) matrix

@@ -13,6 +13,7 @@ from torch import Tensor, nn
 
 from mop.config import ModelConfig
 from mop.errors import MopError
+from mop.models.features import gap_positions
 from mop.models.heads import check_dims, require_gaussian
 from mop.models.horizons import (
     add_future_inputs,
@@ -98,7 +99,8 @@ class GRUModel(LearnedModel):
 
     def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
         mu, var, later, _ = self._outputs(inputs)
-        return horizon_loss(mu, var, later, targets, self.cfg.observation_mask, self.cfg.horizon_loss)
+        cfg, gaps = self.cfg, gap_positions(inputs, self.cfg)
+        return horizon_loss(mu, var, later, targets, cfg.observation_mask, cfg.horizon_loss, gaps)
 
     def init_cache(self, batch_size: int) -> GRUCache:
         p = self.read_in.weight

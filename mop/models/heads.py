@@ -52,16 +52,35 @@ def require_gaussian(cfg: ModelConfig) -> None:
         )
 
 
-def prediction_loss(mu: Tensor, var: Tensor | None, targets: Tensor, masked: bool = False) -> Tensor:
+def prediction_loss(
+    mu: Tensor, var: Tensor | None, targets: Tensor, masked: bool = False, gaps: Tensor | None = None
+) -> Tensor:
     """MSE when var is None, else mean over all entries of 0.5 [log(2 pi var) + (y - mu)^2 / var].
 
     masked (models with an observation mask): targets may hold NaN (missing outputs); the mean is over the
-    measured entries only (0 when there are none)."""
+    measured entries only (0 when there are none).
+    gaps (B, T) bool (model.gap_loss = "balanced", readout "mean"): True where position t reads a missing
+    output. The loss is then sqrt(L_gap L_read), the geometric mean of the MSE over those positions (a
+    simulated tail) and over the others (one step ahead), so each group's gradient is scaled by 1 / its own
+    MSE; where one group has no scored entry, the other's MSE."""
     if masked:
         seen = ~torch.isnan(targets)
         y = torch.where(seen, targets, mu.detach())
         per = (y - mu) ** 2 if var is None else 0.5 * (torch.log(2 * math.pi * var) + (y - mu) ** 2 / var)
+        if gaps is not None and var is None:
+            return _balanced(per, seen, gaps[..., None].expand_as(seen))
         return (per * seen).sum() / seen.sum().clamp_min(1)
     if var is None:
         return F.mse_loss(mu, targets)
     return 0.5 * (torch.log(2 * math.pi * var) + (targets - mu) ** 2 / var).mean()
+
+
+def _balanced(per: Tensor, seen: Tensor, gaps: Tensor) -> Tensor:
+    """exp of the mean log of per's mean over seen & gaps and over seen & ~gaps, over the non-empty groups
+    (no data-dependent branch, so torch.compile keeps one graph)."""
+    groups = torch.stack([seen & gaps, seen & ~gaps]).to(per.dtype)  # (2, B, T, m)
+    counts = groups.flatten(1).sum(1)  # (2,)
+    means = (per * groups).flatten(1).sum(1) / counts.clamp_min(1)
+    has = (counts > 0).to(per.dtype)
+    log_mean = (has * torch.log(means.clamp_min(1e-30))).sum() / has.sum().clamp_min(1)
+    return torch.exp(log_mean) * has.max()  # 0 where nothing is scored

@@ -91,16 +91,18 @@ def horizon_loss(
     targets: Tensor,
     masked: bool = False,
     weighting: str = "mean",
+    gaps: Tensor | None = None,
 ) -> Tensor:
     """The mean over k = 1..K of the heads' losses L_k: head 1 is prediction_loss(mu, var, targets); head
     k >= 2 (later[:, :, k-2], position t predicting y_{t+k} = targets[:, t+k-1]) is the MSE over the
     positions t <= T-k (heads with k > T have no target and do not count). targets (B, T, m) as for
-    prediction_loss.
+    prediction_loss; gaps (B, T) bool, head 1's positions that read a missing output (model.gap_loss
+    "balanced": prediction_loss weighs them against the others).
 
     weighting "balanced" (model.horizon_loss): the same value, but each head's gradient is scaled by
     mean(L) / L_k (both held constant), i.e. the gradient of mean(L) * mean_k log L_k: a far horizon's larger
     error no longer outweighs the one-step head's (on the quadrotor L_10 is about 10 L_1)."""
-    losses = [prediction_loss(mu, var, targets, masked)]
+    losses = [prediction_loss(mu, var, targets, masked, gaps)]
     if later is not None:
         T = targets.shape[1]
         for k in range(2, min(later.shape[2] + 1, T) + 1):

@@ -43,6 +43,7 @@ from mop.models.features import (
     augment,
     check_features,
     extra_input_dim,
+    gap_positions,
     reads_features,
     restore,
 )
@@ -250,7 +251,8 @@ class Transformer(LearnedModel):
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m). With k-step
         heads the mean over k of each head's loss (mop.models.heads.horizon_loss)."""
         cfg = self.cfg
-        return horizon_loss(*self._outputs(inputs), targets, cfg.observation_mask, cfg.horizon_loss)
+        gaps = gap_positions(inputs, cfg)
+        return horizon_loss(*self._outputs(inputs), targets, cfg.observation_mask, cfg.horizon_loss, gaps)
 
     # ---- branching (k-step forecasts from many origins at once: mop.models.rollout) ----
     def prefill(
