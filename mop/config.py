@@ -119,7 +119,7 @@ MODEL_CHOICES: dict[str, tuple[str, ...]] = {
     "input_scale": ("none", "running"),
     "features": ("given", "auto"),
     "record_norm": ("none", "causal"),
-    "residual_scale": ("none", "running"),
+    "residual_scale": ("none", "running", "measured"),
     "forecast_mode": ("rollout", "gap", "direct"),
     "horizon_loss": ("mean", "balanced"),
     "gap_loss": ("pooled", "balanced"),
@@ -143,7 +143,8 @@ class ModelConfig:
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
     record_norm: str = "none"  # "causal": each channel by its running mean and std (mop.models.recordnorm)
     # "running" (with record_norm and the RLS / ARX feature): the network's correction to the feature is
-    # scaled by the feature's own recent one-step error, not by the record's std (mop.models.features)
+    # scaled by the feature's own recent one-step error, not by the record's std (mop.models.features);
+    # "measured": so only at positions whose output is measured, the record's std across gaps
     residual_scale: str = "none"
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u

@@ -106,6 +106,7 @@ MASKED = {"rls_order": 2, "arx_order": 2, "rls_offset": True, "observation_mask"
         MASKED,
         {**MASKED, "rls_p0": 1e4},
         {**MASKED, "rls_p0": 1e4, "residual_scale": "running"},
+        {**MASKED, "rls_p0": 1e4, "residual_scale": "measured"},
     ],
 )
 def test_stream_equals_forward_and_is_causal(options):

@@ -12,13 +12,16 @@ from mop.models.features import RESIDUAL_DECAY, RESIDUAL_FLOOR, residual_scale
 from tests.test_recordnorm import tiny, trained_like
 
 
-def test_residual_scale_is_the_weighted_mean_of_the_measured_errors():
+@pytest.mark.parametrize("mode", ["running", "measured"])
+def test_residual_scale_is_the_weighted_mean_of_the_measured_errors(mode):
+    """ "measured": the same where y_t is measured, the record's std where it is missing."""
     g = np.random.default_rng(0)
     B, T, m = 2, 15, 2
     y, base, std = g.normal(size=(B, T, m)), g.normal(size=(B, T, m)), g.uniform(0.5, 2, size=(B, T, m))
     seen = g.uniform(size=(B, T, m)) > 0.3
     y_nan = np.where(seen, y, np.nan)
-    got = residual_scale(*(torch.tensor(a) for a in (y_nan, base)), torch.tensor(seen), torch.tensor(std))
+    tensors = (torch.tensor(a) for a in (y_nan, base, seen, std))
+    got = residual_scale(*tensors, mode)
     want = np.zeros((B, T, m))
     lam = RESIDUAL_DECAY
     for b in range(B):
@@ -29,6 +32,8 @@ def test_residual_scale_is_the_weighted_mean_of_the_measured_errors():
                 e2 = np.array([(y[b, s_, j] - base[b, s_ - 1, j]) ** 2 for s_ in s])
                 mean_sq = (w @ e2) / w.sum() if s else std[b, t, j] ** 2
                 want[b, t, j] = np.sqrt(mean_sq + RESIDUAL_FLOOR * std[b, t, j] ** 2)
+                if mode == "measured" and not seen[b, t, j]:
+                    want[b, t, j] = std[b, t, j]
     np.testing.assert_allclose(got.numpy(), want, rtol=1e-12)
 
 

@@ -30,6 +30,9 @@ model.residual_scale = "running" (with record_norm and the feature): the correct
     linear record) c_t falls to the floor once the feature's start-up errors are forgotten (a factor 0.5 per
     step: within ~20 steps; at 0.9 the LTI model's one-step RMSE over t in [50, 60) was 0.016 against the
     feature's 0.0006), and so does the network's error; across a gap v_t keeps its last value.
+    model.residual_scale = "measured": the same where y_t is measured, and std_t(y) at positions that read
+    a missing y_t (a simulated tail), where the feature's last one-step error says little about the
+    simulation's (on the noisy nonlinear classes, "running" cost simulation accuracy).
 With model.observation_mask the RLS feature reads the missing outputs as missing (mop.filters.arx's gaps:
 filled with its own predictions, no update), so across a gap of outputs it is the ARX simulation.
 
@@ -63,7 +66,7 @@ def extra_input_dim(cfg: ModelConfig) -> int:  # record_norm adds none
     """Channels added to the model's input: 1 (log s_t) with the running scale, m with the RLS feature, m
     more (log c_t / std_t) with the residual scale."""
     scale = 1 if cfg.input_scale == "running" else 0
-    residual = cfg.output_dim if cfg.residual_scale == "running" else 0
+    residual = cfg.output_dim if cfg.residual_scale != "none" else 0
     return scale + (cfg.output_dim if cfg.rls_order > 0 else 0) + residual
 
 
@@ -183,8 +186,8 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
         mean, std = running_moments(inputs[..., : m + k], mask)  # (B, T, m + k) each
         base = _framed_feature(y, u, mean, std, cfg) if cfg.rls_order > 0 else None
         residual = None
-        if cfg.residual_scale == "running":
-            residual = residual_scale(y, base, seen, std[..., :m])
+        if cfg.residual_scale != "none":
+            residual = residual_scale(y, base, seen, std[..., :m], cfg.residual_scale)
         return _record_assemble(inputs, mean, std, base, seen, m, residual)
     prior = feature_prior(cfg)
     base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset, prior) if cfg.rls_order > 0 else None
@@ -250,10 +253,12 @@ def _record_assemble(
     return torch.cat(parts, dim=-1), scale.to(inputs.dtype), b.to(inputs.dtype)
 
 
-def residual_scale(y: Tensor, base: Tensor, seen: Tensor | None, std_y: Tensor) -> Tensor:
-    """c_t (B, T, m) float64 of model.residual_scale (the module docstring) from the outputs y (B, T, m)
-    (NaN where missing), the feature base (B, T, m) (base[:, t] predicts y_{t+1}), the mask seen (B, T, m)
-    (None: all measured) and std_t(y) (B, T, m)."""
+def residual_scale(
+    y: Tensor, base: Tensor, seen: Tensor | None, std_y: Tensor, mode: str = "running"
+) -> Tensor:
+    """c_t (B, T, m) float64 of model.residual_scale = mode (the module docstring) from the outputs y
+    (B, T, m) (NaN where missing), the feature base (B, T, m) (base[:, t] predicts y_{t+1}), the mask seen
+    (B, T, m) (None: all measured) and std_t(y) (B, T, m)."""
     y, base = y.double(), base.double()
     v = torch.zeros_like(std_y[:, 0])
     n = torch.zeros_like(v)
@@ -261,7 +266,8 @@ def residual_scale(y: Tensor, base: Tensor, seen: Tensor | None, std_y: Tensor) 
     for t in range(y.shape[1]):
         if t > 0:
             v, n = residual_update(v, n, y[:, t], base[:, t - 1], None if seen is None else seen[:, t])
-        out.append(residual_from(v, n, std_y[:, t]))
+        in_gaps = None if seen is None or mode != "measured" else seen[:, t]
+        out.append(residual_from(v, n, std_y[:, t], in_gaps))
     return torch.stack(out, 1)
 
 
@@ -276,10 +282,12 @@ def residual_update(
     return torch.where(measured, lam * v + (1 - lam) * e2, v), torch.where(measured, lam * n + (1 - lam), n)
 
 
-def residual_from(v: Tensor, n: Tensor, std_y: Tensor) -> Tensor:
-    """c = sqrt(v / n + RESIDUAL_FLOOR std^2), with std^2 in place of v / n before any error (n = 0)."""
+def residual_from(v: Tensor, n: Tensor, std_y: Tensor, seen: Tensor | None = None) -> Tensor:
+    """c = sqrt(v / n + RESIDUAL_FLOOR std^2), with std^2 in place of v / n before any error (n = 0);
+    seen (B, m) (model.residual_scale = "measured"): std itself where the output is missing."""
     mean_sq = torch.where(n > 0, v / torch.where(n > 0, n, torch.ones_like(n)), std_y**2)
-    return (mean_sq + RESIDUAL_FLOOR * std_y**2).sqrt()
+    c = (mean_sq + RESIDUAL_FLOOR * std_y**2).sqrt()
+    return c if seen is None else torch.where(seen, c, std_y)
 
 
 def _assemble(inputs: Tensor, scale: Tensor | None, base: Tensor | None, m: int) -> Tensor:
@@ -325,7 +333,7 @@ class FeatureState:
         self.gapped = False
         if cfg.record_norm == "causal":
             self.stats = RecordStats(batch_size, self.m + self.k, device)
-        if cfg.residual_scale == "running":  # the weighted error sums and the feature's last prediction
+        if cfg.residual_scale != "none":  # the weighted error sums and the feature's last prediction
             f64 = dict(device=device, dtype=torch.float64)
             self.res_v, self.res_n = (torch.zeros(batch_size, self.m, **f64) for _ in range(2))
             self.predicted = None
@@ -368,10 +376,11 @@ class FeatureState:
                 rs = rs * self.scale[:, :m] + self.shift[:, :m]
             base = rs.to(z.dtype)[:, None]  # (B, 1, m)
         residual = None
-        if self.cfg.residual_scale == "running":
+        if self.cfg.residual_scale != "none":
             if self.predicted is not None:
                 y = z[:, :m].double()
                 self.res_v, self.res_n = residual_update(self.res_v, self.res_n, y, self.predicted, seen)
+            # no gap has come (after one the forward's features are used), so "measured" is "running" here
             residual = residual_from(self.res_v, self.res_n, std[:, :m])[:, None]  # (B, 1, m)
             self.predicted = base[:, 0].double()
         self.t += 1

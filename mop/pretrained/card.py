@@ -98,7 +98,7 @@ def _features(model: dict[str, Any]) -> str:
         offset = " with an offset" if model.get("rls_offset") else ""
         scaled = (
             ", its correction scaled by that prediction's recent error"
-            if model.get("residual_scale", "none") == "running"
+            if model.get("residual_scale", "none") != "none"
             else ""
         )
         parts.append(f"the {fit} one-step prediction{offset}{scaled}")
