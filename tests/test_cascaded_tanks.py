@@ -186,3 +186,26 @@ def test_experiment_file_end_to_end(tmp_path, tiny_smoke):
     assert all(np.isfinite(r["simulation_rmse"]) for r in simulated.values()) and len(simulated) == 6
     pf_claim = next(c for c in data["claims"] if c["measure"].startswith("one-step RMSE of pf"))
     assert pf_claim["holds"]
+
+
+def test_simulation_fast_path_equals_the_filters_step_function():
+    """simulate_levels (numpy, the training data's path) against x_{t+1} = clip(tank_step(x_t, u_t) + w_t)
+    run in torch with the tank_step the filters are given, on plants that overflow (input swings up to the
+    pump's range) and with process noise: equal to float rounding."""
+    family = make_family(SystemConfig(family="cascaded-tanks", input_amplitude=1.0), torch.float64)
+    g = generator(6)
+    p = family.sample(32, generator=g).as_dict()
+    u = (p["u_op"][:, None] * (1 + torch.randn(32, 301, generator=g, dtype=torch.float64))).clamp(0, 10)
+    w = 0.05 * torch.randn(32, 300, 2, generator=g, dtype=torch.float64)
+    x = [p["x0_mean"]]
+    phys = {k: p[k] for k in PHYSICS}
+    for t in range(300):
+        x.append(
+            torch.minimum(
+                (tank_step(x[-1], u[:, t, None], phys) + w[:, t]).clamp(min=0), p["max_level"][:, None]
+            )
+        )
+    want = torch.stack(x, 1)
+    got = simulate_levels(p["x0_mean"], u[..., None], p, w)
+    assert bool((want[..., 0] == p["max_level"][:, None]).any())  # some overflow
+    torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)

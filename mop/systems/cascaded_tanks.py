@@ -47,6 +47,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -310,13 +311,51 @@ class CascadedTanksFamily(SystemFamily):
 
 def simulate_levels(x0: Tensor, u: Tensor, p: dict[str, Tensor], w: Tensor | None = None) -> Tensor:
     """Levels (B, T+1, 2) from x0 (B, 2) under u (B, T+1, 1): x_{t+1} = clip(f(x_t, u_t) + w_t) with w
-    (B, T, 2), or f(x_t, u_t) alone (w None)."""
-    phys = {k: p[k] for k in PHYSICS}
-    xs = [x0]
-    for t in range(u.shape[1] - 1):
-        x = tank_step(xs[-1], u[:, t], phys)
-        xs.append(x if w is None else clip_levels(x + w[:, t], p["max_level"]))
-    return torch.stack(xs, dim=1)
+    (B, T, 2), or f(x_t, u_t) alone (w None); p[name] (B,).
+
+    Runs tank_step's arithmetic in numpy, operation for operation in float64 (_substep_numpy): on the
+    training batches (16 systems) torch's per-operation overhead made this loop half of a class model's
+    training step (0.49 of 1.04 s at 500 steps; numpy 3.8x faster). tests/test_cascaded_tanks.py checks it
+    against a loop of tank_step (the filters' f): equal to float rounding (the largest difference seen,
+    1.8e-15 V, is one unit in the last place of torch's kernels). The result has x0's dtype and device."""
+    phys = {k: p[k].detach().double().cpu().numpy() for k in PHYSICS}
+    un = u.detach().double().cpu().numpy()[..., 0]  # (B, T+1)
+    wn = None if w is None else w.detach().double().cpu().numpy()
+    H = phys["max_level"]
+    out = np.empty((*un.shape, 2))
+    out[:, 0] = x0.detach().double().cpu().numpy()
+    for t in range(un.shape[1] - 1):
+        h = (out[:, t, 0], out[:, t, 1])
+        for _ in range(SUBSTEPS):
+            h = _substep_numpy(h, un[:, t], phys)
+        for i in (0, 1):
+            out[:, t + 1, i] = h[i] if wn is None else np.minimum(np.maximum(h[i] + wn[:, t, i], 0.0), H)
+    return torch.from_numpy(out).to(device=x0.device, dtype=x0.dtype)
+
+
+def _rhs_numpy(h: tuple[np.ndarray, np.ndarray], u: np.ndarray, p: dict[str, np.ndarray]):
+    """_rhs in numpy (the same operations in the same order)."""
+    H = p["max_level"]
+    q1 = p["outflow1"] * np.sqrt(np.minimum(np.maximum(h[0], 0.0), H))
+    q2 = p["outflow2"] * np.sqrt(np.minimum(np.maximum(h[1], 0.0), H))
+    net = p["pump"] * u - q1
+    spill = np.where(h[0] >= H, np.maximum(net, 0.0), 0.0)
+    dh2 = (q1 + p["overflow_to_lower"] * spill - q2) / p["area2"]
+    return (net - spill) / p["area1"], np.where(h[1] >= H, np.minimum(dh2, 0.0), dh2)
+
+
+def _substep_numpy(h: tuple[np.ndarray, np.ndarray], u: np.ndarray, p: dict[str, np.ndarray]):
+    """_substep without the Jacobian, in numpy (the same operations in the same order)."""
+    dt, H = TS / SUBSTEPS, p["max_level"]
+    slopes = [_rhs_numpy(h, u, p)]
+    for c in (dt / 2, dt / 2, dt):  # the RK4 stages
+        slopes.append(_rhs_numpy((h[0] + c * slopes[-1][0], h[1] + c * slopes[-1][1]), u, p))
+    z1, z2 = (
+        h[i] + dt / 6 * (slopes[0][i] + 2 * slopes[1][i] + 2 * slopes[2][i] + slopes[3][i]) for i in (0, 1)
+    )
+    spill = np.maximum(z1 - H, 0.0) * p["area1"]
+    z2 = z2 + p["overflow_to_lower"] * spill / p["area2"]
+    return np.minimum(np.maximum(z1, 0.0), H), np.minimum(np.maximum(z2, 0.0), H)
 
 
 __all__ = [
