@@ -96,13 +96,22 @@ def _features(model: dict[str, Any]) -> str:
     if p:
         fit = f"ARX({p}, {q})" if q else f"RLS-AR({p})"
         offset = " with an offset" if model.get("rls_offset") else ""
-        scaled = (
-            ", its correction scaled by that prediction's recent error"
-            if model.get("residual_scale", "none") != "none"
-            else ""
-        )
+        scaled = {
+            "running": ", its correction scaled by that prediction's recent error",
+            "measured": ", its correction scaled by that prediction's recent error where outputs are "
+            "measured (by the record's std across a gap)",
+        }.get(model.get("residual_scale", "none"), "")
         parts.append(f"the {fit} one-step prediction{offset}{scaled}")
     return f", reads {' and '.join(parts)}" if parts else ""
+
+
+def _gap_loss(model: dict[str, Any]) -> str:
+    """The clause for model.gap_loss = "balanced"; empty for "pooled"."""
+    if model.get("gap_loss", "pooled") != "balanced":
+        return ""
+    return (
+        ", trained on the geometric mean of its one-step and its simulated positions' MSEs (model.gap_loss)"
+    )
 
 
 def _trained_on(card: dict[str, Any]) -> list[str]:
@@ -112,7 +121,7 @@ def _trained_on(card: dict[str, Any]) -> list[str]:
         f"- family: {card['family']['family']} ({_settings(card['family'])})",
         f"- model: {model['arch']} {model['num_layers']} layers x {model['width']} wide, "
         f"{model['num_heads']} heads, context {model['context']}, read-out {model['readout']}, input "
-        f"{model['input_dim']} -> output {model['output_dim']}{_features(model)}; "
+        f"{model['input_dim']} -> output {model['output_dim']}{_features(model)}{_gap_loss(model)}; "
         f"{card['num_parameters']} parameters, "
         f"{card['size_bytes']} bytes of weights",
         f"- recipe: preset `{recipe['preset']}` of experiment `{recipe['experiment']}`"
