@@ -93,6 +93,11 @@ def test_the_default_schedule_and_refusals(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "model.width=16" in err and "32" in err and "--init" in err
     assert not (out / "model.safetensors").exists()
+    # how the loss weighs positions is the fine-tune's own choice, not the architecture (init.LOSS_KEYS)
+    loss = [*argv[:-1], "model.horizon_loss=balanced", "train.steps=1"]
+    assert main(loss) == 0
+    assert json.loads((out / "config.json").read_text())["model"]["horizon_loss"] == "balanced"
+    out = tmp_path / "bad2"
     assert main(["train", "--init", str(src), "--preset", "smoke", "--out", str(out)]) == 2
     assert "--preset smoke" in capsys.readouterr().err
 
