@@ -131,8 +131,8 @@ CLASS_EXPERIMENTS = (
         "ukf",
         10,
         3e-3,
-        {"system.input_amplitude": 1.0},
-        BALANCED,
-        600,
+        system={"system.input_amplitude": 1.0},
+        recipe=BALANCED,
+        steps=600,
     ),
 )
