@@ -77,3 +77,19 @@ def test_arx_with_gaps_and_inputs_equals_batch_ridge_on_the_complete_pairs():
         ref = rls_gaps_reference(traj.y[b].numpy(), 2, u[b].numpy(), 2)
         np.testing.assert_allclose(yhat[b], ref, atol=1e-9, rtol=0)
     assert torch.isfinite(make_predictor("arx-best").predict(traj)).all()
+
+
+def test_gap_path_with_simulated_tails_and_drop_outs_equals_batch_ridge():
+    """The class models' case: each system's outputs missing from a step of its own to the end (a simulated
+    tail: no fit after it, the regressors all filled in), drop-outs before it, two channels, inputs."""
+    traj = with_gaps(linear_traj(num_systems=3, horizon=40, seed=5), rate=0.15)
+    y = traj.y.clone()
+    m = y.shape[2]
+    y = y[..., :2] if m > 2 else y
+    for b, cut in enumerate((18, 27, 41)):  # the last system has no tail
+        y[b, cut:] = float("nan")
+    u = torch.randn(3, 41, 1, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    yhat = _rls_run_gaps(y, 3, extra=regressors(u, 2), start=3)[0].numpy()
+    for b in range(3):
+        ref = rls_gaps_reference(y[b].numpy(), 3, u[b].numpy(), 2)
+        np.testing.assert_allclose(yhat[b], ref, atol=1e-9, rtol=0)
