@@ -146,6 +146,9 @@ class ModelConfig:
     # scaled by the feature's own recent one-step error, not by the record's std (mop.models.features);
     # "measured": so only at positions whose output is measured, the record's std across gaps
     residual_scale: str = "none"
+    # with residual_scale: the weight of the feature's one-step error k measured steps back is
+    # residual_decay^k (0.5: the last one or two errors; a noisy record wants a longer memory)
+    residual_decay: float = 0.5
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
@@ -190,6 +193,11 @@ class ModelConfig:
         check(self.input_dim >= 0 and self.output_dim >= 0, "model.input_dim/output_dim must be >= 0")
         check(0 <= self.dropout < 1, f"model.dropout must be in [0, 1), got {self.dropout}")
         check(self.rls_p0 > 0, f"model.rls_p0 must be > 0 (P_0 = rls_p0 I), got {self.rls_p0}")
+        check(
+            0 < self.residual_decay < 1,
+            f"model.residual_decay must be in (0, 1) (the error k steps back weighs decay^k), got "
+            f"{self.residual_decay}",
+        )
         for name, choices in MODEL_CHOICES.items():
             check_choice(f"model.{name}", getattr(self, name), choices)
         check_int("model.rls_order", self.rls_order, 0, 20, " (0 = off)")

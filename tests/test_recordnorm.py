@@ -107,6 +107,7 @@ MASKED = {"rls_order": 2, "arx_order": 2, "rls_offset": True, "observation_mask"
         {**MASKED, "rls_p0": 1e4},
         {**MASKED, "rls_p0": 1e4, "residual_scale": "running"},
         {**MASKED, "rls_p0": 1e4, "residual_scale": "measured"},
+        {"rls_order": 2, "arx_order": 2, "rls_offset": True, "residual_scale": "running", "residual_decay": 0.9},
     ],
 )
 def test_stream_equals_forward_and_is_causal(options):

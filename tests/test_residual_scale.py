@@ -8,12 +8,12 @@ import torch
 
 from mop.config import ModelConfig
 from mop.errors import MopError
-from mop.models.features import RESIDUAL_DECAY, RESIDUAL_FLOOR, residual_scale
+from mop.models.features import RESIDUAL_FLOOR, residual_scale
 from tests.test_recordnorm import tiny, trained_like
 
 
-@pytest.mark.parametrize("mode", ["running", "measured"])
-def test_residual_scale_is_the_weighted_mean_of_the_measured_errors(mode):
+@pytest.mark.parametrize("mode,lam", [("running", 0.5), ("measured", 0.5), ("measured", 0.9)])
+def test_residual_scale_is_the_weighted_mean_of_the_measured_errors(mode, lam):
     """ "measured": the same where y_t is measured, the record's std where it is missing."""
     g = np.random.default_rng(0)
     B, T, m = 2, 15, 2
@@ -21,9 +21,8 @@ def test_residual_scale_is_the_weighted_mean_of_the_measured_errors(mode):
     seen = g.uniform(size=(B, T, m)) > 0.3
     y_nan = np.where(seen, y, np.nan)
     tensors = (torch.tensor(a) for a in (y_nan, base, seen, std))
-    got = residual_scale(*tensors, mode)
+    got = residual_scale(*tensors, mode, lam)
     want = np.zeros((B, T, m))
-    lam = RESIDUAL_DECAY
     for b in range(B):
         for j in range(m):
             for t in range(T):
@@ -68,3 +67,5 @@ def test_residual_scale_needs_the_feature_and_the_record_norm():
         ModelConfig(residual_scale="running")
     with pytest.raises(MopError, match="residual_scale"):
         tiny(residual_scale="running")  # record_norm but no feature
+    with pytest.raises(MopError, match="residual_decay"):
+        ModelConfig(residual_decay=1.0)

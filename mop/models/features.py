@@ -25,7 +25,7 @@ model.record_norm = "causal" (mop.models.recordnorm): every output and input cha
 model.residual_scale = "running" (with record_norm and the feature): the correction is scaled by the
     feature's own recent one-step error instead of std_t(y): yhat_{t+1} = r_{t+1} + c_t out_t with
     c_t = sqrt(v_t + RESIDUAL_FLOOR std_t(y)^2), v_t the exponentially weighted mean of (y_s - r_s)^2 over
-    the measured s <= t, the error k measured steps back weighted RESIDUAL_DECAY^k (before the first:
+    the measured s <= t, the error k measured steps back weighted model.residual_decay^k (before the first:
     std_t(y)^2), and the network also reads log(c_t / std_t(y)). Where the feature is exact (a noise-free
     linear record) c_t falls to the floor once the feature's start-up errors are forgotten (a factor 0.5 per
     step: within ~20 steps; at 0.9 the LTI model's one-step RMSE over t in [50, 60) was 0.016 against the
@@ -58,7 +58,6 @@ from mop.models.recordnorm import RecordStats, normalise, running_moments
 # feature is the fitted ARX, nudged by each window
 PRIOR_P0 = 1e-3
 SCALE_EPS = 1e-4  # floor of s_t^2: a trajectory of zeros gets s = 0.01, not a division by zero
-RESIDUAL_DECAY = 0.5  # model.residual_scale: the weight of an error k measured steps back is 0.5^k
 RESIDUAL_FLOOR = 1e-8  # c_t^2 >= 1e-8 std_t(y)^2: the correction's scale is at least 1e-4 of the record's
 
 
@@ -187,7 +186,7 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
         base = _framed_feature(y, u, mean, std, cfg) if cfg.rls_order > 0 else None
         residual = None
         if cfg.residual_scale != "none":
-            residual = residual_scale(y, base, seen, std[..., :m], cfg.residual_scale)
+            residual = residual_scale(y, base, seen, std[..., :m], cfg.residual_scale, cfg.residual_decay)
         return _record_assemble(inputs, mean, std, base, seen, m, residual)
     prior = feature_prior(cfg)
     base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset, prior) if cfg.rls_order > 0 else None
@@ -254,29 +253,28 @@ def _record_assemble(
 
 
 def residual_scale(
-    y: Tensor, base: Tensor, seen: Tensor | None, std_y: Tensor, mode: str = "running"
+    y: Tensor, base: Tensor, seen: Tensor | None, std_y: Tensor, mode: str = "running", decay: float = 0.5
 ) -> Tensor:
     """c_t (B, T, m) float64 of model.residual_scale = mode (the module docstring) from the outputs y
     (B, T, m) (NaN where missing), the feature base (B, T, m) (base[:, t] predicts y_{t+1}), the mask seen
-    (B, T, m) (None: all measured) and std_t(y) (B, T, m)."""
+    (B, T, m) (None: all measured) and std_t(y) (B, T, m); decay: model.residual_decay."""
     y, base = y.double(), base.double()
     v = torch.zeros_like(std_y[:, 0])
     n = torch.zeros_like(v)
     out = []
     for t in range(y.shape[1]):
         if t > 0:
-            v, n = residual_update(v, n, y[:, t], base[:, t - 1], None if seen is None else seen[:, t])
+            v, n = residual_update(v, n, y[:, t], base[:, t - 1], None if seen is None else seen[:, t], decay)
         in_gaps = None if seen is None or mode != "measured" else seen[:, t]
         out.append(residual_from(v, n, std_y[:, t], in_gaps))
     return torch.stack(out, 1)
 
 
 def residual_update(
-    v: Tensor, n: Tensor, y: Tensor, predicted: Tensor, seen: Tensor | None
+    v: Tensor, n: Tensor, y: Tensor, predicted: Tensor, seen: Tensor | None, lam: float = 0.5
 ) -> tuple[Tensor, Tensor]:
     """One step of the weighted error sums (B, m): v <- lam v + (1 - lam) e^2, n <- lam n + (1 - lam),
-    e = y - predicted, where y is measured (seen None: all); unchanged elsewhere."""
-    lam = RESIDUAL_DECAY
+    e = y - predicted, where y is measured (seen None: all); unchanged elsewhere. lam: residual_decay."""
     measured = torch.isfinite(y) if seen is None else seen & torch.isfinite(y)
     e2 = torch.where(measured, (y - predicted) ** 2, torch.zeros_like(v))
     return torch.where(measured, lam * v + (1 - lam) * e2, v), torch.where(measured, lam * n + (1 - lam), n)
@@ -379,7 +377,8 @@ class FeatureState:
         if self.cfg.residual_scale != "none":
             if self.predicted is not None:
                 y = z[:, :m].double()
-                self.res_v, self.res_n = residual_update(self.res_v, self.res_n, y, self.predicted, seen)
+                lam = self.cfg.residual_decay
+                self.res_v, self.res_n = residual_update(self.res_v, self.res_n, y, self.predicted, seen, lam)
             # no gap has come (after one the forward's features are used), so "measured" is "running" here
             residual = residual_from(self.res_v, self.res_n, std[:, :m])[:, None]  # (B, 1, m)
             self.predicted = base[:, 0].double()
