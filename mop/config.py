@@ -119,6 +119,7 @@ MODEL_CHOICES: dict[str, tuple[str, ...]] = {
     "input_scale": ("none", "running"),
     "features": ("given", "auto"),
     "record_norm": ("none", "causal"),
+    "record_moments": ("measured", "filled"),
     "residual_scale": ("none", "running", "measured"),
     "forecast_mode": ("rollout", "gap", "direct"),
     "horizon_loss": ("mean", "balanced"),
@@ -146,6 +147,11 @@ class ModelConfig:
     # scaled by the feature's own recent one-step error, not by the record's std (mop.models.features);
     # "measured": so only at positions whose output is measured, the record's std across gaps
     residual_scale: str = "none"
+    # record_norm's output moments over the measured outputs ("measured"), or over the outputs with each
+    # missing one filled in by the feature's prediction of it ("filled": a record simulated from its first
+    # steps has a scale from step 1, where "measured" has std 0 and mutes the network; needs the feature
+    # and observation_mask). The feature's own frame is the measured steps' either way
+    record_moments: str = "measured"
     # with residual_scale: the weight of the feature's one-step error k measured steps back is
     # residual_decay^k (0.5: the last one or two errors; a noisy record wants a longer memory)
     residual_decay: float = 0.5
@@ -221,6 +227,12 @@ class ModelConfig:
             self.residual_scale == "none" or (self.record_norm == "causal" and self.rls_order > 0),
             "model.residual_scale scales the correction to the RLS / ARX feature by that feature's recent "
             "error: set model.record_norm=causal and model.rls_order > 0 too",
+        )
+        check(
+            self.record_moments == "measured"
+            or (self.record_norm == "causal" and self.rls_order > 0 and self.observation_mask),
+            "model.record_moments='filled' fills missing outputs with the RLS / ARX feature's predictions: "
+            "set model.record_norm=causal, model.rls_order > 0 and model.observation_mask=true too",
         )
         check(
             self.horizon_loss == "mean" or self.readout == "mean",

@@ -10,6 +10,7 @@ from mop.errors import MopError
 from mop.filters.arx import arx_forecast
 from mop.missing import masked_inputs
 from mop.models import build_model
+from mop.models.features import filled_moments
 from mop.models.predict import stream
 from mop.models.predictor import LearnedPredictor
 from mop.models.recordnorm import RecordStats, running_moments
@@ -107,7 +108,9 @@ MASKED = {"rls_order": 2, "arx_order": 2, "rls_offset": True, "observation_mask"
         {**MASKED, "rls_p0": 1e4},
         {**MASKED, "rls_p0": 1e4, "residual_scale": "running"},
         {**MASKED, "rls_p0": 1e4, "residual_scale": "measured"},
-        {"rls_order": 2, "arx_order": 2, "rls_offset": True, "residual_scale": "running", "residual_decay": 0.9},
+        {**MASKED, "rls_p0": 1e4, "residual_scale": "running", "residual_decay": 0.9},
+        {**MASKED, "rls_p0": 1e4, "record_moments": "filled"},
+        {**MASKED, "rls_p0": 1e4, "record_moments": "filled", "residual_scale": "measured"},
     ],
 )
 def test_stream_equals_forward_and_is_causal(options):
@@ -191,3 +194,28 @@ def test_gap_simulation_beyond_the_context_goes_in_half_overlapping_windows():
         torch.testing.assert_close(sim[:, new[0] - 8 : new[-1] - 7], pred[:, new[0] - start :])
     moved = p.simulate(Trajectories(50 * traj.y + 7, 3 * traj.u - 1), 8)
     torch.testing.assert_close(moved, 50 * sim + 7, rtol=1e-9, atol=1e-7)
+
+
+def test_filled_moments_read_the_features_predictions_where_outputs_are_missing():
+    """model.record_moments = "filled": the output moments are numpy's running mean and std of y with each
+    missing y_t replaced by the feature's prediction of it (the untrained model's own output at t - 1, the
+    feature, from a zero read-out). A fine-tuned model (a listed rls_prior: the ARX of its record) that
+    simulates a record from step 1 then has a scale from step 3 on, so a network with random weights moves
+    its predictions off the feature; with "measured" std is 0 and the network is muted (the feature)."""
+    options = dict(MASKED, rls_prior=[0.6, -0.2, 0.5, 0.3, 0.1], context=30)
+    z = record(T=30)
+    z[:, 1:, 0] = float("nan")  # only y_0 measured: a simulation from step 1
+    inputs = masked_inputs(z, 1)
+    feature = build_model(tiny(**options)).double().eval()  # zero read-out: the feature's predictions
+    with torch.no_grad():
+        r = feature(inputs)[..., 0]  # (B, T): r[:, t] predicts y_{t+1}
+    _, std = filled_moments(z, z[..., :1], ~torch.isnan(z[..., :1]), r[..., None])
+    filled = torch.cat([z[:, :1, 0], r[:, :-1]], 1).numpy()  # y_0, then the feature's y_1, y_2, ..
+    want = np.stack([filled[:, : t + 1].std(1) for t in range(30)], 1)
+    np.testing.assert_allclose(std[..., 0].numpy(), want, rtol=1e-9, atol=1e-12)
+    assert (want[:, 3:] > 1e-3).all()  # the feature repeats y_0 up to r = 2, then simulates
+    model = {mode: trained_like(tiny(**options, record_moments=mode)) for mode in ("measured", "filled")}
+    with torch.no_grad():
+        out = {mode: net(inputs)[..., 0] for mode, net in model.items()}
+    torch.testing.assert_close(out["measured"], r, rtol=1e-9, atol=1e-9)  # muted: the feature
+    assert (out["filled"][:, 3:] - r[:, 3:]).abs().min() > 1e-6

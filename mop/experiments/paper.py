@@ -183,6 +183,10 @@ CALIBRATION = Experiment(
     title="uncertainty (beyond the paper)",
     description="a Gaussian read-out (mean and variance, NLL loss) against the KF's own predictive variance",
     train={"model.readout": "gaussian"},
+    # the claim is the interval's coverage, which 1000 steps already hold (seed 0, N = 500: 90% coverage
+    # 0.903 / 0.903 on linear / colored-noise, against 0.901 / 0.906 at 2100; the MSE ratio to the KF 1.027
+    # against 1.023 on linear): half the CPU of its two trainings (1200 plain-model steps, 1000 with RLS)
+    presets={"small": {"train.steps": 1200}},
     predictors=("mop", "kalman"),
     conditions=tuple(
         Condition(family, system={"family": family}, train={"system.family": family})

@@ -184,6 +184,8 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
         mask = None if seen is None else torch.cat([seen, torch.ones_like(inputs[..., m : m + k] > 0)], -1)
         mean, std = running_moments(inputs[..., : m + k], mask)  # (B, T, m + k) each
         base = _framed_feature(y, u, mean, std, cfg) if cfg.rls_order > 0 else None
+        if cfg.record_moments == "filled" and seen is not None:
+            mean, std = filled_moments(inputs[..., : m + k], y, seen, base)
         residual = None
         if cfg.residual_scale != "none":
             residual = residual_scale(y, base, seen, std[..., :m], cfg.residual_scale, cfg.residual_decay)
@@ -192,6 +194,18 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
     base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset, prior) if cfg.rls_order > 0 else None
     scale = running_scale(inputs[..., :m]) if cfg.input_scale == "running" else None
     return _assemble(inputs, scale, base, m), scale, base
+
+
+def filled_moments(z: Tensor, y: Tensor, seen: Tensor, base: Tensor) -> tuple[Tensor, Tensor]:
+    """model.record_moments = "filled": running_moments of z (B, T, m + k) with each missing output y_t
+    (t >= 1) replaced by the feature's prediction of it, base[:, t - 1] (a missing y_0 stays left out)."""
+    m = y.shape[-1]
+    predicted = torch.cat([y[:, :1], base[:, :-1].to(y)], dim=1)  # (B, T, m): the feature's y_t
+    filled = torch.where(seen, y, predicted)
+    mask = seen.clone()
+    mask[:, 1:] = True
+    full = torch.cat([filled, z[..., m:]], dim=-1)
+    return running_moments(full, torch.cat([mask, torch.ones_like(z[..., m:] > 0)], dim=-1))
 
 
 def feature_start(cfg: ModelConfig) -> int:
