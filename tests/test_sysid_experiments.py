@@ -28,22 +28,25 @@ def test_experiment_files_list_the_identifiers_that_use_inputs(name):
 
 def test_simulation_analysis_and_rmse_measures_against_numpy():
     traj = make_family(SystemConfig(family="lti-siso", max_order=3), torch.float64).generate(
-        5, 40, generator=generator(0)
+        5, 60, generator=generator(0)
     )
     preds = [make_predictor("arx"), make_predictor("last")]
     errors = {p.name: (p.predict(traj) - traj.y).norm(dim=-1).numpy() for p in preds}
     result = types.SimpleNamespace(
-        traj=traj, errors=errors, condition=Condition("test", context=30), extras={}
+        traj=traj, errors=errors, condition=Condition("test", context=55), extras={}
     )
     result.extras.update(ANALYSES.get("simulation")(result, preds, "last"))
     for p in preds:
-        sim = simulate(p, traj, 30).numpy()
-        ref = np.sqrt(((sim - traj.y[:, 30:].numpy()) ** 2).mean(axis=(1, 2))).mean()
+        sim = simulate(p, traj, 55).numpy()
+        ref = np.sqrt(((sim - traj.y[:, 55:].numpy()) ** 2).mean(axis=(1, 2))).mean()
         got = measure_value(Measure("simulation_rmse", predictor=p.name), {"test": result}, "last", 0)
         np.testing.assert_allclose(got, ref, rtol=1e-12)
         yhat = p.predict(traj).numpy()
-        one = np.sqrt(((yhat - traj.y.numpy())[:, 30:] ** 2).mean(axis=(1, 2))).mean()
+        one = np.sqrt(((yhat - traj.y.numpy())[:, 55:] ** 2).mean(axis=(1, 2))).mean()
         got = measure_value(Measure("one_step_rmse", predictor=p.name), {"test": result}, "last", 0)
         np.testing.assert_allclose(got, one, rtol=1e-10)
-        got = measure_value(Measure("rmse", predictor=p.name, window=(30, None)), {"test": result}, "last", 0)
+        got = measure_value(Measure("rmse", predictor=p.name, window=(55, None)), {"test": result}, "last", 0)
         np.testing.assert_allclose(got, one, rtol=1e-10)
+        record = np.sqrt(((yhat - traj.y.numpy())[:, 50:] ** 2).mean(axis=(1, 2))).mean()  # t >= 50
+        got = measure_value(Measure("one_step_rmse_record", predictor=p.name), {"test": result}, "last", 0)
+        np.testing.assert_allclose(got, record, rtol=1e-10)

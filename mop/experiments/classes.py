@@ -24,6 +24,7 @@ from typing import Any
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
 
 SIMULATED = Measure("simulation_rmse")
+ONE_STEP = Measure("one_step_rmse_record")  # over t >= 50, the whole record after its start-up
 LEAST_SQUARES_P0 = 1e4  # the feature's P_0 = 1e4 I: the ridge 1e-4 against ~400 unit-scale pairs
 
 
@@ -103,6 +104,18 @@ def class_experiment(
                 SIMULATED,
                 "<",
                 Measure("simulation_rmse", predictor="arx-best"),
+            ),
+            Claim(
+                f"MOP predicts one step ahead below {arx} over t >= 50",
+                ONE_STEP,
+                "<",
+                Measure("one_step_rmse_record", predictor=arx),
+            ),
+            Claim(
+                "MOP predicts one step ahead below arx-best over t >= 50",
+                ONE_STEP,
+                "<",
+                Measure("one_step_rmse_record", predictor="arx-best"),
             ),
         ),
     )
