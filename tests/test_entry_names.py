@@ -43,6 +43,7 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
     ("mop.report", "error"): "the forecast table's errors",
     ("mop.pretrained.card", "simulation"): "card.json's simulation section",
     ("mop.pretrained.card", "rmse"): "card.json's simulation table",
+    ("mop.pretrained.card", "one_step_rmse_record"): "card.json's simulation table, the t >= 50 column",
     ("mop.plots", "error"): "eval.json's mean-error curve",
     ("mop.experiments.analyses", "error"): "the forecast table's errors",
     ("mop.experiments.figures", "coverage"): "the calibration table's coverage column",

@@ -57,15 +57,17 @@ def _simulation_table(sim: dict[str, Any] | None) -> list[str]:
     c = sim["context"]
     lines = [
         f"Free-run simulation of y_{c}..y_T from the inputs alone after a context of {c} outputs (RMSE per "
-        "system, averaged), beside the one-step RMSE over the same steps:",
+        "system, averaged), beside the one-step RMSE over the same steps and over t >= 50 (cards built "
+        "before that column show -):",
         "",
-        "| predictor | one-step RMSE | simulation RMSE |",
-        "|---|---|---|",
+        "| predictor | one-step RMSE | simulation RMSE | one-step RMSE, t >= 50 |",
+        "|---|---|---|---|",
     ]
     rows = sim["rmse"].items()
+    record = lambda r: "-" if r.get("one_step_rmse_record") is None else f"{r['one_step_rmse_record']:.4f}"  # noqa: E731
     return [
         *lines,
-        *(f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} |" for n, r in rows),
+        *(f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} | {record(r)} |" for n, r in rows),
         "",
     ]
 
