@@ -105,7 +105,8 @@ def _rls_run_gaps(
     loop over only the steps whose prediction reads a filled-in output. The arithmetic of each update is
     rls_update's (the same numbers to the last bit as one loop that built the regressors step by step), in
     half its time: 0.19 against 0.37-0.43 s for ARX(15, 15) with an intercept, 16 systems x 500 steps with
-    simulated tails, one thread; a class model's training step 488 against 889 ms.
+    simulated tails, one thread (cProfile of 40 training steps of class-lti-siso: 0.205 s of a ~0.75 s
+    step, where the loop it replaces took 0.43 s).
     """
     B, T, m = y.shape
     start = order if start is None else start
