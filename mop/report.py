@@ -63,6 +63,12 @@ def ratio(summary: dict, name: str, window_start: int) -> dict | None:
     return None
 
 
+def cell(value: float | None, digits: int = 4) -> str:
+    """A table cell: value to `digits` decimals, "-" where it is missing (a column added after the numbers
+    were written)."""
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
 def claim_line(claim: str, evidence: str, holds: bool | None) -> str:
     verdict = {True: "supported", False: "not supported", None: "n/a"}[holds]
     return f"- **{claim}** — {evidence} ({verdict})"

@@ -22,7 +22,7 @@ from mop.filters.kalman import expected_norm, optimal_covariances
 from mop.metrics import coverage, gaussian_nll, loglog_slope, matrix_power_ratio, window_mean
 from mop.predictors import Predictor, first_learned, forecast, simulate
 from mop.registry import Registry
-from mop.report import forecast_markdown
+from mop.report import cell, forecast_markdown
 from mop.systems.base import require_params
 
 ANALYSES: Registry = Registry(
@@ -299,20 +299,15 @@ def _simulation_table(extras: dict) -> str:
         f"| predictor | one-step RMSE | simulation RMSE | one-step RMSE, t >= {RECORD_START} |\n"
         "|---|---|---|---|\n"
     )
-    rows = [
-        f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} | {_record(r)} |\n"
-        for n, r in rmse.items()
-    ]
+    rows = []
+    for n, r in rmse.items():
+        record = cell(r.get("one_step_rmse_record"))  # absent from results written before it
+        rows.append(f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} | {record} |\n")
     return head + "".join(rows)
 
 
 SIMULATION = "simulation"  # the analysis (and its extras key), as the card build asks for it
 RECORD_START = 50  # the one-step RMSE over the record from this step on (Forgione et al.'s window)
-
-
-def _record(row: dict) -> str:
-    value = row.get("one_step_rmse_record")  # absent from results written before it
-    return "-" if value is None else f"{value:.4f}"
 
 
 @ANALYSES.register(SIMULATION, markdown=_simulation_table)

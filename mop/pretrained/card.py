@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from mop.report import forecast_markdown
+from mop.report import cell, forecast_markdown
 
 
 def _ci(r: dict[str, float]) -> str:
@@ -63,13 +63,10 @@ def _simulation_table(sim: dict[str, Any] | None) -> list[str]:
         "| predictor | one-step RMSE | simulation RMSE | one-step RMSE, t >= 50 |",
         "|---|---|---|---|",
     ]
-    rows = sim["rmse"].items()
-    record = lambda r: "-" if r.get("one_step_rmse_record") is None else f"{r['one_step_rmse_record']:.4f}"  # noqa: E731
-    return [
-        *lines,
-        *(f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} | {record(r)} |" for n, r in rows),
-        "",
-    ]
+    for n, r in sim["rmse"].items():
+        record = cell(r.get("one_step_rmse_record"))  # absent from cards built before it
+        lines.append(f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} | {record} |")
+    return [*lines, ""]
 
 
 def _noise_table(shift: dict[str, Any] | None, reference: str) -> list[str]:
