@@ -325,10 +325,9 @@ def simulation_analysis(result, predictors: list, reference: str) -> dict:
         if not (callable(getattr(p, "simulate", None)) or callable(getattr(p, "forecast", None))):
             continue
         sim = simulate(p, result.traj, c).double()
-        one = result.errors[p.name][:, c:]  # (N, T+1-c) ||e_t||
         table[p.name] = {
             "simulation_rmse": float(((sim - y) ** 2).mean((1, 2)).sqrt().mean()),
-            "one_step_rmse": float(np.sqrt((one**2).mean(1) / m).mean()),
+            "one_step_rmse": _one_step_from(result.errors[p.name], c, m),
             "one_step_rmse_record": _one_step_from(result.errors[p.name], min(RECORD_START, c), m),
         }
     return {"simulation": {"context": c, "rmse": table}}
