@@ -114,7 +114,9 @@ def test_a_class_model_with_a_prior_runs_it_in_the_data_units_across_gaps_and_st
     at initialisation it is mop.filters.arx's recursion from that prior on the data as given (not in the
     record's frame, where fitted coefficients do not hold), outputs missing from step 15 on (a free-run
     simulation: each missing output filled with the feature's own prediction), and streaming it equals its
-    forward."""
+    forward. Over the start-up (t <= r = 2, where the recursion holds y_{t-1}) it predicts by the prior from
+    the first values (features.fitted_start): yhat_1 = theta . [y_0, y_0, u_0, u_0, 1], yhat_2 = theta .
+    [y_1, y_0, u_1, u_0, 1]; the fit is the recursion's, so from t = 3 on the two agree."""
     theta = [0.9, -0.2, 0.5, 0.1, 0.05]
     cfg = tiny(rls_prior=theta, record_norm="causal", observation_mask=True, input_dim=3)
     model = build_model(cfg).double().eval()
@@ -124,6 +126,10 @@ def test_a_class_model_with_a_prior_runs_it_in_the_data_units_across_gaps_and_st
     y[:, 15:] = float("nan")
     prior = (torch.tensor(theta, dtype=torch.float64)[:, None], 1e-3)
     expect = arx_predict(y, z[..., 1:], 2, 2, True, prior)  # (3, 30, 1): expect[:, t] predicts y_t
+    y0, u0, y1, u1 = z[:, 0, 0], z[:, 0, 1], z[:, 1, 0], z[:, 1, 1]
+    one = torch.ones_like(y0)
+    expect[:, 1, 0] = torch.stack([y0, y0, u0, u0, one], -1) @ prior[0][:, 0]
+    expect[:, 2, 0] = torch.stack([y1, y0, u1, u0, one], -1) @ prior[0][:, 0]
     seen = ~torch.isnan(y)
     inputs = torch.cat([torch.where(seen, y, torch.zeros_like(y)), z[..., 1:], seen.double()], dim=-1)
     with torch.no_grad():
@@ -131,3 +137,49 @@ def test_a_class_model_with_a_prior_runs_it_in_the_data_units_across_gaps_and_st
         for p in model.parameters():
             p.normal_(0.0, 0.3)
         torch.testing.assert_close(stream(model, inputs)[0], model(inputs), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("order", [(2, 2), (4, 3)])
+def test_a_fine_tuned_class_model_simulates_from_the_start_as_the_fitted_arx(order):
+    """With its fitted coefficients held (P_0 -> 0), a class model's feature is mop.identify.arx's fitted
+    ARX (lags before the record's start at its first values, an independent implementation): one step
+    ahead on a complete record, and simulated from y_0 alone (`mop predict --simulate 0`: y_1.. missing),
+    before and after r = max(p, q). Breaking fitted_start (the recursion's hold of y_{t-1} for t <= r)
+    fails both."""
+    from mop.identify.arx import arx_model
+    from mop.identify.linear import FittedPredictor
+    from mop.systems.trajectories import Trajectories
+
+    p, q = order
+    rng = np.random.default_rng(3)
+    theta = np.concatenate([[0.9, -0.3, 0.1, -0.05][:p], [0.5, 0.2, -0.1][:q], [0.2]])
+    cfg = tiny(
+        rls_order=p,
+        arx_order=q,
+        rls_prior=theta.tolist(),
+        rls_prior_cov=(1e-12 * np.eye(p + q + 1)).ravel().tolist(),
+        record_norm="causal",
+        observation_mask=True,
+        input_dim=3,
+    )
+    model = build_model(cfg).double().eval()
+    y, u = arx_record(T=30, seed=4)
+    y, u = y + 2.0, u + rng.normal(size=30) * 0.1  # not at rest at step 0
+    fitted = FittedPredictor(
+        "arx",
+        {"p": p, "q": q},
+        arx_model(theta[:, None], p, q, np.zeros(1), np.zeros(1)),
+        1,
+        1,
+        lag_state=True,
+    )
+    traj = Trajectories(torch.tensor(y)[None, :, None], torch.tensor(u)[None, :, None])
+    one_step, simulated = fitted.predict(traj)[0, 1:, 0], fitted.simulate(traj, 1)[0, :, 0]
+    ones = torch.ones(1, 30, 1, dtype=torch.float64)
+    inputs = torch.cat([torch.tensor(y)[None, :, None], torch.tensor(u)[None, :, None], ones], -1)
+    with torch.no_grad():
+        torch.testing.assert_close(model(inputs[:, :-1])[0, :, 0], one_step, rtol=1e-8, atol=1e-8)
+        free = inputs.clone()
+        free[:, 1:, 0], free[:, 1:, 2] = 0.0, 0.0  # y_1..y_T missing
+        torch.testing.assert_close(model(free[:, :-1])[0, :, 0], simulated, rtol=1e-8, atol=1e-8)
+        torch.testing.assert_close(stream(model, free)[0][0, :-1, 0], simulated, rtol=1e-8, atol=1e-8)

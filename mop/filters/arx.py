@@ -51,17 +51,20 @@ def _arx_run(
     q: int,
     offset: bool = False,
     prior: Prior | None = None,
+    updates_from: int | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1}).
 
     y with NaN (missing outputs): mop.filters.rls._rls_run_gaps with the input lags (and the constant) as
     complete extra regressors, so pairs with a missing target or output regressor are skipped and missing
     regressors are filled with the model's own one-step predictions (phi then holds the filled outputs).
-    prior: (theta_0 (d, m), P_0) for the recursion (rls_loop, _rls_run_gaps)."""
+    prior: (theta_0 (d, m), P_0) for the recursion (rls_loop, _rls_run_gaps); updates_from: the first target
+    index whose pair updates the fit (rls_loop; default r)."""
     r = p if u is None else max(p, q)
     if torch.isnan(y).any():
-        return _rls_run_gaps(y, p, extra=known_regressors(y, u, q, offset), start=r, prior=prior)
-    return rls_loop(y, arx_regressors(y, u, p, q, offset), r, prior)
+        extra = known_regressors(y, u, q, offset)
+        return _rls_run_gaps(y, p, extra=extra, start=r, prior=prior, updates_from=updates_from)
+    return rls_loop(y, arx_regressors(y, u, p, q, offset), r, prior, updates_from)
 
 
 def arx_predict(
@@ -71,10 +74,12 @@ def arx_predict(
     q: int = 2,
     offset: bool = False,
     prior: Prior | None = None,
+    updates_from: int | None = None,
 ) -> Tensor:
     """One-step ARX(p, q) predictions yhat (B, T, m) for y (B, T, m), u (B, T, k) or None; offset: with a
-    constant regressor (an intercept); prior: theta_0 (d, m) and P_0 of the recursion (rls_loop)."""
-    return _arx_run(y, u, p, q, offset, prior)[0]
+    constant regressor (an intercept); prior: theta_0 (d, m) and P_0 of the recursion (rls_loop);
+    updates_from: the first target index whose pair updates the fit (default max(p, q))."""
+    return _arx_run(y, u, p, q, offset, prior, updates_from)[0]
 
 
 def arx_forecast(

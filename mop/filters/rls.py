@@ -71,25 +71,33 @@ def initial_state(prior: Prior | None, B: int, d: int, m: int, like: Tensor) -> 
 
 
 def rls_loop(
-    y: Tensor, phi: Tensor, start: int, prior: Prior | None = None
+    y: Tensor, phi: Tensor, start: int, prior: Prior | None = None, updates_from: int | None = None
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """The complete-data recursion shared by RLS and ARX: y (B, T, m), regressors phi (B, T, d) with
     phi[:, t] predicting y_{t+1}; yhat_0 = 0, yhat_t = y_{t-1} for 1 <= t <= start, then theta (B, d, m)
-    from theta_0, P_0 (initial_state: 0 and I without a prior) and the pairs (phi_{s-1}, y_s), s < t.
-    Returns (yhat, phi, {t: theta})."""
+    from theta_0, P_0 (initial_state: 0 and I without a prior) and the pairs (phi_{s-1}, y_s), s < t,
+    s >= updates_from (default: start; a later one leaves leading rows out of the fit, e.g. a pad of
+    assumed values before a record's start). Returns (yhat, phi, {t: theta})."""
     B, T, m = y.shape
+    updates_from = start if updates_from is None else updates_from
     theta, P = initial_state(prior, B, phi.shape[-1], m, y)
     preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(start + 1, T))]
     thetas = {}
     for t in range(start + 1, T):
-        theta, P = rls_update(theta, P, phi[:, t - 2], y[:, t - 1])  # the newest pair (phi_{t-2}, y_{t-1})
+        if t - 1 >= updates_from:  # the newest pair (phi_{t-2}, y_{t-1})
+            theta, P = rls_update(theta, P, phi[:, t - 2], y[:, t - 1])
         thetas[t] = theta
         preds.append((theta.mT @ phi[:, t - 1, :, None])[..., 0])
     return torch.stack(preds, dim=1), phi, thetas
 
 
 def _rls_run_gaps(
-    y: Tensor, order: int, extra: Tensor | None = None, start: int | None = None, prior: Prior | None = None
+    y: Tensor,
+    order: int,
+    extra: Tensor | None = None,
+    start: int | None = None,
+    prior: Prior | None = None,
+    updates_from: int | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """_rls_run for y (B, T, m) with NaN where an output is missing.
 
@@ -99,6 +107,7 @@ def _rls_run_gaps(
     to the shared P of rls_update while nothing is missing). Start-up as without gaps: yhat_t = y~_{t-1}
     for 1 <= t <= start (default: order). extra (B, T, e): complete regressors appended to phi_t (ARX's
     input lags [u_t; ...; u_{t-q+1}]). prior: theta_0 and P_0 (initial_state; each channel's P starts at P_0).
+    updates_from: no pair with a target y_s, s < updates_from, updates (rls_loop; default: start).
 
     Every pair that updates is made of measured values, so the fit is one recursion over regressors built
     in advance (steps where no system updates, a simulated tail, are skipped), and the filling is a second
@@ -122,6 +131,8 @@ def _rls_run_gaps(
     # the pair (phi_{s-1}, y_s) updates channel i where y_{s, i} is measured and phi_{s-1} reads no gap
     clean_before = torch.cat([in_phi.new_zeros(B, 1), in_phi[:, :-1]], 1) == 0  # (B, T)
     update = seen & clean_before[..., None]  # (B, T, m)
+    if updates_from is not None:
+        update[:, :updates_from] = False
     d = phi_measured.shape[-1]
     theta, P = initial_state(prior, B, d, m, y)
     P = P[:, None].repeat(1, m, 1, 1)  # (B, m, d, d)

@@ -164,14 +164,17 @@ def rls_next(
     input_order: int = 0,
     offset: bool = False,
     prior: Prior | None = None,
+    updates_from: int | None = None,
 ) -> Tensor:
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
     u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
-    a constant regressor; prior: the recursion's theta_0 and P_0 (feature_prior)."""
+    a constant regressor; prior: the recursion's theta_0 and P_0 (feature_prior); updates_from: the first
+    y_s whose pair updates the fit (mop.filters.arx.arx_predict; default max(order, q))."""
     pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
     if input_order > 0 or offset or prior is not None:  # the pad rows are never read
         u_lags = pad(u) if input_order > 0 else None
-        return arx_predict(pad(y), u_lags, order, max(input_order, 1), offset, prior)[:, 1:].to(y.dtype)
+        q = max(input_order, 1)
+        return arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from)[:, 1:].to(y.dtype)
     return rls_predict(pad(y), order)[:, 1:].to(y.dtype)  # (B, T, m)
 
 
@@ -226,13 +229,44 @@ def feature_frame(mean: Tensor, std: Tensor, cfg: ModelConfig) -> tuple[Tensor, 
 
 
 def _framed_feature(y: Tensor, u: Tensor | None, mean: Tensor, std: Tensor, cfg: ModelConfig) -> Tensor:
-    """The RLS / ARX feature (B, T, m) of y (B, T, m), u (B, T, k)|None run in feature_frame, in y's units."""
+    """The RLS / ARX feature (B, T, m) of y (B, T, m), u (B, T, k)|None run in feature_frame, in y's units.
+    With a listed model.rls_prior, from the fitted start (fitted_start)."""
     m, r = cfg.output_dim, min(feature_start(cfg), y.shape[1] - 1)
     shift, scale = feature_frame(mean[:, r : r + 1], std[:, r : r + 1], cfg)  # (B, 1, m + k) each
     ys = (y.double() - shift[..., :m]) / scale[..., :m]
     us = None if u is None else (u.double() - shift[..., m:]) / scale[..., m:]
-    rs = rls_next(ys, cfg.rls_order, us, cfg.arx_order, cfg.rls_offset, feature_prior(cfg))
+    if isinstance(cfg.rls_prior, list):
+        rs = fitted_start(ys, us, cfg)
+    else:
+        rs = rls_next(ys, cfg.rls_order, us, cfg.arx_order, cfg.rls_offset, feature_prior(cfg))
     return (rs * scale[..., :m] + shift[..., :m]).to(y.dtype)
+
+
+def first_values(y: Tensor) -> Tensor:
+    """(B, 1, m): each channel's y_0 where it is measured, else 0 (in a fitted prior's frame, the estimation
+    record's mean); known at step 0, so causal."""
+    first = y[:, :1]
+    return torch.where(torch.isnan(first), torch.zeros_like(first), first)
+
+
+def fitted_start(ys: Tensor, us: Tensor | None, cfg: ModelConfig) -> Tensor:
+    """The feature r (B, T, m) of a class model with a listed model.rls_prior (coefficients fitted on an
+    estimation record, in its normalised units ys (B, T, m), us (B, T, k)|None): the record read as if it
+    had rested at its first values before step 0 (first_values; u_0), so the fitted ARX predicts from step 1
+    on, y_1 from phi_0 = [y_0, y_0, ..., u_0, u_0, ..., 1], as mop.identify.arx's fitted ARX does (its lags
+    before the record's start are its first values). Without it the recursion's start-up holds y_{t-1} for
+    t <= r = max(p, q) and then regresses on zeros before step 0: a record simulated from its start (every
+    y_t, t >= 1, missing) enters its free run from r held values (tank_records plant 3 from step 0: RMSE 0.76
+    over its first 100 steps, against the fitted ARX's 0.26). The fit updates on the record's pairs only,
+    those of the recursion without the pad (y_s, s >= r)."""
+    r = feature_start(cfg)
+    first_y = first_values(ys).expand(-1, r, -1)
+    yp = torch.cat([first_y, ys], dim=1)
+    up = None if us is None else torch.cat([us[:, :1].expand(-1, r, -1), us], dim=1)
+    rs = rls_next(
+        yp, cfg.rls_order, up, cfg.arx_order, cfg.rls_offset, feature_prior(cfg), updates_from=2 * r
+    )
+    return rs[:, r:]
 
 
 def _record_assemble(
@@ -409,14 +443,19 @@ class FeatureState:
 
     def _rls_step(self, y: Tensor, u: Tensor) -> Tensor:
         """As rls_predict (arx_predict with q = arx_order > 0): fit the pair (phi_{t-1}, y_t) once t >= r =
-        max(p, q), then predict y_{t+1} (y_t for t < r); u (B, k) is u_t (B, 0 without input lags)."""
+        max(p, q), then predict y_{t+1} (y_t for t < r; by regression from the first values with a listed
+        prior under record_norm: fitted_start); u (B, k) is u_t (B, 0 without input lags)."""
         p, q, t = self.cfg.rls_order, self.cfg.arx_order, self.t
         r = max(p, q)
+        fitted = self.cfg.record_norm == "causal" and isinstance(self.cfg.rls_prior, list)
+        if fitted and t == 0:  # fitted_start: the lags before step 0 are the first values
+            self.recent = first_values(y[:, None]).expand_as(self.recent).clone()
+            self.recent_u = u[:, None].expand_as(self.recent_u).clone()
         self.recent = torch.cat([self.recent[:, 1:], y[:, None]], dim=1)  # (B, p+1, m): y_{t-p}..y_t
         self.recent_u = torch.cat([self.recent_u[:, 1:], u[:, None]], dim=1)  # (B, q+1, k): u_{t-q}..u_t
         if t >= r:
             self.theta, self.P = rls_update(self.theta, self.P, self._phi(p, q, 0), y)
-        if t < r:
+        if t < r and not fitted:
             return y
         return (self.theta.mT @ self._phi(p, q, 1)[..., None])[..., 0]
 
