@@ -152,6 +152,12 @@ class ModelConfig:
     # steps has a scale from step 1, where "measured" has std 0 and mutes the network; needs the feature
     # and observation_mask). The feature's own frame is the measured steps' either way
     record_moments: str = "measured"
+    # record_norm's running moments start from this many pseudo-steps at mean 0 and std 1 in every channel
+    # (0: none). A fine-tune on a record sets it (mop.experiments.training.with_record_prior): its data are
+    # normalised by the estimation record's mean and std, so 0 and 1 are that record's moments, and a record
+    # simulated from its start is read at the plant's scale from step 0, where without them its output std
+    # is 0 and mutes the network
+    record_prior_steps: int = 0
     # with residual_scale: the weight of the feature's one-step error k measured steps back is
     # residual_decay^k (0.5: the last one or two errors; a noisy record wants a longer memory)
     residual_decay: float = 0.5
@@ -233,6 +239,11 @@ class ModelConfig:
             or (self.record_norm == "causal" and self.rls_order > 0 and self.observation_mask),
             "model.record_moments='filled' fills missing outputs with the RLS / ARX feature's predictions: "
             "set model.record_norm=causal, model.rls_order > 0 and model.observation_mask=true too",
+        )
+        check(
+            self.record_prior_steps == 0 or (self.record_norm == "causal" and self.record_prior_steps > 0),
+            "model.record_prior_steps starts record_norm's running moments from pseudo-steps: set "
+            "model.record_norm=causal too, and a count >= 0",
         )
         check(
             self.horizon_loss == "mean" or self.readout == "mean",

@@ -155,3 +155,26 @@ def test_fine_tuned_beats_zero_shot_and_from_scratch_on_held_out_systems(tmp_pat
     zero, tuned, fresh = np.array(scores).T
     assert tuned.mean() < zero.mean() and tuned.mean() < fresh.mean(), scores
     assert (tuned < zero).sum() >= 3 and (tuned < fresh).sum() >= 3, scores
+
+
+def test_a_class_model_fine_tuned_on_a_record_starts_its_moments_at_the_records(tmp_path):
+    """`mop train --data REC --init pretrained:cascaded-tanks` (a class model: record_norm, trained on no
+    recorded data, so the run normalises by REC's own moments) starts record_norm's moments from
+    RECORD_PRIOR_STEPS pseudo-steps at them, beside the feature's least-squares start; an override wins, and
+    the key is no architecture key (the source has 0)."""
+    from mop.experiments.training import RECORD_PRIOR_STEPS
+
+    path = record(tmp_path / "r.npz", 0)
+    config = training_config(None, data=path, init="pretrained:cascaded-tanks")
+    assert config.model.record_prior_steps == RECORD_PRIOR_STEPS > 0 and config.model.rls_prior == "fit"
+    off = training_config(
+        None, data=path, init="pretrained:cascaded-tanks", overrides=["model.record_prior_steps=0"]
+    )
+    assert off.model.record_prior_steps == 0 and off.model.rls_prior == "fit"
+    # a source trained on recorded data keeps its normalisation, so 0 and 1 are not this record's moments
+    src = tmp_path / "src"
+    own = ["model.record_norm=causal", "model.features=given", "model.rls_order=2", "model.arx_order=2"]
+    argv = ["train", "--data", path, "--out", str(src), "--no-progress", "train.steps=1", *SMALL, *own]
+    assert main(argv) == 0
+    kept = training_config(None, data=path, init=str(src)).model
+    assert kept.rls_prior == "fit" and kept.record_prior_steps == 0

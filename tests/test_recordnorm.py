@@ -111,6 +111,8 @@ MASKED = {"rls_order": 2, "arx_order": 2, "rls_offset": True, "observation_mask"
         {**MASKED, "rls_p0": 1e4, "residual_scale": "running", "residual_decay": 0.9},
         {**MASKED, "rls_p0": 1e4, "record_moments": "filled"},
         {**MASKED, "rls_p0": 1e4, "record_moments": "filled", "residual_scale": "measured"},
+        {**MASKED, "rls_p0": 1e4, "residual_scale": "measured", "record_prior_steps": 5},
+        {"rls_order": 2, "arx_order": 2, "rls_offset": True, "record_prior_steps": 5},
     ],
 )
 def test_stream_equals_forward_and_is_causal(options):
@@ -219,3 +221,50 @@ def test_filled_moments_read_the_features_predictions_where_outputs_are_missing(
         out = {mode: net(inputs)[..., 0] for mode, net in model.items()}
     torch.testing.assert_close(out["measured"], r, rtol=1e-9, atol=1e-9)  # muted: the feature
     assert (out["filled"][:, 3:] - r[:, 3:]).abs().min() > 1e-6
+
+
+def test_prior_steps_start_the_moments_from_pseudo_steps_at_mean_0_and_std_1():
+    """model.record_prior_steps = n_0: mean_t = sum x / (n_t + n_0), std_t^2 = (sum x^2 + n_0) / (n_t + n_0)
+    - mean_t^2 over the measured x of each prefix (numpy), a channel with none measured yet at mean 0 and
+    std 1; streamed (RecordStats) alike. Far from unit scale (an offset of 1e4) as in the plain test."""
+    n0 = 7
+    z = record() * 100 + 1e4
+    seen = torch.rand(z.shape, generator=torch.Generator().manual_seed(1)) > 0.3
+    seen[0, :5, 0] = False  # a channel with nothing measured for 5 steps
+    mean, std = running_moments(z, seen, n0)
+    stats = RecordStats(z.shape[0], z.shape[-1], z.device, n0)
+    streamed = [stats.update(z[:, t], seen[:, t]) for t in range(z.shape[1])]
+    for t in (0, 1, 4, 7, 19):
+        for b in range(z.shape[0]):
+            for c in range(z.shape[-1]):
+                x = z[b, : t + 1, c].numpy()[seen[b, : t + 1, c].numpy()]
+                m = x.sum() / (len(x) + n0)
+                v = (np.sum(x**2) + n0) / (len(x) + n0) - m**2
+                assert mean[b, t, c] == pytest.approx(m, rel=1e-12, abs=1e-12)
+                assert std[b, t, c] == pytest.approx(np.sqrt(v), rel=1e-8)
+    assert torch.equal(mean[0, :5, 0], torch.zeros(5)) and torch.equal(std[0, :5, 0], torch.ones(5).double())
+    torch.testing.assert_close(torch.stack([s[0] for s in streamed], 1), mean, rtol=1e-12, atol=1e-9)
+    torch.testing.assert_close(torch.stack([s[1] for s in streamed], 1), std, rtol=1e-9, atol=1e-9)
+
+
+def test_prior_steps_let_the_network_act_on_a_record_simulated_from_its_start():
+    """A fine-tuned class model (a listed rls_prior) simulating a record from step 1 (only y_0 measured):
+    without record_prior_steps its output std is 0, so any weights give the feature; with them the record
+    is read at the estimation record's scale and the network moves the predictions off the feature."""
+    options = dict(MASKED, rls_prior=[0.6, -0.2, 0.5, 0.3, 0.1], context=30)
+    z = record(T=30)
+    z[:, 1:, 0] = float("nan")
+    inputs = masked_inputs(z, 1)
+    with torch.no_grad():
+        r = build_model(tiny(**options)).double().eval()(inputs)[..., 0]  # zero read-out: the feature
+        muted = trained_like(tiny(**options))(inputs)[..., 0]
+        acting = trained_like(tiny(**options, record_prior_steps=20))(inputs)[..., 0]
+    torch.testing.assert_close(muted, r, rtol=1e-9, atol=1e-9)
+    assert (acting - r).abs().min() > 1e-6
+
+
+def test_prior_steps_need_record_norm():
+    with pytest.raises(MopError, match="record_prior_steps"):
+        ModelConfig(record_prior_steps=10)
+    with pytest.raises(MopError, match="record_prior_steps"):
+        tiny(record_prior_steps=-1)

@@ -83,6 +83,12 @@ def run(args: argparse.Namespace) -> int:
     if config.data is not None:
         print(recorded_data(config.data).summary(config.train.horizon, validates_tails(config)))
         print(feature_line(config) or "feature: none (the network reads the record alone)")
+        if config.model.record_prior_steps:
+            print(
+                f"record_norm: each record's running moments start from {config.model.record_prior_steps} "
+                "steps at this record's mean and std (model.record_prior_steps), so it is read at the "
+                "plant's scale from its first step"
+            )
     out = train(
         config,
         args.out,

@@ -182,18 +182,29 @@ def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConf
     return dataclasses.replace(config, train=train, data=data)
 
 
-def with_record_prior(config: RunConfig, overrides: list[str]) -> RunConfig:
+# record_norm's pseudo-steps at the estimation record's moments (model.record_prior_steps) in a fine-tune
+RECORD_PRIOR_STEPS = 100
+
+
+def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig) -> RunConfig:
     """Fine-tuning a class model (model.record_norm: its ARX feature identifies the record in context) on a
     record with complete outputs: the feature starts from the ARX fitted by least squares on the training
     part (model.rls_prior = "fit", P_0 = 1e-3 I in the run's normalised units), as the records recipe's
     does, so from its first steps the model reads the record's ARX rather than one identified from those
-    steps alone, unless an override names the prior (PRIOR_KEYS)."""
+    steps alone, unless an override names the prior (PRIOR_KEYS). And where the run normalises the data by
+    the record's own mean and std (a source without recorded data's normalisation), record_norm's moments
+    start from RECORD_PRIOR_STEPS pseudo-steps at them (model.record_prior_steps) unless an override names
+    it: the plant's scale is known from step 0, so a record simulated from its start is not read with an
+    output std of 0, which would leave the first window (model.context steps) to the feature alone."""
     m, named = config.model, parse_overrides(overrides)
     if config.data is None or m.record_norm == "none" or m.rls_order == 0 or m.rls_prior != "none":
         return config
     if any(f"model.{key}" in named for key in PRIOR_KEYS) or recorded_data(config.data).num_missing:
         return config
     model = dataclasses.replace(m, rls_prior="fit", rls_p0=1.0, rls_prior_cov=None)
+    own_units = source.data is None or not source.data.fitted
+    if own_units and "model.record_prior_steps" not in named:
+        model = dataclasses.replace(model, record_prior_steps=RECORD_PRIOR_STEPS)
     return dataclasses.replace(config, model=model)
 
 
@@ -237,7 +248,7 @@ def training_config(
         raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
     base = load_config(init)
     config = with_fine_tuning(with_records(base, data, val), base, init)
-    config = with_record_prior(apply_overrides(config, list(overrides)), list(overrides))
+    config = with_record_prior(apply_overrides(config, list(overrides)), list(overrides), base)
     if config.data is not None and "train.horizon" not in parse_overrides(list(overrides)):
         # the windows fit the split the overrides ask for (data.validation_fraction, data.split)
         config = dataclasses.replace(config, train=_record_horizon(config.train, config.data))

@@ -185,10 +185,10 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
     u = inputs[..., m : m + k] if cfg.arx_order > 0 else None
     if cfg.record_norm == "causal":
         mask = None if seen is None else torch.cat([seen, torch.ones_like(inputs[..., m : m + k] > 0)], -1)
-        mean, std = running_moments(inputs[..., : m + k], mask)  # (B, T, m + k) each
+        mean, std = running_moments(inputs[..., : m + k], mask, cfg.record_prior_steps)  # (B, T, m + k) each
         base = _framed_feature(y, u, mean, std, cfg) if cfg.rls_order > 0 else None
         if cfg.record_moments == "filled" and seen is not None:
-            mean, std = filled_moments(inputs[..., : m + k], y, seen, base)
+            mean, std = filled_moments(inputs[..., : m + k], y, seen, base, cfg.record_prior_steps)
         residual = None
         if cfg.residual_scale != "none":
             residual = residual_scale(y, base, seen, std[..., :m], cfg.residual_scale, cfg.residual_decay)
@@ -199,7 +199,9 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
     return _assemble(inputs, scale, base, m), scale, base
 
 
-def filled_moments(z: Tensor, y: Tensor, seen: Tensor, base: Tensor) -> tuple[Tensor, Tensor]:
+def filled_moments(
+    z: Tensor, y: Tensor, seen: Tensor, base: Tensor, prior_steps: int = 0
+) -> tuple[Tensor, Tensor]:
     """model.record_moments = "filled": running_moments of z (B, T, m + k) with each missing output y_t
     (t >= 1) replaced by the feature's prediction of it, base[:, t - 1] (a missing y_0 stays left out)."""
     m = y.shape[-1]
@@ -208,7 +210,7 @@ def filled_moments(z: Tensor, y: Tensor, seen: Tensor, base: Tensor) -> tuple[Te
     mask = seen.clone()
     mask[:, 1:] = True
     full = torch.cat([filled, z[..., m:]], dim=-1)
-    return running_moments(full, torch.cat([mask, torch.ones_like(z[..., m:] > 0)], dim=-1))
+    return running_moments(full, torch.cat([mask, torch.ones_like(z[..., m:] > 0)], dim=-1), prior_steps)
 
 
 def feature_start(cfg: ModelConfig) -> int:
@@ -378,7 +380,7 @@ class FeatureState:
         self.history = [] if cfg.observation_mask and p > 0 else None
         self.gapped = False
         if cfg.record_norm == "causal":
-            self.stats = RecordStats(batch_size, self.m + self.k, device)
+            self.stats = RecordStats(batch_size, self.m + self.k, device, cfg.record_prior_steps)
         if cfg.residual_scale != "none":  # the weighted error sums and the feature's last prediction
             f64 = dict(device=device, dtype=torch.float64)
             self.res_v, self.res_n = (torch.zeros(batch_size, self.m, **f64) for _ in range(2))

@@ -25,15 +25,26 @@ import torch
 from torch import Tensor
 
 
-def running_moments(z: Tensor, seen: Tensor | None = None) -> tuple[Tensor, Tensor]:
+def running_moments(z: Tensor, seen: Tensor | None = None, prior_steps: int = 0) -> tuple[Tensor, Tensor]:
     """Causal per-channel (mean, std), each (B, T, d) float64, of z (B, T, d) over steps 0..t; seen (B, T, d)
-    bool (None: all) leaves out the unmeasured entries (a channel with none measured yet: mean 0, std 0)."""
+    bool (None: all) leaves out the unmeasured entries (a channel with none measured yet: mean 0, std 0).
+    prior_steps n_0 > 0 (model.record_prior_steps): the sums start from n_0 pseudo-steps of mean 0 and
+    variance 1, mean_t = sum z / (n_t + n_0), std_t^2 = (sum z^2 + n_0) / (n_t + n_0) - mean_t^2 (a channel
+    with none measured yet: mean 0, std 1)."""
     z = z.double()
     w = torch.ones_like(z) if seen is None else seen.double()
     ref = _first_seen(z, w)  # (B, 1, d)
     dev = torch.where(w > 0, z - ref, torch.zeros_like(z))  # (B, T, d), 0 where unmeasured
-    n = w.cumsum(1).clamp_min(1.0)
-    m1, m2 = dev.cumsum(1) / n, (dev**2).cumsum(1) / n
+    return _moments(ref, w.cumsum(1), dev.cumsum(1), (dev**2).cumsum(1), prior_steps)
+
+
+def _moments(ref: Tensor, n: Tensor, s1: Tensor, s2: Tensor, prior_steps: int) -> tuple[Tensor, Tensor]:
+    """(mean, std) from the first values ref, the counts n and the sums s1, s2 of z - ref; the prior's
+    pseudo-steps (mean 0, variance 1) are, about ref, of mean -ref and second moment 1 + ref^2."""
+    if prior_steps:
+        n, s1, s2 = n + prior_steps, s1 - prior_steps * ref, s2 + prior_steps * (1.0 + ref**2)
+    n = n.clamp_min(1.0)
+    m1, m2 = s1 / n, s2 / n
     return ref + m1, (m2 - m1**2).clamp_min(0.0).sqrt()
 
 
@@ -52,8 +63,9 @@ def normalise(z: Tensor, mean: Tensor, std: Tensor) -> Tensor:
 class RecordStats:
     """running_moments one step at a time (streaming): the first value and the running sums per channel."""
 
-    def __init__(self, batch_size: int, dim: int, device: torch.device) -> None:
+    def __init__(self, batch_size: int, dim: int, device: torch.device, prior_steps: int = 0) -> None:
         f64 = dict(device=device, dtype=torch.float64)
+        self.prior_steps = prior_steps
         self.ref = torch.zeros(batch_size, dim, **f64)
         self.n, self.s1, self.s2 = (torch.zeros(batch_size, dim, **f64) for _ in range(3))
 
@@ -64,6 +76,4 @@ class RecordStats:
         self.ref = torch.where((self.n == 0) & (w > 0), z, self.ref)
         dev = torch.where(w > 0, z - self.ref, torch.zeros_like(z))
         self.n, self.s1, self.s2 = self.n + w, self.s1 + dev, self.s2 + dev**2
-        n = self.n.clamp_min(1.0)
-        m1, m2 = self.s1 / n, self.s2 / n
-        return self.ref + m1, (m2 - m1**2).clamp_min(0.0).sqrt()
+        return _moments(self.ref, self.n, self.s1, self.s2, self.prior_steps)

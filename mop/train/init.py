@@ -24,16 +24,18 @@ from mop.runs import load_config, retrain_hint
 PRIOR_KEYS = ("rls_prior", "rls_prior_cov", "rls_p0")
 # how the training loss weighs positions: a choice of the fine-tune, no part of the network
 LOSS_KEYS = ("gap_loss", "horizon_loss")
+# record_norm's start from the estimation record's moments: data the fine-tune knows, no weights
+NORM_KEYS = ("record_prior_steps",)
 
 
 def check_init(config: RunConfig) -> None:
     """One-line MopError unless train.init's model has the run's architecture (every model key but the
-    feature's prior, PRIOR_KEYS, and the loss's weighting, LOSS_KEYS)."""
+    feature's prior, PRIOR_KEYS, the loss's weighting, LOSS_KEYS, and the moments' start, NORM_KEYS)."""
     if not config.train.init:
         return
     source = load_config(config.train.init).model
     for field in dataclasses.fields(source):
-        if field.name in PRIOR_KEYS + LOSS_KEYS:
+        if field.name in PRIOR_KEYS + LOSS_KEYS + NORM_KEYS:
             continue
         ours, theirs = getattr(config.model, field.name), getattr(source, field.name)
         if ours != theirs:
