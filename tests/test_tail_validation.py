@@ -12,7 +12,7 @@ import pytest
 import mop.train as mt
 from mop.cli import main
 from mop.config import DataConfig, ModelConfig, RunConfig, SystemConfig, TrainConfig
-from mop.experiments.training import training_config
+from mop.experiments.training import FINE_TUNE_SIMULATE_AFTER, training_config
 from mop.train.data import validates_tails
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -134,13 +134,16 @@ def class_source(tmp_path) -> str:
 
 def test_fine_tuning_a_class_model_on_a_record(tmp_path):
     """The feature starts from the record's least-squares ARX (rls_prior=fit, the trainer's fit_prior),
-    the windows fit the held-out part (25 steps: 24 + 1, simulate_after scaled alike), with or without a
-    validation record, and are validated on its simulation; an override of the prior keeps the source's
-    feature."""
+    the windows fit the held-out part (25 steps: 24 + 1, a named simulate_after scaled alike), with or
+    without a validation record, and are validated on its simulation; an override of the prior keeps the
+    source's feature."""
     src, record = class_source(tmp_path), write_record(tmp_path / "rec.csv")
     config = training_config(None, data=record, init=src)
     assert (config.model.rls_prior, config.model.rls_p0) == ("fit", 1.0)
-    assert config.train.horizon == 24 and config.train.simulate_after == round(AFTER * 24 / HORIZON)
+    # the simulated tails start anywhere from step 1 (FINE_TUNE_SIMULATE_AFTER); a named start is scaled
+    assert config.train.horizon == 24 and config.train.simulate_after == FINE_TUNE_SIMULATE_AFTER == 1
+    named = training_config(None, data=record, init=src, overrides=[f"train.simulate_after={AFTER}"])
+    assert named.train.simulate_after == round(AFTER * 24 / HORIZON) > 1
     assert validates_tails(config)
     # with a validation record the windows are the same (a tenth of the estimation record)
     with_val = training_config(None, data=record, val=write_record(tmp_path / "val.csv", 1), init=src)
