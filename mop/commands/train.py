@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="RUN",
         help="fine-tune: start from this run directory's or pretrained:NAME's weights, with its model and "
-        "normalisation, 250 steps at a tenth of its learning rate (key=value overrides win); a class "
+        "normalisation, 125 steps at a tenth of its learning rate (key=value overrides win); a class "
         "model's ARX feature starts from the record's least-squares fit, its moments from the record's "
         "(model.record_prior_steps=100), and a simulation model trains tails from step 1",
     )
