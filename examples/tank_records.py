@@ -70,6 +70,12 @@ def write_records(out: Path, plant: int, samples: int) -> tuple[Path, Path]:
     """est.csv and val.csv: two experiments of `samples` steps on the one plant drawn with seed `plant`."""
     family = make_family(SystemConfig(family="cascaded-tanks", input_amplitude=1.0))
     params = family.sample(1, generator=torch.Generator().manual_seed(plant))
+    return write_experiments(family, params, out, plant, samples)
+
+
+def write_experiments(family, params, out: Path, plant: int, samples: int) -> tuple[Path, Path]:
+    """est.csv and val.csv: two experiments of `samples` steps on the single system `params` of `family`,
+    their inputs and noise drawn with seeds 10 plant + 1 and 10 plant + 2."""
     paths = []
     for name, seed in (("est", 10 * plant + 1), ("val", 10 * plant + 2)):
         traj = family.simulate(params, samples - 1, generator=torch.Generator().manual_seed(seed))

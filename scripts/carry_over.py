@@ -41,20 +41,13 @@ def tank_records():
 
 
 def write_records(family_name: str, out: Path, plant: int) -> tuple[Path, Path]:
-    """est.csv and val.csv of one plant of the family."""
+    """est.csv and val.csv of one plant of the family (tank_records' writer)."""
+    records = tank_records()
     if family_name == "cascaded-tanks":
-        return tank_records().write_records(out, plant, SAMPLES)
+        return records.write_records(out, plant, SAMPLES)
     family = make_family(SystemConfig(family=family_name))
     params = family.sample(1, generator=torch.Generator().manual_seed(1000 + plant))
-    paths = []
-    for name, seed in (("est", 10 * plant + 1), ("val", 10 * plant + 2)):
-        traj = family.simulate(params, SAMPLES - 1, generator=torch.Generator().manual_seed(seed))
-        y, u = traj.y[0, :, 0].double().numpy(), traj.u[0, :, 0].double().numpy()
-        rows = [f"{name},{t},{float(y[t])!r},{float(u[t])!r}" for t in range(SAMPLES)]
-        path = out / f"{name}.csv"
-        path.write_text("trajectory,t,y0,u0\n" + "\n".join(rows) + "\n")
-        paths.append(path)
-    return paths[0], paths[1]
+    return records.write_experiments(family, params, out, plant, SAMPLES)
 
 
 def run(argv: list[str]) -> None:

@@ -237,7 +237,7 @@ def _framed_feature(y: Tensor, u: Tensor | None, mean: Tensor, std: Tensor, cfg:
     shift, scale = feature_frame(mean[:, r : r + 1], std[:, r : r + 1], cfg)  # (B, 1, m + k) each
     ys = (y.double() - shift[..., :m]) / scale[..., :m]
     us = None if u is None else (u.double() - shift[..., m:]) / scale[..., m:]
-    if isinstance(cfg.rls_prior, list):
+    if starts_fitted(cfg):
         rs = fitted_start(ys, us, cfg)
     else:
         rs = rls_next(ys, cfg.rls_order, us, cfg.arx_order, cfg.rls_offset, feature_prior(cfg))
@@ -249,6 +249,12 @@ def first_values(y: Tensor) -> Tensor:
     record's mean); known at step 0, so causal."""
     first = y[:, :1]
     return torch.where(torch.isnan(first), torch.zeros_like(first), first)
+
+
+def starts_fitted(cfg: ModelConfig) -> bool:
+    """Whether the RLS / ARX feature starts as fitted_start does: a class model (record_norm) whose
+    model.rls_prior lists coefficients fitted on an estimation record (a fine-tune)."""
+    return cfg.record_norm == "causal" and isinstance(cfg.rls_prior, list)
 
 
 def fitted_start(ys: Tensor, us: Tensor | None, cfg: ModelConfig) -> Tensor:
@@ -449,7 +455,7 @@ class FeatureState:
         prior under record_norm: fitted_start); u (B, k) is u_t (B, 0 without input lags)."""
         p, q, t = self.cfg.rls_order, self.cfg.arx_order, self.t
         r = max(p, q)
-        fitted = self.cfg.record_norm == "causal" and isinstance(self.cfg.rls_prior, list)
+        fitted = starts_fitted(self.cfg)
         if fitted and t == 0:  # fitted_start: the lags before step 0 are the first values
             self.recent = first_values(y[:, None]).expand_as(self.recent).clone()
             self.recent_u = u[:, None].expand_as(self.recent_u).clone()
