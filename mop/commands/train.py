@@ -11,9 +11,11 @@ import argparse
 from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
 from mop.experiments.training import feature_line, training_config
+from mop.runs import read_run_json
 from mop.train import train
 from mop.train.data import validates_tails
 from mop.train.records import recorded_data
+from mop.train.shrink import SHRINK_FILE, shrink_line
 
 EPILOG = """examples:
   mop train --out runs/linear                        # the linear family: CPU preset small, GPU paper
@@ -61,7 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="fine-tune: start from this run directory's or pretrained:NAME's weights, with its model and "
         "normalisation, 125 steps at a tenth of its learning rate (key=value overrides win); a class "
         "model's ARX feature starts from the record's least-squares fit, its moments from the record's "
-        "(model.record_prior_steps=100), and a simulation model trains tails from step 1",
+        "(model.record_prior_steps=100), and a simulation model trains tails from step 1 and keeps its "
+        "correction at the gain in 0..1 that simulates the record best (train.shrink_correction)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
@@ -98,5 +101,8 @@ def run(args: argparse.Namespace) -> int:
         fresh=args.fresh,
         announce=print,
     )
+    shrunk = out / SHRINK_FILE
+    if config.train.shrink_correction and shrunk.is_file():
+        print(shrink_line(read_run_json(shrunk), config.data.path))
     print(f"run directory: {out}  (load with: mop.load({str(out)!r}))")
     return 0

@@ -206,7 +206,10 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     the record's own mean and std (a source without recorded data's normalisation), record_norm's moments
     start from RECORD_PRIOR_STEPS pseudo-steps at them (model.record_prior_steps) unless an override names
     it: the plant's scale is known from step 0, so a record simulated from its start is not read with an
-    output std of 0, which would leave the first window (model.context steps) to the feature alone."""
+    output std of 0, which would leave the first window (model.context steps) to the feature alone. A source
+    trained for simulation (train.simulate_after) with the mean read-out also scales its correction by the
+    gain that simulates the record best (train.shrink_correction, mop.train.shrink), unless an override
+    names it."""
     m, named = config.model, parse_overrides(overrides)
     if config.data is None or m.record_norm == "none" or m.rls_order == 0 or m.rls_prior != "none":
         return config
@@ -216,7 +219,10 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     own_units = source.data is None or not source.data.fitted
     if own_units and "model.record_prior_steps" not in named:
         model = dataclasses.replace(model, record_prior_steps=RECORD_PRIOR_STEPS)
-    return dataclasses.replace(config, model=model)
+    train = config.train
+    if source.train.simulate_after and m.readout == "mean" and "train.shrink_correction" not in named:
+        train = dataclasses.replace(train, shrink_correction=True)
+    return dataclasses.replace(config, model=model, train=train)
 
 
 def _record_horizon(train: TrainConfig, data: DataConfig) -> TrainConfig:

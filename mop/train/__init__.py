@@ -6,6 +6,7 @@
     device.py    the device and the DDP process group
     auto.py      model.features=auto: the input feature and step budget from the family's shapes and data
     rundir.py    the run directory: config check and reuse, metrics log, checkpoint of the training state
+    shrink.py    train.shrink_correction: the correction's gain that simulates the record best
     loop.py      train(), train_model(): the loop (signals, NaN stop, DDP slices)
     progress.py  the progress display
 

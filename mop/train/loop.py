@@ -26,7 +26,7 @@ import torch
 import torch.distributed as dist
 from torch import Tensor, nn
 
-from mop.atomic import clean_orphans
+from mop.atomic import clean_orphans, write_json
 from mop.checkpoint import load_model_weights, save_model
 from mop.config import RunConfig
 from mop.errors import MopError
@@ -57,6 +57,7 @@ from mop.train.rundir import (
     write_done,
     write_input_stats,
 )
+from mop.train.shrink import SHRINK_FILE, check_shrink, choose_gain
 
 
 @dataclasses.dataclass
@@ -120,6 +121,7 @@ def _train(
     """The trained model, or None when `out_dir` holds a finished run of `config` (nothing is trained)."""
     config = resolve_config(config)
     check_init(config)
+    check_shrink(config)
     cfg = config.train
     rank, world = init_distributed()
     if cfg.batch_size % world:
@@ -220,10 +222,15 @@ def _loop(state: TrainState, progress: bool) -> None:
                     f"run the same command to resume"
                 )
     bar.close()
-    if state.rank == 0:
-        write_done(state.out_dir, state.step, None if state.best is None else state.best[0])
     if state.best is not None:  # the caller gets the kept weights
         load_model_weights(state.out_dir / "model.safetensors", state.model)
+    shrunk = state.out_dir / SHRINK_FILE  # written after the scaled weights: a resumed run has them already
+    if state.rank == 0 and state.config.train.shrink_correction and not shrunk.exists():
+        choice = choose_gain(state.model, state.config)
+        save_model(state.out_dir / "model.safetensors", state.model)
+        write_json(shrunk, choice)
+    if state.rank == 0:
+        write_done(state.out_dir, state.step, None if state.best is None else state.best[0])
 
 
 def _diverged(state: TrainState, loss: float, since: int, last_good: int) -> str:

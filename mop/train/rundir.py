@@ -37,8 +37,16 @@ from mop.systems import make_family
 from mop.train.auto import resolve_features
 from mop.train.data import validates_tails
 from mop.train.records import recorded_data
+from mop.train.shrink import SHRINK_FILE
 
-TRAINING_FILES = ("model.safetensors", "checkpoint.safetensors", "metrics.jsonl", "done.json", "inputs.json")
+TRAINING_FILES = (
+    "model.safetensors",
+    "checkpoint.safetensors",
+    "metrics.jsonl",
+    "done.json",
+    "inputs.json",
+    SHRINK_FILE,
+)
 
 
 def resolve_config(config: RunConfig) -> RunConfig:
