@@ -3,6 +3,7 @@
 import dataclasses
 
 import numpy as np
+import pytest
 import torch
 
 from mop.config import SystemConfig
@@ -160,3 +161,24 @@ def test_unscented_time_update_closed_form():
     mu, s2 = mu[:, 0], s2.double()
     torch.testing.assert_close(m[:, 0], mu**2 + s2)
     torch.testing.assert_close(P_next[:, 0, 0], 2 * s2**2 + 4 * mu**2 * s2 + q)
+
+
+def test_covariance_factor_is_cholesky_where_it_can_be_and_jitters_only_the_systems_that_fail():
+    """A noise-free system's covariance collapses onto a subspace and rounding can leave it indefinite (the
+    UKF on wiener-hammerstein records raised from torch.linalg.cholesky): such a P is factored with the
+    smallest jitter that works, L L^T = P to 1e-12 of its scale; every positive definite P in the same
+    batch keeps torch's Cholesky factor bit for bit."""
+    from mop.filters.gaussian import covariance_factor
+
+    g = torch.Generator().manual_seed(0)
+    A = torch.randn(3, 5, 5, dtype=torch.float64, generator=g)
+    P = A @ A.mT + 0.1 * torch.eye(5, dtype=torch.float64)  # positive definite
+    a = torch.randn(5, 2, dtype=torch.float64, generator=g)
+    P[1] = a @ a.T - 1e-16 * torch.eye(5, dtype=torch.float64)  # rank 2, made indefinite by "rounding"
+    with pytest.raises(torch.linalg.LinAlgError):
+        torch.linalg.cholesky(P[1])
+    L = covariance_factor(P)
+    for i in (0, 2):
+        assert torch.equal(L[i], torch.linalg.cholesky(P[i]))
+    assert torch.equal(L[1], L[1].tril())
+    torch.testing.assert_close(L[1] @ L[1].T, P[1], rtol=0, atol=1e-12 * float(P[1].diagonal().mean()))

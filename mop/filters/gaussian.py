@@ -123,6 +123,38 @@ def ekf_step(
     return (m_next if proj is None else proj(m_next)), F @ P @ F.mT + model.Q
 
 
+JITTER_STEPS = 12  # jitter 1e-15 .. 1e-4 of the mean variance, tried in turn (covariance_factor)
+
+
+def covariance_factor(P: Tensor) -> Tensor:
+    """Lower Cholesky factor L (B, n, n) with L L^T = P (B, n, n), a covariance.
+
+    Where rounding has left a system's P not numerically positive definite (the covariance of a noise-free
+    system, whose Q and R are 1e-10 jitter, collapses onto a subspace: the UKF on wiener-hammerstein records),
+    its symmetric part is factored with the smallest jitter 10^k 1e-15 mean(diag P) I, k = 0..11, that
+    succeeds, as square-root-free UKF codes do; every other system's factor is the plain Cholesky's, bit for
+    bit. A P that no jitter rescues raises torch's error, as before."""
+    L, info = torch.linalg.cholesky_ex(P)
+    bad = info > 0  # (B,)
+    if not bool(bad.any()):
+        return L
+    S = 0.5 * (P[bad] + P[bad].mT)
+    scale = S.diagonal(dim1=-2, dim2=-1).mean(-1).clamp_min(torch.finfo(P.dtype).tiny)[:, None, None]
+    eye = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device)
+    fixed, todo = torch.zeros_like(S), torch.ones(S.shape[0], dtype=torch.bool, device=P.device)
+    for k in range(JITTER_STEPS):
+        Lk, info_k = torch.linalg.cholesky_ex(S + 10.0 ** (k - 15) * scale * eye)
+        done = todo & (info_k == 0)
+        fixed[done], todo = Lk[done], todo & ~done
+        if not bool(todo.any()):
+            break
+    if bool(todo.any()):
+        torch.linalg.cholesky(S[todo])  # raises torch's own error, naming the matrix that failed
+    L = L.clone()
+    L[bad] = fixed
+    return L
+
+
 def sigma_points(
     m: Tensor, P: Tensor, alpha: float, beta: float, kappa: float
 ) -> tuple[Tensor, Tensor, Tensor]:
@@ -134,7 +166,7 @@ def sigma_points(
     """
     n = m.shape[-1]
     lam = alpha**2 * (n + kappa) - n
-    L = torch.linalg.cholesky((n + lam) * P)  # (B, n, n)
+    L = covariance_factor((n + lam) * P)  # (B, n, n)
     X = torch.cat([m[:, None], m[:, None] + L.mT, m[:, None] - L.mT], dim=1)  # rows of L^T = columns of L
     Wm = torch.full((2 * n + 1,), 0.5 / (n + lam), dtype=m.dtype, device=m.device)
     Wm[0] = lam / (n + lam)
