@@ -73,13 +73,26 @@ def write_records(out: Path, plant: int, samples: int) -> tuple[Path, Path]:
     return write_experiments(family, params, out, plant, samples)
 
 
-def write_experiments(family, params, out: Path, plant: int, samples: int) -> tuple[Path, Path]:
-    """est.csv and val.csv: two experiments of `samples` steps on the single system `params` of `family`,
-    their inputs and noise drawn with seeds 10 plant + 1 and 10 plant + 2."""
+def write_experiments(
+    family, params, out: Path, plant: int, samples: int, halves: bool = False
+) -> tuple[Path, Path]:
+    """est.csv and val.csv of `samples` steps each on the single system `params` of `family`: two
+    experiments, their inputs and noise drawn with seeds 10 plant + 1 and 10 plant + 2; or with halves, the
+    two halves of one experiment of 2 samples steps (seed 10 plant + 1), for a family that normalises each
+    trajectory by its own mean and std (lti-siso, wiener-hammerstein): two experiments would put one plant
+    in two sets of units, which no fitted model of est.csv can follow on val.csv."""
+    if halves:
+        seeded = torch.Generator().manual_seed(10 * plant + 1)
+        traj = family.simulate(params, 2 * samples - 1, generator=seeded)
+        parts = [("est", traj, 0), ("val", traj, samples)]
+    else:
+        parts = [
+            (name, family.simulate(params, samples - 1, generator=torch.Generator().manual_seed(seed)), 0)
+            for name, seed in (("est", 10 * plant + 1), ("val", 10 * plant + 2))
+        ]
     paths = []
-    for name, seed in (("est", 10 * plant + 1), ("val", 10 * plant + 2)):
-        traj = family.simulate(params, samples - 1, generator=torch.Generator().manual_seed(seed))
-        y, u = traj.y[0, :, 0].double().numpy(), traj.u[0, :, 0].double().numpy()
+    for name, traj, start in parts:
+        y, u = traj.y[0, start:, 0].double().numpy(), traj.u[0, start:, 0].double().numpy()
         path = out / f"{name}.csv"
         rows = [f"{name},{t},{float(y[t])!r},{float(u[t])!r}" for t in range(samples)]
         path.write_text("trajectory,t,y0,u0\n" + "\n".join(rows) + "\n")

@@ -6,12 +6,19 @@ OUT/carry.json. The README's carry-over tables ("Class models") are its output.
 
     python scripts/carry_over.py cascaded-tanks pretrained:cascaded-tanks OUT [--plants 1,5,3]
     python scripts/carry_over.py wiener-hammerstein pretrained:wiener-hammerstein OUT [--plants 1,2,3]
-        [--seeds 0,1] [--starts 0,50,200] [key=value ...]   (key=value: overrides of the fine-tune)
+        [--seeds 0,1] [--starts 0,50,200] [--with zero-shot,scratch,n4sid,arx-best,last] [key=value ...]
+        (key=value: overrides of the fine-tune)
+
+--with adds predictors beside the fitted ARX and the fine-tunes: `zero-shot` (SOURCE on val.csv as it is),
+`scratch` (`mop train --data est.csv`, the records recipe, one run per training seed: MOP from scratch),
+`n4sid` (`mop fit n4sid est.csv`), and the online `arx-best` and `last`, which read only val.csv.
 
 cascaded-tanks plants are examples/tank_records.py's (`--plant S`: input_amplitude 1.0, the plant drawn
-with seed S); other families draw the plant with seed 1000 + S from their defaults. Estimation and
-validation records differ in their input and noise (seeds 10 S + 1, 10 S + 2). Every run is one torch
-thread; the fine-tunes take 25-60 s each on a 2-core CPU.
+with seed S): estimation and validation records are two experiments, their input and noise drawn with
+seeds 10 S + 1 and 10 S + 2. Other families draw the plant with seed 1000 + S from their defaults, and
+est.csv and val.csv are the two halves of one experiment of 2048 steps: those families normalise each
+trajectory by its own mean and std, so two experiments of one plant would be in two sets of units.
+Every run is one torch thread; the fine-tunes take 25-60 s each on a 2-core CPU.
 """
 
 from __future__ import annotations
@@ -47,7 +54,7 @@ def write_records(family_name: str, out: Path, plant: int) -> tuple[Path, Path]:
         return records.write_records(out, plant, SAMPLES)
     family = make_family(SystemConfig(family=family_name))
     params = family.sample(1, generator=torch.Generator().manual_seed(1000 + plant))
-    return records.write_experiments(family, params, out, plant, SAMPLES)
+    return records.write_experiments(family, params, out, plant, SAMPLES, halves=True)
 
 
 def run(argv: list[str]) -> None:
@@ -64,6 +71,7 @@ def main() -> None:
     parser.add_argument("--plants", default="1,2,3")
     parser.add_argument("--seeds", default="0")
     parser.add_argument("--starts", default="0,50,200")
+    parser.add_argument("--with", dest="extra", default="", help="zero-shot,scratch,n4sid,arx-best,last")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args()
     torch.set_num_threads(1)
@@ -76,6 +84,13 @@ def main() -> None:
         y = np.loadtxt(val, delimiter=",", skiprows=1, usecols=2)
         run(["fit", "arx", str(est), "--out", str(d / "arx")])
         runs = {"arx": str(d / "arx")}
+        extra = [e for e in args.extra.split(",") if e]
+        if "n4sid" in extra:
+            run(["fit", "n4sid", str(est), "--out", str(d / "n4sid")])
+            runs["n4sid"] = str(d / "n4sid")
+        runs.update({name: name for name in ("arx-best", "last") if name in extra})
+        if "zero-shot" in extra:
+            runs["zero-shot"] = args.source
         for seed in (int(s) for s in args.seeds.split(",")):
             ft = d / f"ft{seed}"
             run(
@@ -83,6 +98,11 @@ def main() -> None:
                 + ["--no-progress", *args.overrides]
             )
             runs[f"ft{seed}"] = str(ft)
+            if "scratch" in extra:
+                scratch = d / f"scratch{seed}"
+                argv = ["train", "--data", str(est), "--out", str(scratch), f"train.seed={seed}"]
+                run([*argv, "--no-progress"])
+                runs[f"scratch{seed}"] = str(scratch)
         row = {}
         for name, path in runs.items():
             row[name] = []
@@ -90,7 +110,7 @@ def main() -> None:
                 f = d / "sim" / f"{name}_{c}.npz"
                 run(["predict", path, str(val), "--simulate", str(c), "--out", str(f)])
                 ysim = np.load(f)["ysim"][0, :, 0]
-                row[name].append(round(scores(y[len(y) - len(ysim) :, None], ysim[:, None]).rmse, 4))
+                row[name].append(float(f"{scores(y[len(y) - len(ysim) :, None], ysim[:, None]).rmse:.4g}"))
         results[plant] = row
         print(f"plant {plant}, from steps {starts}: {row}", flush=True)
     (args.out / "carry.json").write_text(json.dumps(results, indent=1))
