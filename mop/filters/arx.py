@@ -52,6 +52,7 @@ def _arx_run(
     offset: bool = False,
     prior: Prior | None = None,
     updates_from: int | None = None,
+    bounded: bool = False,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1}).
 
@@ -59,11 +60,12 @@ def _arx_run(
     complete extra regressors, so pairs with a missing target or output regressor are skipped and missing
     regressors are filled with the model's own one-step predictions (phi then holds the filled outputs).
     prior: (theta_0 (d, m), P_0) for the recursion (rls_loop, _rls_run_gaps); updates_from: the first target
-    index whose pair updates the fit (rls_loop; default r)."""
+    index whose pair updates the fit (rls_loop; default r); bounded: the filled-in outputs held within the
+    measured ones' range widened by its span (_rls_run_gaps)."""
     r = p if u is None else max(p, q)
     if torch.isnan(y).any():
         extra = known_regressors(y, u, q, offset)
-        return _rls_run_gaps(y, p, extra=extra, start=r, prior=prior, updates_from=updates_from)
+        return _rls_run_gaps(y, p, extra, r, prior, updates_from, bounded)
     return rls_loop(y, arx_regressors(y, u, p, q, offset), r, prior, updates_from)
 
 
@@ -75,11 +77,14 @@ def arx_predict(
     offset: bool = False,
     prior: Prior | None = None,
     updates_from: int | None = None,
+    bounded: bool = False,
 ) -> Tensor:
     """One-step ARX(p, q) predictions yhat (B, T, m) for y (B, T, m), u (B, T, k) or None; offset: with a
     constant regressor (an intercept); prior: theta_0 (d, m) and P_0 of the recursion (rls_loop);
-    updates_from: the first target index whose pair updates the fit (default max(p, q))."""
-    return _arx_run(y, u, p, q, offset, prior, updates_from)[0]
+    updates_from: the first target index whose pair updates the fit (default max(p, q)); bounded: where
+    outputs are missing, the predictions that read filled-in ones are held within the measured outputs'
+    range widened by its span (mop.filters.rls._rls_run_gaps)."""
+    return _arx_run(y, u, p, q, offset, prior, updates_from, bounded)[0]
 
 
 def arx_forecast(

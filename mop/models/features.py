@@ -50,7 +50,7 @@ from torch import Tensor
 from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.filters.arx import arx_predict
-from mop.filters.rls import Prior, initial_state, regressors, rls_predict, rls_update
+from mop.filters.rls import Prior, initial_state, regressors, rls_update
 from mop.models.recordnorm import RecordStats, normalise, running_moments
 
 # P_0 of the RLS / ARX feature started from fitted coefficients (model.rls_prior): a window's 50 pairs of
@@ -169,13 +169,15 @@ def rls_next(
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
     u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
     a constant regressor; prior: the recursion's theta_0 and P_0 (feature_prior); updates_from: the first
-    y_s whose pair updates the fit (mop.filters.arx.arx_predict; default max(order, q))."""
+    y_s whose pair updates the fit (mop.filters.arx.arx_predict; default max(order, q)). Where y is missing
+    (NaN) the recursion fills it with its own predictions held within the measured outputs' range widened
+    by its span (arx_predict's bounded): a free run from an unstable fit stays finite. With u = None,
+    q = 1 and no offset or prior it is the paper's matrix RLS (rls_predict)."""
     pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
-    if input_order > 0 or offset or prior is not None:  # the pad rows are never read
-        u_lags = pad(u) if input_order > 0 else None
-        q = max(input_order, 1)
-        return arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from)[:, 1:].to(y.dtype)
-    return rls_predict(pad(y), order)[:, 1:].to(y.dtype)  # (B, T, m)
+    u_lags = pad(u) if input_order > 0 else None  # the pad rows are never read
+    q = max(input_order, 1)
+    r = arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from, bounded=True)
+    return r[:, 1:].to(y.dtype)  # (B, T, m)
 
 
 def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Tensor | None]:
