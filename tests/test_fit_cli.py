@@ -77,3 +77,28 @@ def test_bad_input_is_refused_in_one_line(tmp_path, capsys):
     assert "fitted on 1 output(s) and 1 input(s)" in error(["predict", str(tmp_path / "m"), str(no_inputs)])
     (tmp_path / "m" / "fitted.json").write_text("{not json")
     assert "damaged" in error(["predict", str(tmp_path / "m"), str(est)])
+
+
+def write_ar2(path, N, a1, a2, seed=0):
+    """Noise-free y_{t+1} = a1 y_t + a2 y_{t-1} + u_t, one trajectory, long CSV."""
+    u, y = np.random.default_rng(seed).normal(size=N), np.zeros(N)
+    for t in range(1, N - 1):
+        y[t + 1] = a1 * y[t] + a2 * y[t - 1] + u[t]
+    rows = [["a", t, repr(float(y[t])), repr(float(u[t]))] for t in range(N)]
+    with open(path, "w", newline="") as f:
+        csv.writer(f).writerows([["trajectory", "t", "y0", "u0"], *rows])
+    return path
+
+
+@pytest.mark.parametrize("a1, a2, unstable", [(1.5, -0.7, False), (1.9, -0.88, True)])
+def test_fit_records_the_poles_and_warns_of_an_unstable_model(a1, a2, unstable, tmp_path, capsys):
+    """fitted.json's pole_radius is the largest root modulus of z^2 - a1 z - a2 (numpy.roots) for a
+    noise-free ARX(2, 1) record, and `mop fit` warns in one line where it is >= 1 (1.9, -0.88: 1.1)."""
+    est = write_ar2(tmp_path / "est.csv", 60, a1, a2)
+    assert main(["fit", "arx", str(est), "--out", str(tmp_path / "m"), "--max-order", "3"]) == 0
+    out = capsys.readouterr().out
+    expected = np.abs(np.roots([1.0, -a1, -a2])).max()
+    assert load(tmp_path / "m").info["pole_radius"] == pytest.approx(expected, rel=1e-6)
+    warnings = [line for line in out.splitlines() if line.startswith("warning: the chosen model is unstable")]
+    assert len(warnings) == int(unstable)
+    assert not unstable or f"{expected:.4g}" in warnings[0]

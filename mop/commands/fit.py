@@ -9,7 +9,7 @@ import argparse
 from pathlib import Path
 
 from mop.identify import IDENTIFIERS, fit, save
-from mop.identify.select import CRITERIA, HOLDOUT, SCORE, SIMULATION, TOLERANCE
+from mop.identify.select import CRITERIA, HOLDOUT, POLE_RADIUS, SCORE, SIMULATION, TOLERANCE
 from mop.io import read_trajectories
 
 EXAMPLES = """
@@ -51,5 +51,12 @@ def run(args: argparse.Namespace) -> int:
     chosen = ", ".join(f"{k}={v}" for k, v in fitted.orders.items())
     path = save(fitted, args.out)
     print(f"chosen {chosen}, refitted on the whole record; wrote {path}")
+    radius = fitted.info[POLE_RADIUS]
+    if radius >= 1:
+        print(
+            f"warning: the chosen model is unstable (largest pole modulus {radius:.4g} >= 1): its free run "
+            "does not decay and simulations of long records can grow without bound; unless the plant is "
+            "unstable, compare --select one-step, a lower --max-order or the other identifier"
+        )
     print(f"next: mop predict {Path(args.out)} VAL.csv [--simulate C | --steps K]")
     return 0

@@ -28,6 +28,7 @@ TOLERANCE = 0.01
 SIMULATION, ONE_STEP = "simulation", "one-step"  # the --select criteria
 CRITERIA = (SIMULATION, ONE_STEP)
 SCORE = "rmse"  # the held-out score's key in fitted.json's grid
+POLE_RADIUS = "pole_radius"  # fitted.json: the chosen model's largest pole modulus
 Data = list[tuple[np.ndarray, np.ndarray]]
 
 
@@ -122,4 +123,12 @@ def fit(
     # a diverged order's score is written as null (JSON has no inf)
     rmse = [s if math.isfinite(s) else None for s in scores]
     fitted.info["grid"] = [{**c, SCORE: s} for c, s in zip(candidates, rmse, strict=True)]
+    fitted.info[POLE_RADIUS] = pole_radius(fitted.model.A)
     return fitted
+
+
+def pole_radius(A: np.ndarray) -> float:
+    """The largest modulus of A's eigenvalues (the fitted model's poles); >= 1: its free run does not
+    decay, and above 1 grows without bound (tank_records plant 4's N4SID: 1.034, a 1024-step record
+    simulated to 3e13, although its held-out 20% scored 0.90)."""
+    return float(np.abs(np.linalg.eigvals(A)).max()) if A.size else 0.0
