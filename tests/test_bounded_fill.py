@@ -8,6 +8,7 @@ import torch
 import mop
 from mop.config import SystemConfig
 from mop.filters.arx import arx_predict
+from mop.filters.rls import FILL_MARGIN, fill_bounds
 from mop.systems import make_family
 from mop.systems.base import Trajectories
 
@@ -34,7 +35,7 @@ def free_run(y: np.ndarray, theta: float, low: float, high: float) -> np.ndarray
 def test_the_bounded_fill_is_the_clipped_free_run():
     y = measured_then_missing()
     prior = (torch.tensor([[UNSTABLE]], dtype=torch.float64), 1e-12)  # held: the pairs barely move it
-    got = arx_predict(y, None, 1, 1, prior=prior, bounded=True)[0, :, 0].numpy()
+    got = arx_predict(y, None, 1, 1, prior=prior, bounded=0)[0, :, 0].numpy()
     seen = y[0, :10, 0].numpy()
     span = seen.max() - seen.min()
     low, high = seen.min() - 2 * span, seen.max() + 2 * span
@@ -50,7 +51,7 @@ def test_a_complete_record_is_not_bounded():
     y = measured_then_missing(measured=40)
     y[0, :, 0] *= torch.linspace(1, 5, 40, dtype=torch.float64)  # beyond any earlier range: read, not filled
     u = torch.randn(1, 40, 1, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
-    bounded = arx_predict(y, u, 2, 2, offset=True, bounded=True)
+    bounded = arx_predict(y, u, 2, 2, offset=True, bounded=0)
     torch.testing.assert_close(bounded, arx_predict(y, u, 2, 2, offset=True), rtol=0, atol=0)
 
 
@@ -67,3 +68,18 @@ def test_the_wiener_hammerstein_model_simulates_a_short_context_finitely():
     assert torch.isfinite(sim).all()
     lo, hi = y[0, :50].min(), y[0, :50].max()
     assert (sim > lo - 3 * (hi - lo)).all() and (sim < hi + 3 * (hi - lo)).all()
+
+
+def test_rows_before_the_first_and_a_record_at_rest_set_no_bounds():
+    """fill_bounds counts measured outputs from row `first` on (a fitted start's assumed values before it),
+    and a channel whose measured outputs are all equal (span 0) stays unbounded."""
+    y = measured_then_missing(measured=15)
+    low, high = fill_bounds(y, first=6)  # 9 rows from row 6 on: fewer than FILL_MIN_SEEN
+    assert torch.isinf(low).all() and torch.isinf(high).all()
+    low, high = fill_bounds(y, first=5)  # 10 rows: bounded from row 14 on, by rows 5..14 alone
+    seen = y[0, 5:15, 0]
+    assert torch.isinf(low[0, :14]).all()
+    assert low[0, 14, 0] == seen.min() - FILL_MARGIN * (seen.max() - seen.min())
+    y[0, :15, 0] = 1.5
+    low, high = fill_bounds(y)
+    assert torch.isinf(low).all() and torch.isinf(high).all()

@@ -139,20 +139,24 @@ def test_a_class_model_with_a_prior_runs_it_in_the_data_units_across_gaps_and_st
         torch.testing.assert_close(stream(model, inputs)[0], model(inputs), rtol=1e-9, atol=1e-9)
 
 
-@pytest.mark.parametrize("order", [(2, 2), (4, 3)])
+@pytest.mark.parametrize("order", [(2, 2), (4, 3), (10, 10)])
 def test_a_fine_tuned_class_model_simulates_from_the_start_as_the_fitted_arx(order):
     """With its fitted coefficients held (P_0 -> 0), a class model's feature is mop.identify.arx's fitted
     ARX (lags before the record's start at its first values, an independent implementation): one step
     ahead on a complete record, and simulated from y_0 alone (`mop predict --simulate 0`: y_1.. missing),
     before and after r = max(p, q). Breaking fitted_start (the recursion's hold of y_{t-1} for t <= r)
-    fails both."""
+    fails both. ARX(10, 10), the class models' orders: the start's r assumed values are not measured
+    outputs, so they set no fill bounds (mop.filters.rls.fill_bounds; counted, they held the simulation at
+    y_0)."""
     from mop.identify.arx import arx_model
     from mop.identify.linear import FittedPredictor
     from mop.systems.trajectories import Trajectories
 
     p, q = order
     rng = np.random.default_rng(3)
-    theta = np.concatenate([[0.9, -0.3, 0.1, -0.05][:p], [0.5, 0.2, -0.1][:q], [0.2]])
+    ar, exo = np.zeros(p), np.zeros(q)
+    ar[: min(p, 4)], exo[: min(q, 3)] = [0.9, -0.3, 0.1, -0.05][:p], [0.5, 0.2, -0.1][:q]
+    theta = np.concatenate([ar, exo, [0.2]])
     cfg = tiny(
         rls_order=p,
         arx_order=q,

@@ -52,7 +52,7 @@ def _arx_run(
     offset: bool = False,
     prior: Prior | None = None,
     updates_from: int | None = None,
-    bounded: bool = False,
+    bounded: int | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1}).
 
@@ -61,7 +61,7 @@ def _arx_run(
     regressors are filled with the model's own one-step predictions (phi then holds the filled outputs).
     prior: (theta_0 (d, m), P_0) for the recursion (rls_loop, _rls_run_gaps); updates_from: the first target
     index whose pair updates the fit (rls_loop; default r); bounded: the filled-in outputs held within the
-    measured ones' range widened by its span (_rls_run_gaps)."""
+    range of the measured ones from row `bounded` on, widened by twice its span (_rls_run_gaps)."""
     r = p if u is None else max(p, q)
     if torch.isnan(y).any():
         extra = known_regressors(y, u, q, offset)
@@ -77,13 +77,14 @@ def arx_predict(
     offset: bool = False,
     prior: Prior | None = None,
     updates_from: int | None = None,
-    bounded: bool = False,
+    bounded: int | None = None,
 ) -> Tensor:
     """One-step ARX(p, q) predictions yhat (B, T, m) for y (B, T, m), u (B, T, k) or None; offset: with a
     constant regressor (an intercept); prior: theta_0 (d, m) and P_0 of the recursion (rls_loop);
-    updates_from: the first target index whose pair updates the fit (default max(p, q)); bounded: where
-    outputs are missing, the predictions that read filled-in ones are held within the measured outputs'
-    range widened by its span (mop.filters.rls._rls_run_gaps)."""
+    updates_from: the first target index whose pair updates the fit (default max(p, q)); bounded (a row
+    index, None: not bounded): where outputs are missing, the predictions that read filled-in ones are held
+    within the range of the outputs measured from that row on, widened by twice its span
+    (mop.filters.rls._rls_run_gaps)."""
     return _arx_run(y, u, p, q, offset, prior, updates_from, bounded)[0]
 
 

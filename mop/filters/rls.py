@@ -98,7 +98,7 @@ def _rls_run_gaps(
     start: int | None = None,
     prior: Prior | None = None,
     updates_from: int | None = None,
-    bounded: bool = False,
+    bounded: int | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """_rls_run for y (B, T, m) with NaN where an output is missing.
 
@@ -109,12 +109,13 @@ def _rls_run_gaps(
     for 1 <= t <= start (default: order). extra (B, T, e): complete regressors appended to phi_t (ARX's
     input lags [u_t; ...; u_{t-q+1}]). prior: theta_0 and P_0 (initial_state; each channel's P starts at P_0).
     updates_from: no pair with a target y_s, s < updates_from, updates (rls_loop; default: start).
-    bounded: each prediction that reads a filled-in output is held within [lo - 2 s, hi + 2 s], lo and hi
-    the channel's least and greatest measured output before it and s = hi - lo, once the channel has 10
-    measured outputs (fill_bounds). An ARX fitted on
+    bounded (None: not bounded): each prediction that reads a filled-in output is held within
+    [lo - 2 s, hi + 2 s], lo and hi the channel's least and greatest measured output before it from row
+    `bounded` on (rows before it, a fitted start's assumed values, do not count) and s = hi - lo, once the
+    channel has 10 of them and s > 0 (fill_bounds). An ARX fitted on
     a few steps can be unstable, and its free run then leaves every range the record has shown
     (pretrained:wiener-hammerstein simulating a record after 50 steps reached 1e13, then NaN); the baselines
-    keep the plain recursion (bounded=False), the learned models' features bound it.
+    keep the plain recursion (bounded=None), the learned models' features bound it.
 
     Every pair that updates is made of measured values, so the fit is one recursion over regressors built
     in advance (steps where no system updates, a simulated tail, are skipped), and the filling is a second
@@ -167,7 +168,7 @@ def _rls_run_gaps(
     # the steps whose prediction reads a filled-in output: y~_{t-1} (t <= start) or phi_{t-1} (t > start)
     reads = torch.where(idx[None, :-1] < start, missing[:, :-1], in_phi[:, :-1])  # for t = 1 .. T-1
     redo = torch.cat([reads.new_zeros(B, 1), reads], 1) > 0  # (B, T)
-    low, high = fill_bounds(y) if bounded else (None, None)
+    low, high = (None, None) if bounded is None else fill_bounds(y, bounded)
     for t in torch.nonzero(redo.any(0)).flatten().tolist():
         if t <= start:
             pred = filled[:, t - 1]
@@ -195,14 +196,16 @@ FILL_MARGIN = 2.0
 FILL_MIN_SEEN = 10
 
 
-def fill_bounds(y: Tensor) -> tuple[Tensor, Tensor]:
+def fill_bounds(y: Tensor, first: int = 0) -> tuple[Tensor, Tensor]:
     """(low, high) (B, T, m) for y (B, T, m) with NaN where missing: lo_t - w s_t and hi_t + w s_t, lo_t and
-    hi_t the least and greatest measured y_s, s <= t, per channel, s_t = hi_t - lo_t, w = FILL_MARGIN; -inf
-    and inf while the channel has fewer than FILL_MIN_SEEN measured outputs."""
+    hi_t the least and greatest measured y_s, first <= s <= t, per channel, s_t = hi_t - lo_t, w =
+    FILL_MARGIN; -inf and inf while the channel has fewer than FILL_MIN_SEEN such outputs or s_t = 0 (a
+    record at rest says nothing of its range)."""
     seen = ~torch.isnan(y)
+    seen[:, :first] = False
     hi = torch.where(seen, y, -torch.inf).cummax(dim=1).values
     lo = torch.where(seen, y, torch.inf).cummin(dim=1).values
-    known = seen.cumsum(dim=1) >= FILL_MIN_SEEN
+    known = (seen.cumsum(dim=1) >= FILL_MIN_SEEN) & (hi > lo)
     span = torch.where(known, FILL_MARGIN * (hi - lo), torch.zeros_like(hi))
     return torch.where(known, lo - span, -torch.inf), torch.where(known, hi + span, torch.inf)
 

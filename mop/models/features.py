@@ -165,18 +165,20 @@ def rls_next(
     offset: bool = False,
     prior: Prior | None = None,
     updates_from: int | None = None,
+    bounds_from: int = 0,
 ) -> Tensor:
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
     u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
     a constant regressor; prior: the recursion's theta_0 and P_0 (feature_prior); updates_from: the first
     y_s whose pair updates the fit (mop.filters.arx.arx_predict; default max(order, q)). Where y is missing
-    (NaN) the recursion fills it with its own predictions held within the measured outputs' range widened
-    by its span (arx_predict's bounded): a free run from an unstable fit stays finite. With u = None,
+    (NaN) the recursion fills it with its own predictions held within the range of the outputs measured
+    from row bounds_from on, widened by twice its span (arx_predict's bounded): a free run from an unstable
+    fit stays finite. With u = None,
     q = 1 and no offset or prior it is the paper's matrix RLS (rls_predict)."""
     pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
     u_lags = pad(u) if input_order > 0 else None  # the pad rows are never read
     q = max(input_order, 1)
-    r = arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from, bounded=True)
+    r = arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from, bounded=bounds_from)
     return r[:, 1:].to(y.dtype)  # (B, T, m)
 
 
@@ -273,8 +275,9 @@ def fitted_start(ys: Tensor, us: Tensor | None, cfg: ModelConfig) -> Tensor:
     first_y = first_values(ys).expand(-1, r, -1)
     yp = torch.cat([first_y, ys], dim=1)
     up = None if us is None else torch.cat([us[:, :1].expand(-1, r, -1), us], dim=1)
+    prior = feature_prior(cfg)  # the r assumed values before the record are not measured: no bounds
     rs = rls_next(
-        yp, cfg.rls_order, up, cfg.arx_order, cfg.rls_offset, feature_prior(cfg), updates_from=2 * r
+        yp, cfg.rls_order, up, cfg.arx_order, cfg.rls_offset, prior, updates_from=2 * r, bounds_from=r
     )
     return rs[:, r:]
 
