@@ -112,10 +112,10 @@ def _rls_run_gaps(
     bounded (None: not bounded): each prediction that reads a filled-in output is held within
     [lo - 2 s, hi + 2 s], lo and hi the channel's least and greatest measured output before it from row
     `bounded` on (rows before it, a fitted start's assumed values, do not count) and s = hi - lo, once the
-    channel has 10 of them and s > 0 (fill_bounds). An ARX fitted on
-    a few steps can be unstable, and its free run then leaves every range the record has shown
-    (pretrained:wiener-hammerstein simulating a record after 50 steps reached 1e13, then NaN); the baselines
-    keep the plain recursion (bounded=None), the learned models' features bound it.
+    channel has 10 of them and s > 0 (fill_bounds). An ARX fitted on a few steps can be unstable, and its
+    free run then leaves every range the record has shown (pretrained:wiener-hammerstein simulating a record
+    after 50 steps reached 1e13, then NaN); the baselines keep the plain recursion (bounded=None), the
+    learned models' features bound it.
 
     Every pair that updates is made of measured values, so the fit is one recursion over regressors built
     in advance (steps where no system updates, a simulated tail, are skipped), and the filling is a second
@@ -186,8 +186,8 @@ def _rls_run_gaps(
 
 
 # fill_bounds' margin on each side, in spans of the measured outputs. Zero-shot class models simulating 200
-# held-out systems of their class after 50 steps (mean RMSE; unbounded: 14 and 20 of 200 WH and tanks
-# systems above 100, up to 1e17 and NaN): 1 span WH 1.045, tanks 0.971, lti-siso 0.0167; 2 spans 1.223,
+# held-out systems of their class after 50 steps (mean RMSE; unbounded: 14 of 200 WH and 22 of 200 tank
+# simulations above 100 or NaN, up to 1e17): 1 span WH 1.045, tanks 0.971, lti-siso 0.0167; 2 spans 1.223,
 # 1.111, 0.0122; 4 spans 1.616, 1.417, 0.0122. At 1 span 14 lti-siso simulations got worse (0.0122
 # unbounded); from 2 on none does, and the 200 simulations after 400 steps of each class are unchanged.
 FILL_MARGIN = 2.0

@@ -173,8 +173,8 @@ def rls_next(
     y_s whose pair updates the fit (mop.filters.arx.arx_predict; default max(order, q)). Where y is missing
     (NaN) the recursion fills it with its own predictions held within the range of the outputs measured
     from row bounds_from on, widened by twice its span (arx_predict's bounded): a free run from an unstable
-    fit stays finite. With u = None,
-    q = 1 and no offset or prior it is the paper's matrix RLS (rls_predict)."""
+    fit stays finite. With u = None, q = 1 and no offset or prior it is the paper's matrix RLS
+    (mop.filters.rls.rls_predict)."""
     pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
     u_lags = pad(u) if input_order > 0 else None  # the pad rows are never read
     q = max(input_order, 1)
