@@ -75,6 +75,7 @@ def main() -> None:
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args()
     torch.set_num_threads(1)
+    extra = [e for e in args.extra.split(",") if e]
     starts = [int(c) for c in args.starts.split(",")]
     results = {}
     for plant in (int(p) for p in args.plants.split(",")):
@@ -84,7 +85,6 @@ def main() -> None:
         y = np.loadtxt(val, delimiter=",", skiprows=1, usecols=2)
         run(["fit", "arx", str(est), "--out", str(d / "arx")])
         runs = {"arx": str(d / "arx")}
-        extra = [e for e in args.extra.split(",") if e]
         if "n4sid" in extra:
             run(["fit", "n4sid", str(est), "--out", str(d / "n4sid")])
             runs["n4sid"] = str(d / "n4sid")

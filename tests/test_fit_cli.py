@@ -93,12 +93,14 @@ def write_ar2(path, N, a1, a2, seed=0):
 @pytest.mark.parametrize("a1, a2, unstable", [(1.5, -0.7, False), (1.9, -0.88, True)])
 def test_fit_records_the_poles_and_warns_of_an_unstable_model(a1, a2, unstable, tmp_path, capsys):
     """fitted.json's pole_radius is the largest root modulus of z^2 - a1 z - a2 (numpy.roots) for a
-    noise-free ARX(2, 1) record, and `mop fit` warns in one line where it is >= 1 (1.9, -0.88: 1.1)."""
+    noise-free ARX(2, 1) record, and `mop fit` warns in one line on stderr where it is >= 1 (1.9, -0.88:
+    1.1)."""
     est = write_ar2(tmp_path / "est.csv", 60, a1, a2)
     assert main(["fit", "arx", str(est), "--out", str(tmp_path / "m"), "--max-order", "3"]) == 0
-    out = capsys.readouterr().out
+    err = capsys.readouterr().err
     expected = np.abs(np.roots([1.0, -a1, -a2])).max()
     assert load(tmp_path / "m").info["pole_radius"] == pytest.approx(expected, rel=1e-6)
-    warnings = [line for line in out.splitlines() if line.startswith("warning: the chosen model is unstable")]
+    prefix = "mop: warning: the chosen model is unstable"  # mop's one-line warnings (mop.cli)
+    warnings = [line for line in err.splitlines() if line.startswith(prefix)]
     assert len(warnings) == int(unstable)
     assert not unstable or f"{expected:.4g}" in warnings[0]

@@ -6,8 +6,10 @@ predicts or simulates with the fitted model, fixed."""
 from __future__ import annotations
 
 import argparse
+import warnings
 from pathlib import Path
 
+from mop.errors import MopWarning
 from mop.identify import IDENTIFIERS, fit, save
 from mop.identify.select import CRITERIA, HOLDOUT, POLE_RADIUS, SCORE, SIMULATION, TOLERANCE
 from mop.io import read_trajectories
@@ -53,10 +55,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"chosen {chosen}, refitted on the whole record; wrote {path}")
     radius = fitted.info[POLE_RADIUS]
     if radius >= 1:
-        print(
-            f"warning: the chosen model is unstable (largest pole modulus {radius:.4g} >= 1): its free run "
-            "does not decay and simulations of long records can grow without bound; unless the plant is "
-            "unstable, compare --select one-step, a lower --max-order or the other identifier"
+        warnings.warn(
+            MopWarning(
+                f"the chosen model is unstable (largest pole modulus {radius:.4g} >= 1): its free run does "
+                "not decay and simulations of long records can grow without bound; unless the plant is "
+                "unstable, compare --select one-step, a lower --max-order or the other identifier"
+            ),
+            stacklevel=2,
         )
     print(f"next: mop predict {Path(args.out)} VAL.csv [--simulate C | --steps K]")
     return 0
