@@ -97,6 +97,21 @@ def test_the_default_schedule_and_refusals(tmp_path, capsys):
     loss = [*argv[:-1], "model.horizon_loss=balanced", "train.steps=1"]
     assert main(loss) == 0
     assert json.loads((out / "config.json").read_text())["model"]["horizon_loss"] == "balanced"
+    # the feature's orders are no architecture (the network reads its one-step prediction) while the
+    # feature stays ARX: other orders fine-tune; turning the input lags off is refused
+    p, q = base.model.rls_order, base.model.arx_order
+    assert p > 0 and q > 0
+    out = tmp_path / "orders"
+    tuned = ["train", "--data", first, "--init", str(src), "--no-progress", "train.steps=1"]
+    assert main([*tuned, "--out", str(out), f"model.rls_order={p + 1}", f"model.arx_order={q + 1}"]) == 0
+    saved = json.loads((out / "config.json").read_text())["model"]
+    assert (saved["rls_order"], saved["arx_order"]) == (p + 1, q + 1)
+    # the source's start was fitted at its orders: the fine-tune refits it at the new ones (one output)
+    assert len(saved["rls_prior"]) == p + 1 + q + 1 + int(saved["rls_offset"]) != len(base.model.rls_prior)
+    capsys.readouterr()
+    assert main([*tuned, "--out", str(tmp_path / "ar"), "model.arx_order=0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "model.arx_order" in err
     out = tmp_path / "bad2"
     assert main(["train", "--init", str(src), "--preset", "smoke", "--out", str(out)]) == 2
     assert "--preset smoke" in capsys.readouterr().err

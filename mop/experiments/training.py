@@ -20,8 +20,9 @@ overrides: FINE_TUNE_STEPS steps at a tenth of the source's learning rate, const
 are trained already: a warm-up from zero and the source's full rate would first move them away from what
 they learned; 125 steps of batch 16 on a 2-core CPU take seconds to a minute), keeping the weights of the
 lowest validation loss, the source's at step 0 included (train.keep_best: never worse than the source there).
-After the overrides, a class model's in-context ARX feature starts from the record's least-squares ARX
-(with_record_prior), and its windows fit the record's split (_record_horizon).
+After the overrides, a feature whose orders they changed is refitted on the record (with_refitted_orders), a
+class model's in-context ARX feature starts from the record's least-squares ARX (with_record_prior), and its
+windows fit the record's split (_record_horizon).
 """
 
 from __future__ import annotations
@@ -225,6 +226,18 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     return dataclasses.replace(config, model=model, train=train)
 
 
+def with_refitted_orders(config: RunConfig, source: RunConfig) -> RunConfig:
+    """A fine-tune whose override changed the feature's orders (mop.train.init.ORDER_KEYS) refits the
+    feature's start on the record (model.rls_prior = "fit") where the source's start is a list of
+    coefficients: those are of the source's orders."""
+    m, s = config.model, source.model
+    if (m.rls_order, m.arx_order, m.rls_offset) == (s.rls_order, s.arx_order, s.rls_offset):
+        return config
+    if not isinstance(m.rls_prior, list) or config.data is None:
+        return config
+    return dataclasses.replace(config, model=dataclasses.replace(m, rls_prior="fit", rls_prior_cov=None))
+
+
 def _record_horizon(train: TrainConfig, data: DataConfig) -> TrainConfig:
     """A source trained on longer windows than the record's split holds trains on the longest that fit
     both sides (train.simulate_after scaled alike), so `--init` works on a short record as it is. With a
@@ -265,7 +278,8 @@ def training_config(
         raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
     base = load_config(init)
     config = with_fine_tuning(with_records(base, data, val), base, init)
-    config = with_record_prior(apply_overrides(config, list(overrides)), list(overrides), base)
+    config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
+    config = with_record_prior(config, list(overrides), base)
     if config.data is not None and "train.horizon" not in parse_overrides(list(overrides)):
         # the windows fit the split the overrides ask for (data.validation_fraction, data.split)
         config = dataclasses.replace(config, train=_record_horizon(config.train, config.data))

@@ -15,7 +15,7 @@ from pathlib import Path
 from torch import nn
 
 from mop.checkpoint import load_model_weights
-from mop.config import RunConfig
+from mop.config import ModelConfig, RunConfig
 from mop.errors import MopError
 from mop.pretrained import resolve_run_dir
 from mop.runs import load_config, retrain_hint
@@ -26,16 +26,24 @@ PRIOR_KEYS = ("rls_prior", "rls_prior_cov", "rls_p0")
 LOSS_KEYS = ("gap_loss", "horizon_loss")
 # record_norm's start from the estimation record's moments: data the fine-tune knows, no weights
 NORM_KEYS = ("record_prior_steps",)
+# the in-context identifier's orders and intercept: the network reads its one-step prediction (output_dim
+# numbers, mop.models.features.extra_input_dim) whatever its orders, so a fine-tune may identify the record
+# with other orders (those `mop fit arx` picks, say) as long as the feature stays of the source's kind
+ORDER_KEYS = ("rls_order", "arx_order", "rls_offset")
 
 
 def check_init(config: RunConfig) -> None:
     """One-line MopError unless train.init's model has the run's architecture (every model key but the
-    feature's prior, PRIOR_KEYS, the loss's weighting, LOSS_KEYS, and the moments' start, NORM_KEYS)."""
+    feature's prior, PRIOR_KEYS, the loss's weighting, LOSS_KEYS, the moments' start, NORM_KEYS, and the
+    feature's orders, ORDER_KEYS, where the feature stays of the source's kind: RLS-AR or ARX, or none)."""
     if not config.train.init:
         return
     source = load_config(config.train.init).model
+    free = PRIOR_KEYS + LOSS_KEYS + NORM_KEYS
+    if _feature_kind(source) == _feature_kind(config.model):
+        free += ORDER_KEYS
     for field in dataclasses.fields(source):
-        if field.name in PRIOR_KEYS + LOSS_KEYS + NORM_KEYS:
+        if field.name in free:
             continue
         ours, theirs = getattr(config.model, field.name), getattr(source, field.name)
         if ours != theirs:
@@ -45,6 +53,11 @@ def check_init(config: RunConfig) -> None:
                 "override"
                 " (or train from scratch without --init)"
             )
+
+
+def _feature_kind(model: ModelConfig) -> str:
+    """ "ARX", "AR" (output-only RLS) or "none": what the network's feature input means."""
+    return "none" if model.rls_order == 0 else "ARX" if model.arx_order > 0 else "AR"
 
 
 def load_init(config: RunConfig, model: nn.Module) -> None:
