@@ -6,15 +6,15 @@ OUT/carry.json. The README's carry-over tables ("Class models") are its output.
 
     python scripts/carry_over.py cascaded-tanks pretrained:cascaded-tanks OUT [--plants 1,5,3]
     python scripts/carry_over.py wiener-hammerstein pretrained:wiener-hammerstein OUT [--plants 1,2,3]
-        [--seeds 0,1] [--starts 0,50,200] [--with zero-shot,scratch,n4sid,arx-best,last,fit-orders]
+        [--seeds 0,1] [--starts 0,50,200] [--with zero-shot,scratch,n4sid,arx-best,last,source-orders]
         [key=value ...]
         (key=value: overrides of the fine-tune)
 
 --with adds predictors beside the fitted ARX and the fine-tunes: `zero-shot` (SOURCE on val.csv as it is),
 `scratch` (`mop train --data est.csv`, the records recipe, one run per training seed: MOP from scratch),
 `n4sid` (`mop fit n4sid est.csv`), the online `arx-best` and `last`, which read only val.csv, and
-`fit-orders` (a second fine-tune per seed whose feature has the orders `mop fit arx` chose on est.csv:
-model.rls_order=p model.arx_order=q).
+`source-orders` (a second fine-tune per seed whose feature keeps the source's orders, model.rls_order=p
+model.arx_order=q, where the default takes those `mop fit arx` chooses on est.csv's training part).
 
 cascaded-tanks plants are examples/tank_records.py's (`--plant S`: input_amplitude 1.0, the plant drawn
 with seed S): estimation and validation records are two experiments, their input and noise drawn with
@@ -37,6 +37,7 @@ import torch
 from mop.cli import main as mop
 from mop.config import SystemConfig
 from mop.records import scores
+from mop.runs import load_config
 from mop.systems import make_family
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -75,7 +76,7 @@ def main() -> None:
     parser.add_argument("--seeds", default="0")
     parser.add_argument("--starts", default="0,50,200")
     parser.add_argument(
-        "--with", dest="extra", default="", help="zero-shot,scratch,n4sid,arx-best,last,fit-orders"
+        "--with", dest="extra", default="", help="zero-shot,scratch,n4sid,arx-best,last,source-orders"
     )
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args()
@@ -103,13 +104,13 @@ def main() -> None:
                 + ["--no-progress", *args.overrides]
             )
             runs[f"ft{seed}"] = str(ft)
-            if "fit-orders" in extra:
-                orders = json.loads((d / "arx" / "fitted.json").read_text())["orders"]
-                keys = [f"model.rls_order={orders['p']}", f"model.arx_order={orders['q']}"]
-                fto = d / f"fto{seed}"
-                argv = ["train", "--data", str(est), "--init", args.source, "--out", str(fto)]
+            if "source-orders" in extra:
+                model = load_config(args.source).model
+                keys = [f"model.rls_order={model.rls_order}", f"model.arx_order={model.arx_order}"]
+                fts = d / f"fts{seed}"
+                argv = ["train", "--data", str(est), "--init", args.source, "--out", str(fts)]
                 run([*argv, f"train.seed={seed}", "--no-progress", *keys, *args.overrides])
-                runs[f"fto{seed}"] = str(fto)
+                runs[f"fts{seed}"] = str(fts)
             if "scratch" in extra:
                 scratch = d / f"scratch{seed}"
                 argv = ["train", "--data", str(est), "--out", str(scratch), f"train.seed={seed}"]

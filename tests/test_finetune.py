@@ -186,6 +186,7 @@ def test_a_class_model_fine_tuned_on_a_record_starts_its_moments_at_the_records(
         None, data=path, init="pretrained:cascaded-tanks", overrides=["model.record_prior_steps=0"]
     )
     assert off.model.record_prior_steps == 0 and off.model.rls_prior == "fit"
+    assert (off.model.rls_order, off.model.arx_order) == (config.model.rls_order, config.model.arx_order)
     # a source trained on recorded data keeps its normalisation, so 0 and 1 are not this record's moments
     src = tmp_path / "src"
     own = ["model.record_norm=causal", "model.features=given", "model.rls_order=2", "model.arx_order=2"]
@@ -193,3 +194,17 @@ def test_a_class_model_fine_tuned_on_a_record_starts_its_moments_at_the_records(
     assert main(argv) == 0
     kept = training_config(None, data=path, init=str(src)).model
     assert kept.rls_prior == "fit" and kept.record_prior_steps == 0
+
+
+def test_a_class_model_fine_tuned_on_a_record_reads_the_arx_orders_mop_fit_arx_picks(tmp_path, capsys):
+    """The fine-tune's feature has the orders `mop fit arx REC` chooses on the whole record, not the
+    source's ARX(10, 10), so simulated with its correction's gain 0 it is the user's fitted linear model;
+    an override of the orders wins."""
+    est = record(tmp_path / "est.npz", 0)
+    assert main(["fit", "arx", est, "--out", str(tmp_path / "arx")]) == 0
+    orders = json.loads((tmp_path / "arx" / "fitted.json").read_text())["orders"]
+    config = training_config(None, data=est, init="pretrained:cascaded-tanks")
+    assert (config.model.rls_order, config.model.arx_order) == (orders["p"], orders["q"]) != (10, 10)
+    kept = ["model.rls_order=10", "model.arx_order=10"]
+    source = training_config(None, data=est, init="pretrained:cascaded-tanks", overrides=kept)
+    assert (source.model.rls_order, source.model.arx_order) == (10, 10)

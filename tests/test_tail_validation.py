@@ -154,4 +154,6 @@ def test_fine_tuning_a_class_model_on_a_record(tmp_path):
     argv = ["train", "--data", record, "--init", src, "--out", str(ft), "--no-progress", "train.steps=2"]
     assert main(argv) == 0
     saved = json.loads((ft / "config.json").read_text())["model"]
-    assert isinstance(saved["rls_prior"], list) and len(saved["rls_prior"]) == 2 + 2 + 1
+    # a row per regressor of the orders read (`mop fit arx`'s on the record), and the intercept
+    d = saved["rls_order"] + saved["arx_order"] + 1
+    assert isinstance(saved["rls_prior"], list) and len(saved["rls_prior"]) == d
