@@ -1,7 +1,9 @@
 """Reading users' measured trajectories (.csv long format or .npz as `mop simulate` writes).
 
 CSV: a header, one row per (trajectory, time step): columns `trajectory, t, y0..y{m-1}[, u0..u{k-1}]`.
-Trajectories may have different lengths; t runs 0..T_i within each trajectory (rows in any order).
+Trajectories may have different lengths; t runs 0..T_i within each trajectory (rows in any order). One
+record, as identification data comes, may leave out the trajectory column (`t, y0.., u0..`: one
+trajectory named after the file) or both (`y0.., u0..`: one trajectory, its rows in time order).
 NPZ: arrays y (B, T+1, m) and optionally u (B, T+1, k).
 Missing outputs: an empty CSV cell (or NaN) in a y column, NaN in the .npz y, marks an output channel not
 measured at that step; it stays NaN in the arrays returned (Trajectories.observed is the mask). Inputs u must
@@ -73,11 +75,14 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
     if not rows:
         raise MopError(f"{path}: file is empty; expected a header `trajectory,t,y0,...` and rows")
     header = [c.strip() for c in rows[0]]
+    rows = _with_trajectory_column(header, rows, path)
+    header = [c.strip() for c in rows[0]]
     ycols = [i for i, c in enumerate(header) if re.fullmatch(r"y\d+", c)]
     ucols = [i for i, c in enumerate(header) if re.fullmatch(r"u\d+", c)]
     if header[:2] != ["trajectory", "t"] or not ycols or len(ycols) + len(ucols) + 2 != len(header):
         raise MopError(
-            f"{path}: header {','.join(header)!r} is not `trajectory,t,y0..y{{m-1}}[,u0..u{{k-1}}]`"
+            f"{path}: header {','.join(header)!r} is not `trajectory,t,y0..y{{m-1}}[,u0..u{{k-1}}]` "
+            "(or, for one record, `t,y0..` or `y0..`)"
         )
     trajs: dict[str, dict[int, list[float]]] = {}
     for n, r in enumerate(rows[1:], start=2):
@@ -108,6 +113,16 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
             raise MopError(f"{path}: trajectory {name!r} has no measured output (every y cell empty)")
         out.append((a[:, :m], a[:, m:] if ucols else None))
     return list(trajs), out
+
+
+def _with_trajectory_column(header: list[str], rows: list[list[str]], path: Path) -> list[list[str]]:
+    """rows in the long format: a one-record header (`t,y0..` or `y0..`, see the module docstring) gets the
+    trajectory column (the file's stem) and, without t, the time steps 0..T in row order."""
+    if header[:1] == ["t"]:
+        return [["trajectory", *rows[0]], *([path.stem, *r] for r in rows[1:])]
+    if header[:1] and re.fullmatch(r"y\d+", header[0]):
+        return [["trajectory", "t", *rows[0]], *([path.stem, str(t), *r] for t, r in enumerate(rows[1:]))]
+    return rows
 
 
 def _cell(text: str, column: str, path: Path, line: int) -> float:
