@@ -208,3 +208,23 @@ def test_a_class_model_fine_tuned_on_a_record_reads_the_arx_orders_mop_fit_arx_p
     kept = ["model.rls_order=10", "model.arx_order=10"]
     source = training_config(None, data=est, init="pretrained:cascaded-tanks", overrides=kept)
     assert (source.model.rls_order, source.model.arx_order) == (10, 10)
+
+
+def test_a_short_record_fine_tunes_with_the_orders_it_allows(tmp_path, capsys):
+    """A record too short for `mop fit arx`'s orders up to 10 (which then names the largest --max-order it
+    allows) fine-tunes with the orders of `mop fit arx --max-order P`, and trains the records recipe with
+    orders up to P; one too short for any keeps the source's ARX(10, 10)."""
+    est = record(tmp_path / "short.npz", 0, T=30)
+    capsys.readouterr()
+    assert main(["fit", "arx", est, "--out", str(tmp_path / "refused")]) == 2
+    largest = int(capsys.readouterr().err.split("--max-order ")[1].split()[0])
+    assert 1 <= largest < 10
+    assert main(["fit", "arx", est, "--max-order", str(largest), "--out", str(tmp_path / "arx")]) == 0
+    orders = json.loads((tmp_path / "arx" / "fitted.json").read_text())["orders"]
+    config = training_config(None, data=est, init="pretrained:cascaded-tanks")
+    assert (config.model.rls_order, config.model.arx_order) == (orders["p"], orders["q"])
+    # the records recipe from scratch chooses its orders the same way on the record's training part (90%)
+    recipe = training_config(None, data=est).model
+    assert 1 <= recipe.rls_order <= largest and 1 <= recipe.arx_order <= largest
+    tiny = training_config(None, data=record(tmp_path / "tiny.npz", 0, T=3), init="pretrained:cascaded-tanks")
+    assert (tiny.model.rls_order, tiny.model.arx_order) == (10, 10)

@@ -45,8 +45,9 @@ from mop.errors import MopError
 from mop.experiments import get_experiment, run_config
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.presets import default_preset, preset_config
+from mop.identify import FittedPredictor
 from mop.identify.arx import ARX
-from mop.identify.select import fit
+from mop.identify.select import feasible_order, fit
 from mop.io import read_trajectories
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
@@ -117,18 +118,35 @@ def with_records(config: RunConfig, data: str | None, val: str | None) -> RunCon
 
 def fitted_orders(data: DataConfig) -> tuple[int, int]:
     """(p, q): the ARX orders `mop fit arx` chooses on the record's training part (mop.identify.select.fit,
-    free-run simulation of its last 20%)."""
+    free-run simulation of its last 20%; on a part too short for orders up to 10, with the largest
+    --max-order it allows)."""
     record = recorded_data(data)
     m = record.output_dim
-    orders = fit(ARX.kind, [(a[:, :m], a[:, m:]) for a in record.train_parts], source=data.path).orders
-    return orders["p"], orders["q"]
+    parts = [(a[:, :m], a[:, m:]) for a in record.train_parts]
+    largest = feasible_order(ARX.kind, parts, source=data.path)
+    if largest == 0:
+        raise MopError(
+            f"{data.path}: its training part is too short to fit the records recipe's ARX feature; give a "
+            "longer record, or name the model's feature (model.rls_order=0 for none)"
+        )
+    return orders_of(fit(ARX.kind, parts, max_order=largest, source=data.path))
 
 
-def record_orders(path: str) -> tuple[int, int]:
+def record_orders(path: str) -> tuple[int, int] | None:
     """(p, q): the ARX orders `mop fit arx PATH` chooses on the whole estimation record
-    (mop.identify.select.fit: free-run simulation of its last 20%), validation part included."""
-    orders = fit(ARX.kind, read_trajectories(path)[1], source=path).orders
-    return orders["p"], orders["q"]
+    (mop.identify.select.fit: free-run simulation of its last 20%), validation part included; on a record
+    too short for orders up to 10, those of `mop fit arx PATH --max-order P` with the largest P it allows;
+    None where it allows none."""
+    data = read_trajectories(path)[1]
+    largest = feasible_order(ARX.kind, data, source=path)
+    if largest == 0:
+        return None
+    return orders_of(fit(ARX.kind, data, max_order=largest, source=path))
+
+
+def orders_of(fitted: FittedPredictor) -> tuple[int, int]:
+    """(p, q) of a fitted ARX."""
+    return fitted.orders["p"], fitted.orders["q"]
 
 
 def recorded_recipe(config: RunConfig) -> dict[str, object]:
@@ -241,10 +259,11 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     if any(f"model.{key}" in named for key in PRIOR_KEYS) or recorded_data(config.data).num_missing:
         return config
     model = dataclasses.replace(m, rls_prior="fit", rls_p0=1.0, rls_prior_cov=None)
-    orders = ("model.rls_order", "model.arx_order")
-    if m.arx_order > 0 and recorded_data(config.data).input_dim and not any(k in named for k in orders):
-        p, q = record_orders(config.data.path)
-        model = dataclasses.replace(model, rls_order=p, arx_order=q)
+    keys = ("model.rls_order", "model.arx_order")
+    if m.arx_order > 0 and recorded_data(config.data).input_dim and not any(k in named for k in keys):
+        orders = record_orders(config.data.path)
+        if orders is not None:
+            model = dataclasses.replace(model, rls_order=orders[0], arx_order=orders[1])
     own_units = source.data is None or not source.data.fitted
     if own_units and "model.record_prior_steps" not in named:
         model = dataclasses.replace(model, record_prior_steps=RECORD_PRIOR_STEPS)

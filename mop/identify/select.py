@@ -94,6 +94,13 @@ def check_length(kind: str, identifier: Any, data: Data, est: Data, max_order: i
     )
 
 
+def feasible_order(kind: str, data: RecordData, max_order: int = 10, source: str = "record") -> int:
+    """The largest P <= max_order for which `fit(kind, data, max_order=P)` has enough steps (0: none)."""
+    record = complete_record(data, source)
+    est = [(y[: holdout_cut(len(y))], u[: holdout_cut(len(y))]) for y, u in record]
+    return largest_feasible(IDENTIFIERS.get(kind), est, max_order)
+
+
 def fit(
     kind: str, data: RecordData, select: str = SIMULATION, max_order: int = 10, source: str = "record"
 ) -> FittedPredictor:
