@@ -11,6 +11,7 @@ import torch
 import mop
 from mop.cli import main
 from mop.config import ModelConfig, RunConfig, SystemConfig, TrainConfig, from_dict
+from mop.errors import MopError
 from mop.experiments.training import FINE_TUNE_LR_FACTOR, FINE_TUNE_STEPS, training_config
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
@@ -228,3 +229,6 @@ def test_a_short_record_fine_tunes_with_the_orders_it_allows(tmp_path, capsys):
     assert 1 <= recipe.rls_order <= largest and 1 <= recipe.arx_order <= largest
     tiny = training_config(None, data=record(tmp_path / "tiny.npz", 0, T=3), init="pretrained:cascaded-tanks")
     assert (tiny.model.rls_order, tiny.model.arx_order) == (10, 10)
+    # from scratch the records recipe needs its feature: a record too short for any order is refused
+    with pytest.raises(MopError, match="too short to fit the records recipe's ARX feature"):
+        training_config(None, data=str(tmp_path / "tiny.npz"))

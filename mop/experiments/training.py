@@ -244,15 +244,14 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     RMSE 0.471) against 24 (0.465), Wiener-Hammerstein 1-3 in 18 of 18 both (0.341 against 0.326),
     noise-free LTI 1-3 0.0183 against 0.0239. With the orders chosen on the training part alone (the records
     recipe's fitted_orders) 24 of 36 tank simulations were below (0.506): the order choice moves with the
-    steps it reads, and the fitted model the user compares with is fitted on the whole record.
-    And where the run normalises the data by the record's own mean and std (a source without recorded
-    data's normalisation), record_norm's moments
-    start from RECORD_PRIOR_STEPS pseudo-steps at them (model.record_prior_steps) unless an override names
-    it: the plant's scale is known from step 0, so a record simulated from its start is not read with an
-    output std of 0, which would leave the first window (model.context steps) to the feature alone. A source
-    trained for simulation (train.simulate_after) with the mean read-out also scales its correction by the
-    gain that simulates the record best (train.shrink_correction, mop.train.shrink), unless an override
-    names it."""
+    steps it reads, and the fitted model the user compares with is fitted on the whole record. And where
+    the run normalises the data by the record's own mean and std (a source without recorded data's
+    normalisation), record_norm's moments start from RECORD_PRIOR_STEPS pseudo-steps at them
+    (model.record_prior_steps) unless an override names it: the plant's scale is known from step 0, so a
+    record simulated from its start is not read with an output std of 0, which would leave the first window
+    (model.context steps) to the feature alone. A source trained for simulation (train.simulate_after) with
+    the mean read-out also scales its correction by the gain that simulates the record best
+    (train.shrink_correction, mop.train.shrink), unless an override names it."""
     m, named = config.model, parse_overrides(overrides)
     if config.data is None or m.record_norm == "none" or m.rls_order == 0 or m.rls_prior != "none":
         return config
