@@ -45,9 +45,9 @@ from mop.errors import MopError
 from mop.experiments import get_experiment, run_config
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.presets import default_preset, preset_config
-from mop.identify import FittedPredictor
 from mop.identify.arx import ARX
 from mop.identify.select import feasible_order, fit
+from mop.io import Data as RecordData
 from mop.io import read_trajectories
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
@@ -116,37 +116,34 @@ def with_records(config: RunConfig, data: str | None, val: str | None) -> RunCon
     )
 
 
+def arx_orders(data: RecordData, source: str) -> tuple[int, int] | None:
+    """(p, q): the ARX orders `mop fit arx` chooses on `data` (mop.identify.select.fit: free-run
+    simulation of its last 20%); on data too short for orders up to 10, those of `--max-order P` with the
+    largest P it allows; None where it allows none."""
+    largest = feasible_order(ARX.kind, data, source=source)
+    if largest == 0:
+        return None
+    orders = fit(ARX.kind, data, max_order=largest, source=source).orders
+    return orders["p"], orders["q"]
+
+
 def fitted_orders(data: DataConfig) -> tuple[int, int]:
-    """(p, q): the ARX orders `mop fit arx` chooses on the record's training part (mop.identify.select.fit,
-    free-run simulation of its last 20%; on a part too short for orders up to 10, with the largest
-    --max-order it allows)."""
+    """(p, q): arx_orders on the record's training part (the records recipe's feature)."""
     record = recorded_data(data)
     m = record.output_dim
-    parts = [(a[:, :m], a[:, m:]) for a in record.train_parts]
-    largest = feasible_order(ARX.kind, parts, source=data.path)
-    if largest == 0:
+    orders = arx_orders([(a[:, :m], a[:, m:]) for a in record.train_parts], data.path)
+    if orders is None:
         raise MopError(
             f"{data.path}: its training part is too short to fit the records recipe's ARX feature; give a "
             "longer record, or name the model's feature (model.rls_order=0 for none)"
         )
-    return orders_of(fit(ARX.kind, parts, max_order=largest, source=data.path))
+    return orders
 
 
 def record_orders(path: str) -> tuple[int, int] | None:
-    """(p, q): the ARX orders `mop fit arx PATH` chooses on the whole estimation record
-    (mop.identify.select.fit: free-run simulation of its last 20%), validation part included; on a record
-    too short for orders up to 10, those of `mop fit arx PATH --max-order P` with the largest P it allows;
-    None where it allows none."""
-    data = read_trajectories(path)[1]
-    largest = feasible_order(ARX.kind, data, source=path)
-    if largest == 0:
-        return None
-    return orders_of(fit(ARX.kind, data, max_order=largest, source=path))
-
-
-def orders_of(fitted: FittedPredictor) -> tuple[int, int]:
-    """(p, q) of a fitted ARX."""
-    return fitted.orders["p"], fitted.orders["q"]
+    """(p, q): arx_orders on the whole estimation record at `path`, its validation part included: the
+    orders of `mop fit arx PATH`."""
+    return arx_orders(read_trajectories(path)[1], path)
 
 
 def recorded_recipe(config: RunConfig) -> dict[str, object]:
