@@ -14,7 +14,7 @@ OUT/carry.json. The README's carry-over tables ("Class models") are its output.
 `scratch` (`mop train --data est.csv`, the records recipe, one run per training seed: MOP from scratch),
 `n4sid` (`mop fit n4sid est.csv`), the online `arx-best` and `last`, which read only val.csv, and
 `source-orders` (a second fine-tune per seed whose feature keeps the source's orders, model.rls_order=p
-model.arx_order=q, where the default takes those `mop fit arx` chooses on est.csv's training part).
+model.arx_order=q, where the default takes those `mop fit arx est.csv` chooses).
 
 cascaded-tanks plants are examples/tank_records.py's (`--plant S`: input_amplitude 1.0, the plant drawn
 with seed S): estimation and validation records are two experiments, their input and noise drawn with
@@ -83,6 +83,8 @@ def main() -> None:
     torch.set_num_threads(1)
     extra = [e for e in args.extra.split(",") if e]
     starts = [int(c) for c in args.starts.split(",")]
+    source = load_config(args.source).model
+    keys = [f"model.rls_order={source.rls_order}", f"model.arx_order={source.arx_order}"]  # source-orders
     results = {}
     for plant in (int(p) for p in args.plants.split(",")):
         d = args.out / f"plant{plant}"
@@ -105,8 +107,6 @@ def main() -> None:
             )
             runs[f"ft{seed}"] = str(ft)
             if "source-orders" in extra:
-                model = load_config(args.source).model
-                keys = [f"model.rls_order={model.rls_order}", f"model.arx_order={model.arx_order}"]
                 fts = d / f"fts{seed}"
                 argv = ["train", "--data", str(est), "--init", args.source, "--out", str(fts)]
                 run([*argv, f"train.seed={seed}", "--no-progress", *keys, *args.overrides])
