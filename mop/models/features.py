@@ -275,7 +275,8 @@ def fitted_start(ys: Tensor, us: Tensor | None, cfg: ModelConfig) -> Tensor:
     first_y = first_values(ys).expand(-1, r, -1)
     yp = torch.cat([first_y, ys], dim=1)
     up = None if us is None else torch.cat([us[:, :1].expand(-1, r, -1), us], dim=1)
-    prior = feature_prior(cfg)  # the r assumed values before the record are not measured: no bounds
+    prior = feature_prior(cfg)
+    # bounds_from=r: the r assumed values before the record are not measured, so they set no bounds
     rs = rls_next(
         yp, cfg.rls_order, up, cfg.arx_order, cfg.rls_offset, prior, updates_from=2 * r, bounds_from=r
     )
