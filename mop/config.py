@@ -169,6 +169,10 @@ class ModelConfig:
     rls_prior: str | list[float] = "none"
     # the feature's P_0 with a list rls_prior: None (1e-3 I, a fitted ARX) or the (d, d) matrix, row-major
     rls_prior_cov: list[float] | None = None
+    # a mixture prior (mop.filters.mixture): the K components' weights; rls_prior then holds K blocks of d
+    # rows of m, rls_prior_cov K (d, d) matrices, and rls_prior_noise is sigma^2, which weighs them
+    rls_prior_weights: list[float] | None = None
+    rls_prior_noise: float = 0.0
     # without a listed rls_prior, the feature's P_0 = rls_p0 I, i.e. a ridge 1 / rls_p0 towards 0 (1: the
     # paper's RLS); larger: closer to least squares, for data a model identifies exactly (no noise)
     rls_p0: float = 1.0
@@ -205,6 +209,10 @@ class ModelConfig:
         check(self.input_dim >= 0 and self.output_dim >= 0, "model.input_dim/output_dim must be >= 0")
         check(0 <= self.dropout < 1, f"model.dropout must be in [0, 1), got {self.dropout}")
         check(self.rls_p0 > 0, f"model.rls_p0 must be > 0 (P_0 = rls_p0 I), got {self.rls_p0}")
+        check(
+            self.rls_prior_weights is None or self.rls_prior_noise > 0,
+            f"model.rls_prior_noise must be > 0 beside model.rls_prior_weights, got {self.rls_prior_noise}",
+        )
         check(
             0 < self.residual_decay < 1,
             f"model.residual_decay must be in (0, 1) (the error k steps back weighs decay^k), got "

@@ -278,7 +278,8 @@ def with_refitted_orders(config: RunConfig, source: RunConfig) -> RunConfig:
         return config
     if not isinstance(m.rls_prior, list) or config.data is None:
         return config
-    return dataclasses.replace(config, model=dataclasses.replace(m, rls_prior="fit", rls_prior_cov=None))
+    refit = dict(rls_prior="fit", rls_prior_cov=None, rls_prior_weights=None, rls_prior_noise=0.0)
+    return dataclasses.replace(config, model=dataclasses.replace(m, **refit))
 
 
 def _record_horizon(train: TrainConfig, data: DataConfig) -> TrainConfig:

@@ -50,6 +50,7 @@ from torch import Tensor
 from mop.config import ModelConfig
 from mop.errors import MopError
 from mop.filters.arx import arx_predict
+from mop.filters.mixture import MixturePrior, MixtureState, mixture_predict
 from mop.filters.rls import Prior, initial_state, regressors, rls_update
 from mop.models.recordnorm import RecordStats, normalise, running_moments
 
@@ -102,22 +103,47 @@ def check_features(cfg: ModelConfig) -> None:
         )
     d = regressor_count(cfg)
     listed = isinstance(cfg.rls_prior, list)
-    if listed and len(cfg.rls_prior) != d * cfg.output_dim:
+    K = prior_components(cfg)
+    if cfg.rls_prior_weights is not None:
+        _check_mixture(cfg, listed)
+    if listed and len(cfg.rls_prior) != K * d * cfg.output_dim:
         raise MopError(
             f"model.rls_prior holds {len(cfg.rls_prior) // max(cfg.output_dim, 1)} rows of coefficients, "
-            f"the feature reads {d}"
+            f"the feature reads {d}" + (f" in each of {K} components" if K > 1 else "")
         )
     if listed and cfg.rls_p0 != 1.0:
         raise MopError("model.rls_p0 sets P_0 without a listed model.rls_prior; use rls_prior_cov with one")
-    if cfg.rls_prior_cov is not None and (not listed or len(cfg.rls_prior_cov) != d * d):
+    if cfg.rls_prior_cov is not None and (not listed or len(cfg.rls_prior_cov) != K * d * d):
         raise MopError(
-            f"model.rls_prior_cov is the feature's P_0, {d} x {d} = {d * d} numbers beside a list "
+            f"model.rls_prior_cov is the feature's P_0, {K} x {d} x {d} = {K * d * d} numbers beside a list "
             f"model.rls_prior; got {len(cfg.rls_prior_cov)} beside rls_prior={cfg.rls_prior!r:.40}"
         )
     if cfg.record_norm != "none" and (cfg.input_scale != "none" or cfg.readout != "mean"):
         raise MopError(
             "model.record_norm normalises each record itself: use it with model.input_scale='none' and "
             "model.readout='mean' (a channel constant so far predicts its value, with no variance)"
+        )
+
+
+def prior_components(cfg: ModelConfig) -> int:
+    """K, the components of the feature's prior: len(model.rls_prior_weights), 1 without them."""
+    return 1 if cfg.rls_prior_weights is None else len(cfg.rls_prior_weights)
+
+
+def _check_mixture(cfg: ModelConfig, listed: bool) -> None:
+    """One-line errors for a mixture prior (mop.filters.mixture) the feature cannot run."""
+    weights = cfg.rls_prior_weights
+    if not weights or min(weights) < 0 or abs(sum(weights) - 1) > 1e-6:
+        raise MopError(f"model.rls_prior_weights must be K >= 1 weights >= 0 summing to 1, got {weights}")
+    if not listed or cfg.rls_prior_cov is None:
+        raise MopError(
+            "model.rls_prior_weights needs the components' coefficients (a list model.rls_prior) "
+            "and their P_0 (model.rls_prior_cov)"
+        )
+    if cfg.rls_offset or cfg.observation_mask or cfg.record_norm != "none":
+        raise MopError(
+            "a mixture prior (model.rls_prior_weights) runs the ARX feature on complete outputs in their own "
+            "units: use it without model.rls_offset, observation_mask and record_norm"
         )
 
 
@@ -144,13 +170,20 @@ def gap_positions(inputs: Tensor, cfg: ModelConfig) -> Tensor | None:
     return ~observed_outputs(inputs, cfg)[1].all(-1)
 
 
-def feature_prior(cfg: ModelConfig) -> Prior | None:
+def feature_prior(cfg: ModelConfig) -> Prior | MixturePrior | None:
     """(theta_0 (d, m) float64, P_0) of the RLS / ARX feature where model.rls_prior holds the coefficients
     (d = p m + q k [+ 1] rows, in mop.filters.arx's regressor order): P_0 the (d, d) matrix
     model.rls_prior_cov, or PRIOR_P0 (times I) without it. Without them (None: theta_0 = 0, model.rls_p0)
-    where rls_p0 is not 1, else None (the recursion's own theta_0 = 0, P_0 = I)."""
+    where rls_p0 is not 1, else None (the recursion's own theta_0 = 0, P_0 = I). With
+    model.rls_prior_weights, the MixturePrior of those K blocks of coefficients and covariances."""
     if not isinstance(cfg.rls_prior, list):
         return None if cfg.rls_p0 == 1.0 else (None, cfg.rls_p0)
+    if cfg.rls_prior_weights is not None:
+        K, m = len(cfg.rls_prior_weights), cfg.output_dim
+        means = torch.tensor(cfg.rls_prior, dtype=torch.float64).reshape(K, -1, m)
+        covs = torch.tensor(cfg.rls_prior_cov, dtype=torch.float64).reshape(K, means.shape[1], -1)
+        weights = torch.tensor(cfg.rls_prior_weights, dtype=torch.float64)
+        return MixturePrior(weights, means, covs, cfg.rls_prior_noise)
     theta = torch.tensor(cfg.rls_prior, dtype=torch.float64).reshape(-1, cfg.output_dim)
     if cfg.rls_prior_cov is None:
         return theta, PRIOR_P0
@@ -163,13 +196,14 @@ def rls_next(
     u: Tensor | None = None,
     input_order: int = 0,
     offset: bool = False,
-    prior: Prior | None = None,
+    prior: Prior | MixturePrior | None = None,
     updates_from: int | None = None,
     bounds_from: int = 0,
 ) -> Tensor:
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
     u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
-    a constant regressor; prior: the recursion's theta_0 and P_0 (feature_prior); updates_from: the first
+    a constant regressor; prior: the recursion's theta_0 and P_0 (feature_prior; a MixturePrior runs
+    mop.filters.mixture.mixture_predict, on complete outputs); updates_from: the first
     y_s whose pair updates the fit (mop.filters.arx.arx_predict; default max(order, q)). Where y is missing
     (NaN) the recursion fills it with its own predictions held within the range of the outputs measured
     from row bounds_from on, widened by twice its span (arx_predict's bounded): a free run from an unstable
@@ -177,6 +211,8 @@ def rls_next(
     (mop.filters.rls.rls_predict)."""
     pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
     u_lags = pad(u) if input_order > 0 else None  # the pad rows are never read
+    if isinstance(prior, MixturePrior):  # complete outputs, no offset (check_features)
+        return mixture_predict(pad(y), u_lags, order, input_order, prior)[:, 1:].to(y.dtype)
     q = max(input_order, 1)
     r = arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from, bounded=bounds_from)
     return r[:, 1:].to(y.dtype)  # (B, T, m)
@@ -383,7 +419,12 @@ class FeatureState:
         if p > 0:
             f64 = dict(device=device, dtype=torch.float64)
             like = torch.zeros((), **f64)
-            self.theta, self.P = initial_state(feature_prior(cfg), batch_size, d, self.m, like)  # as rls_loop
+            prior = feature_prior(cfg)
+            if isinstance(prior, MixturePrior):  # the K recursions and their weights (mixture_predict)
+                self.mixture = MixtureState(prior, batch_size, like)
+            else:
+                self.mixture = None
+                self.theta, self.P = initial_state(prior, batch_size, d, self.m, like)  # as rls_loop
             self.recent = torch.zeros(batch_size, p + 1, self.m, **f64)
             self.recent_u = torch.zeros(batch_size, q + 1, self.k if q > 0 else 0, **f64)
         # with an observation mask the RLS feature skips pairs next to gaps (mop.filters.rls._rls_run_gaps):
@@ -467,10 +508,14 @@ class FeatureState:
             self.recent_u = u[:, None].expand_as(self.recent_u).clone()
         self.recent = torch.cat([self.recent[:, 1:], y[:, None]], dim=1)  # (B, p+1, m): y_{t-p}..y_t
         self.recent_u = torch.cat([self.recent_u[:, 1:], u[:, None]], dim=1)  # (B, q+1, k): u_{t-q}..u_t
-        if t >= r:
+        if t >= r and self.mixture is not None:
+            self.mixture.update(self._phi(p, q, 0), y)
+        elif t >= r:
             self.theta, self.P = rls_update(self.theta, self.P, self._phi(p, q, 0), y)
         if t < r and not fitted:
             return y
+        if self.mixture is not None:
+            return self.mixture.predict(self._phi(p, q, 1))
         return (self.theta.mT @ self._phi(p, q, 1)[..., None])[..., 0]
 
     def _phi(self, p: int, q: int, last: int) -> Tensor:

@@ -20,6 +20,16 @@ seed (AUTO_SEED, apart from every training and test stream), y (N, T+1, m) and u
   1.22, linear-inputs 1.31 -> 1.24, linear 1.06 -> 1.04 (AR(2)), upper-triangular 1.38 -> 1.34, colored-
   noise 2.19 (AR(2)) -> 1.61 (AR(4)); on the output-only families the model trained on it did not follow
   (colored-noise 1.201 -> 1.392 x the exact optimum), so they keep the paper's start;
+- a mixture of MIXTURE_SIZE Gaussians in place of the one (mop.filters.mixture: the identifier's K
+  recursions weighed by their evidence), fitted by EM to the least-squares coefficients of MIXTURE_SYSTEMS
+  other systems (seed MIXTURE_SEED), where it cuts the identifier's error on the scored trajectories by more
+  than MIXTURE_GAIN (5%): where the family's coefficients are far from one Gaussian. Measured there (16
+  components against one, the same ARX orders): dead-time 0.907 (a dead time of 1-3 samples puts the input's
+  weight on different lags), rlc-circuit 0.950, thermal-network 0.959, two-mass 0.971, quadrotor 0.987,
+  linear-inputs 1.002; so dead-time alone takes it. What it buys the model at equal steps (small preset,
+  seed 0, 8 to 12 components): dead-time 1.384 -> 1.267 x the KF, thermal-network 1.145 -> 1.134, two-mass
+  1.141 -> 1.139; its K recursions cost 1.28x the identifier's step (STEP_COST), more than the model gains
+  below 5% of the identifier's error;
 - the running output scale (mop.models.features) where the outputs are far from unit scale: the per-system
   RMS of y, s_i = sqrt(mean_t ||y_t||^2 / m), has a median outside [1 / SCALE_FAR, SCALE_FAR] or a ratio of
   its 90% to its 10% quantile above SCALE_SPREAD (scale_far_from_unit).
@@ -49,6 +59,7 @@ from torch import Tensor
 from mop.config import ModelConfig, RunConfig, SystemConfig, from_dict
 from mop.errors import MopError
 from mop.filters.arx import arx_predict, arx_regressors
+from mop.filters.mixture import MixturePrior, fit_mixture, mixture_predict
 from mop.filters.rls import Prior
 from mop.models import reads_features
 from mop.systems import generator, make_family
@@ -58,6 +69,10 @@ AUTO_SYSTEMS = 256
 PRIOR_SEED = AUTO_SEED + 1  # the trajectories the feature's prior is fitted on, apart from the scored ones
 PRIOR_HORIZON = 4  # ... of 4 T steps each, so each system's least-squares fit is close to its own ARX
 PRIOR_RIDGE = 1e-6  # P_0 + 1e-6 mean(diag P_0) I: positive definite where a coefficient never varies
+MIXTURE_SEED = AUTO_SEED + 2  # the trajectories the mixture prior is fitted on
+MIXTURE_SYSTEMS = 2048  # ... of PRIOR_HORIZON * T steps: K components need more systems than one Gaussian
+MIXTURE_SIZE = 16  # the mixture prior's components, where it wins (MIXTURE_GAIN)
+MIXTURE_GAIN = 0.05  # taken where the identifier's error falls by more than 5% against one Gaussian
 ORDER_WINDOW_START = 20  # the orders' error window starts here (at T // 2 for T < 40)
 ORDERS_AR = (1, 2, 3, 4)
 ORDERS_ARX = tuple((p, q) for p in (1, 2, 3, 4) for q in range(1, 7))  # q up to 6: input dead time
@@ -68,26 +83,43 @@ SCALE_SPREAD = 5.0  # q90 / q10 of the per-system RMS above 5: sizes too differe
 # 97.8 against 83.7 ms (quadrotor, ARX(2, 2)). One factor serves RLS-AR and ARX: both run the same recursion
 # (mop.filters.rls.rls_loop), whose own time (4.2 to 12 ms a batch for d = 2 to 15 regressors, T = 50,
 # batch 64) is small against the step.
+# The mixture prior's K recursions (mop.filters.mixture) on top: 88.1 against 68.7 ms a step for dead-time's
+# ARX(3, 6) with 16 components against one Gaussian (1.27 to 1.31 over three side-by-side runs).
 STEP_COST = {"scale": 77 / 74, "identifier": 97.8 / 83.7}
-FEATURE_KEYS = ("input_scale", "rls_order", "arx_order", "rls_offset", "rls_prior", "rls_prior_cov", "rls_p0")
+STEP_COST["mixture"] = STEP_COST["identifier"] * 88.1 / 68.7
+FEATURE_KEYS = (
+    "input_scale",
+    "rls_order",
+    "arx_order",
+    "rls_offset",
+    "rls_prior",
+    "rls_prior_cov",
+    "rls_p0",
+    "rls_prior_weights",
+    "rls_prior_noise",
+)
 
 
 @dataclasses.dataclass(frozen=True)
 class FeatureChoice:
     """What auto picks: the running scale on or off, the identifier's output order p (0 = none), input
     order q (0 = output-only RLS-AR(p)), and its prior: theta_0 (d rows of m, flat) and P_0 (d x d, flat),
-    empty without one."""
+    empty without one; a mixture prior (mop.filters.mixture): K blocks of each, the K weights and the
+    noise variance sigma^2 that weighs them (empty and 0 for one Gaussian)."""
 
     scale: bool = False
     order: int = 0
     input_order: int = 0
     prior_theta: tuple[float, ...] = ()
     prior_cov: tuple[float, ...] = ()
+    prior_weights: tuple[float, ...] = ()
+    prior_noise: float = 0.0
 
     @property
     def cost(self) -> float:
         """The step cost relative to the plain model's (STEP_COST)."""
-        return (STEP_COST["scale"] if self.scale else 1.0) * (STEP_COST["identifier"] if self.order else 1.0)
+        identifier = STEP_COST["mixture" if self.prior_weights else "identifier"] if self.order else 1.0
+        return (STEP_COST["scale"] if self.scale else 1.0) * identifier
 
 
 def scale_far_from_unit(y: Tensor) -> bool:
@@ -97,6 +129,26 @@ def scale_far_from_unit(y: Tensor) -> bool:
     return not (1 / SCALE_FAR <= q50 <= SCALE_FAR) or q90 > SCALE_SPREAD * max(q10, 1e-12)
 
 
+def system_coefficients(y: Tensor, u: Tensor | None, p: int, q: int) -> tuple[Tensor, Tensor]:
+    """(theta (N, d, m), sigma^2): each system's least-squares ARX(p, q) (RLS-AR(p) for q = 0 or u None)
+    coefficients over its pairs (phi_{s-1}, y_s), s >= r = max(p, q) (the pairs the recursion reads), from
+    y (N, T+1, m), u (N, T+1, k)|None, and the residuals' mean square over all systems."""
+    y = y.double()
+    u = None if u is None or q == 0 else u.double()
+    r = p if u is None else max(p, q)
+    phi = arx_regressors(y, u, p, max(q, 1))  # (N, T+1, d)
+    X, Y = phi[:, r - 1 : -1], y[:, r:]  # (N, T+1-r, d), (N, T+1-r, m)
+    theta = torch.linalg.lstsq(X, Y, driver="gelsd").solution  # (N, d, m); minimum norm where rank-deficient
+    return theta, (Y - X @ theta).pow(2).mean().clamp_min(1e-12)
+
+
+def family_mixture(y: Tensor, u: Tensor | None, p: int, q: int, size: int = MIXTURE_SIZE) -> MixturePrior:
+    """The family's mixture prior of the ARX(p, q) coefficients: mop.filters.mixture.fit_mixture of `size`
+    components to each system's least-squares coefficients (system_coefficients) of y (N, T+1, m), u."""
+    theta, sigma2 = system_coefficients(y, u, p, q)
+    return fit_mixture(theta, float(sigma2), size, PRIOR_RIDGE)
+
+
 def family_prior(y: Tensor, u: Tensor | None, p: int, q: int) -> Prior:
     """The family's empirical-Bayes prior of the ARX(p, q) (RLS-AR(p) for q = 0) coefficients, from
     trajectories y (N, T+1, m), u (N, T+1, k)|None of N systems: each system's least-squares coefficients
@@ -104,23 +156,22 @@ def family_prior(y: Tensor, u: Tensor | None, p: int, q: int) -> Prior:
     theta_0 their mean, P_0 their covariance (pooled over the m outputs) over sigma^2, the residuals' mean
     square: the recursion's P is the coefficients' covariance in units of the noise variance
     (mop.filters.rls.initial_state), so it then returns the posterior mean under theta ~ N(theta_0, C)."""
-    y = y.double()
-    u = None if u is None or q == 0 else u.double()
-    r = p if u is None else max(p, q)
-    phi = arx_regressors(y, u, p, max(q, 1))  # (N, T+1, d)
-    X, Y = phi[:, r - 1 : -1], y[:, r:]  # (N, T+1-r, d), (N, T+1-r, m)
-    theta = torch.linalg.lstsq(X, Y, driver="gelsd").solution  # (N, d, m); minimum norm where rank-deficient
-    sigma2 = (Y - X @ theta).pow(2).mean().clamp_min(1e-12)
+    theta, sigma2 = system_coefficients(y, u, p, q)
     dev = theta - theta.mean(0)
     cov = torch.einsum("nim,njm->ij", dev, dev) / (dev.shape[0] * dev.shape[2]) / sigma2
     cov = cov + PRIOR_RIDGE * cov.diagonal().mean() * torch.eye(cov.shape[0], dtype=cov.dtype)
     return theta.mean(0), 0.5 * (cov + cov.T)
 
 
-def identifier_error(y: Tensor, u: Tensor | None, p: int, q: int, start: int, prior: Prior | None) -> float:
+def identifier_error(
+    y: Tensor, u: Tensor | None, p: int, q: int, start: int, prior: Prior | MixturePrior | None
+) -> float:
     """MSE of the online RLS-AR(p) (q = 0) or ARX(p, q) one-step predictions of y_t over t >= start, the
-    recursion started from prior."""
-    yhat = arx_predict(y, None if q == 0 else u, p, max(q, 1), False, prior)
+    recursion started from prior (a MixturePrior: mop.filters.mixture)."""
+    if isinstance(prior, MixturePrior):
+        yhat = mixture_predict(y, None if q == 0 else u, p, q, prior)
+    else:
+        yhat = arx_predict(y, None if q == 0 else u, p, max(q, 1), False, prior)
     return float((yhat[:, start:] - y[:, start:]).pow(2).sum(-1).mean())
 
 
@@ -141,7 +192,11 @@ def best_orders(
 
 
 def choose_features(
-    y: Tensor, u: Tensor | None, fit: tuple[Tensor, Tensor | None] | None, drops_outputs: bool = False
+    y: Tensor,
+    u: Tensor | None,
+    fit: tuple[Tensor, Tensor | None] | None,
+    drops_outputs: bool = False,
+    mixture_fit: tuple[Tensor, Tensor | None] | None = None,
 ) -> FeatureChoice:
     """The rule: y (N, T+1, m), u (N, T+1, k) or None (no inputs), the prior's trajectories fit = (y, u)
     (N', T'+1, ...; None: no prior) -> FeatureChoice. The family's prior where there are inputs (ARX)
@@ -154,6 +209,14 @@ def choose_features(
     p, q, prior = best_orders(y, u, None if u is None else fit)
     if prior is None:
         return FeatureChoice(scale, p, q)
+    if mixture_fit is not None:
+        mixture = family_mixture(*mixture_fit, p, q)
+        start = min(ORDER_WINDOW_START, y.shape[1] // 2)
+        single, mixed = (identifier_error(y.double(), u.double(), p, q, start, pr) for pr in (prior, mixture))
+        if mixed < (1 - MIXTURE_GAIN) * single:
+            flat = lambda a: tuple(a.flatten().tolist())  # noqa: E731
+            weights, noise = flat(mixture.weights), mixture.noise
+            return FeatureChoice(scale, p, q, flat(mixture.means), flat(mixture.covs), weights, noise)
     theta, cov = prior
     return FeatureChoice(scale, p, q, tuple(theta.flatten().tolist()), tuple(cov.flatten().tolist()))
 
@@ -164,14 +227,17 @@ def _family_choice(system_json: str, horizon: int, drops_outputs: bool) -> Featu
     traj = family.generate(AUTO_SYSTEMS, horizon, generator=generator(AUTO_SEED))
     needs_prior = traj.u is not None and not drops_outputs  # choose_features: the prior where ARX is chosen
     fit = _prior_sample(system_json, horizon) if needs_prior else None
-    return choose_features(traj.y, traj.u, fit, drops_outputs)
+    mixture_fit = _prior_sample(system_json, horizon, MIXTURE_SYSTEMS, MIXTURE_SEED) if needs_prior else None
+    return choose_features(traj.y, traj.u, fit, drops_outputs, mixture_fit)
 
 
 @functools.lru_cache(maxsize=32)
-def _prior_sample(system_json: str, horizon: int) -> tuple[Tensor, Tensor | None]:
-    """(y, u) of the AUTO_SYSTEMS trajectories of PRIOR_HORIZON * horizon steps the prior is fitted on."""
+def _prior_sample(
+    system_json: str, horizon: int, systems: int = AUTO_SYSTEMS, seed: int = PRIOR_SEED
+) -> tuple[Tensor, Tensor | None]:
+    """(y, u) of the `systems` trajectories of PRIOR_HORIZON * horizon steps a prior is fitted on."""
     family = make_family(from_dict(SystemConfig, json.loads(system_json)), dtype=torch.float64)
-    fit = family.generate(AUTO_SYSTEMS, PRIOR_HORIZON * horizon, generator=generator(PRIOR_SEED))
+    fit = family.generate(systems, PRIOR_HORIZON * horizon, generator=generator(seed))
     return fit.y, fit.u
 
 
@@ -220,6 +286,8 @@ def apply_choice(config: RunConfig, choice: FeatureChoice, scale_steps: bool = T
         rls_offset=False,
         rls_prior=list(choice.prior_theta) if choice.prior_theta else "none",
         rls_prior_cov=list(choice.prior_cov) if choice.prior_cov else None,
+        rls_prior_weights=list(choice.prior_weights) if choice.prior_weights else None,
+        rls_prior_noise=choice.prior_noise,
     )
     steps = steps_for(config.train.steps, choice.cost) if scale_steps else config.train.steps
     train = dataclasses.replace(config.train, steps=steps)
@@ -253,4 +321,6 @@ def describe_features(model: ModelConfig) -> str:
     elif model.rls_order:
         parts.append(f"RLS-AR({model.rls_order})")
     prior = ", family prior" if model.rls_prior == "family" or model.rls_prior_cov is not None else ""
+    if model.rls_prior_weights is not None:
+        prior = f", family prior of {len(model.rls_prior_weights)} components"
     return " + ".join(parts) + prior if parts else "none"
