@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import platform
+from typing import Any
 
 
 def _versions() -> str:
@@ -74,6 +75,22 @@ def claim_line(claim: str, evidence: str, holds: bool | None) -> str:
     return f"- **{claim}** — {evidence} ({verdict})"
 
 
+SHOWN_NUMBERS = 12  # a longer list of numbers in the settings (a feature's fitted prior) shows as its length
+
+
+def abridged(value: Any) -> Any:
+    """value with every list or tuple of more than SHOWN_NUMBERS numbers, at any depth, replaced by the words
+    "<N numbers>": the report stays readable; the run's config.json and eval.json keep them all."""
+    if isinstance(value, dict):
+        return {k: abridged(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        numbers = all(isinstance(x, int | float) and not isinstance(x, bool) for x in value)
+        if numbers and len(value) > SHOWN_NUMBERS:
+            return f"<{len(value)} numbers>"
+        return type(value)(abridged(v) for v in value)
+    return value
+
+
 def build_report(
     title: str,
     sections: list[str],
@@ -97,7 +114,7 @@ def build_report(
         "## Settings",
         "",
         "```",
-        *[f"{k}: {v}" for k, v in settings.items()],
+        *[f"{k}: {abridged(v)}" for k, v in settings.items()],
         "```",
         "",
         f"Package versions: {_versions()}",

@@ -67,3 +67,14 @@ def test_figures_written_nonempty(tmp_path):
     for p in paths:
         assert p.stat().st_size > 1000, p
     assert sorted(x.name for x in tmp_path.iterdir()) == sorted(p.name for p in paths)  # no temp files left
+
+
+def test_settings_show_long_lists_of_numbers_as_their_length():
+    """A fitted prior (hundreds of numbers) shows as "<N numbers>"; short lists and others as they are."""
+    prior = [0.5] * 300
+    settings = {"train": {"model": {"rls_prior": prior, "width": 64}}, "predictors": ["mop", "kalman"]}
+    settings["window"] = (20, 51)
+    text = build_report("t", [], settings, [], 1.0)
+    assert "'rls_prior': '<300 numbers>'" in text and "'width': 64" in text
+    assert "predictors: ['mop', 'kalman']" in text and "window: (20, 51)" in text
+    assert "0.5, 0.5" not in text
