@@ -165,7 +165,8 @@ class ModelConfig:
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
     # the feature's theta_0: "none" (0), "fit" (the ARX fitted on recorded data, by the trainer), "family"
-    # (the family's empirical-Bayes prior, mop.train.auto) or the list of coefficients (d rows of m)
+    # (the family's empirical-Bayes prior, mop.train.auto), "mixture" (its mixture of Gaussians,
+    # mop.filters.mixture) or the list of coefficients (d rows of m)
     rls_prior: str | list[float] = "none"
     # the feature's P_0 with a list rls_prior: None (1e-3 I, a fitted ARX) or the (d, d) matrix, row-major
     rls_prior_cov: list[float] | None = None

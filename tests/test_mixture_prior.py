@@ -11,7 +11,7 @@ import torch
 from scipy.special import logsumexp
 from scipy.stats import multivariate_normal
 
-from mop.config import ModelConfig, RunConfig, SystemConfig, from_dict
+from mop.config import DataConfig, ModelConfig, RunConfig, SystemConfig, from_dict
 from mop.errors import MopError
 from mop.experiments.files import import_plugin
 from mop.filters.arx import arx_predict, arx_regressors
@@ -177,3 +177,18 @@ def test_auto_takes_the_mixture_where_it_beats_one_gaussian():
 def dict_model(model: ModelConfig) -> ModelConfig:
     """The model config with dead-time's dimensions (what resolve_config fills in)."""
     return dataclasses.replace(model, input_dim=2, output_dim=1)
+
+
+def test_given_orders_with_the_mixture_prior_equal_what_auto_resolves():
+    """model.rls_prior=mixture with the orders auto picks on dead-time gives auto's model keys (one mixture,
+    two routes), and needs a family: on recorded data it is a one-line error."""
+    import_plugin(EXAMPLES / "dead_time.py")
+    system = from_dict(SystemConfig, {"family": "dead-time"})
+    resolved = resolve_features(RunConfig(system=system, model=ModelConfig(features="auto"))).model
+    keys = dict(rls_order=resolved.rls_order, arx_order=resolved.arx_order, rls_prior="mixture")
+    given = resolve_features(RunConfig(system=system, model=ModelConfig(**keys))).model
+    mixture_keys = ("rls_prior", "rls_prior_cov", "rls_prior_weights", "rls_prior_noise")
+    assert all(getattr(given, k) == getattr(resolved, k) for k in mixture_keys)
+    on_data = dataclasses.replace(RunConfig(model=ModelConfig(**keys)), data=DataConfig(path="x.csv"))
+    with pytest.raises(MopError, match="rls_prior=mixture is a prior of a system family"):
+        resolve_features(on_data)

@@ -91,9 +91,9 @@ def check_features(cfg: ModelConfig) -> None:
     """One-line errors for feature options the model's inputs cannot serve."""
     if cfg.arx_order > 0 and input_count(cfg) <= 0:
         raise MopError("model.arx_order reads input lags, but the model has no inputs u; use rls_order alone")
-    if isinstance(cfg.rls_prior, str) and cfg.rls_prior not in ("none", "fit", "family"):
+    if isinstance(cfg.rls_prior, str) and cfg.rls_prior not in ("none", "fit", "family", "mixture"):
         raise MopError(
-            "model.rls_prior must be 'none', 'fit', 'family' or a list of coefficients, "
+            "model.rls_prior must be 'none', 'fit', 'family', 'mixture' or a list of coefficients, "
             f"got {cfg.rls_prior!r}"
         )
     if cfg.rls_prior != "none" and cfg.rls_order == 0:

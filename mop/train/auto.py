@@ -248,19 +248,39 @@ def _given_prior(system_json: str, horizon: int, p: int, q: int) -> tuple[tuple[
 
 def resolve_family_prior(config: RunConfig) -> RunConfig:
     """config with model.rls_prior = "family" replaced by the family's prior (family_prior) of the given
-    orders, fitted on AUTO_SYSTEMS trajectories of PRIOR_HORIZON * T steps; others unchanged."""
+    orders, fitted on AUTO_SYSTEMS trajectories of PRIOR_HORIZON * T steps, and "mixture" by its mixture
+    prior of MIXTURE_SIZE components (family_mixture, on MIXTURE_SYSTEMS trajectories); others unchanged.
+    The train.steps given are kept (a named key is taken as written)."""
     model = config.model
-    if model.rls_prior != "family":
+    if model.rls_prior not in ("family", "mixture"):
         return config
     if config.data is not None or model.rls_offset or model.rls_order == 0:
         raise MopError(
-            "model.rls_prior=family is the prior of a system family's ARX / RLS-AR coefficients: it needs "
-            "model.rls_order > 0, no rls_offset and no data file (on recorded data use model.rls_prior=fit)"
+            f"model.rls_prior={model.rls_prior} is a prior of a system family's ARX / RLS-AR coefficients: "
+            "it needs model.rls_order > 0, no rls_offset and no data file (on recorded data use "
+            "model.rls_prior=fit)"
         )
     system = json.dumps(dataclasses.asdict(config.system), sort_keys=True)
-    theta, cov = _given_prior(system, config.train.horizon, model.rls_order, model.arx_order)
-    model = dataclasses.replace(model, rls_prior=list(theta), rls_prior_cov=list(cov))
+    p, q = model.rls_order, model.arx_order
+    if model.rls_prior == "mixture":
+        prior = _given_mixture(system, config.train.horizon, p, q)
+        model = dataclasses.replace(
+            model,
+            rls_prior=prior.means.flatten().tolist(),
+            rls_prior_cov=prior.covs.flatten().tolist(),
+            rls_prior_weights=prior.weights.tolist(),
+            rls_prior_noise=prior.noise,
+        )
+    else:
+        theta, cov = _given_prior(system, config.train.horizon, p, q)
+        model = dataclasses.replace(model, rls_prior=list(theta), rls_prior_cov=list(cov))
     return dataclasses.replace(config, model=model)
+
+
+@functools.lru_cache(maxsize=32)
+def _given_mixture(system_json: str, horizon: int, p: int, q: int) -> MixturePrior:
+    sample = _prior_sample(system_json, horizon, MIXTURE_SYSTEMS, MIXTURE_SEED)
+    return family_mixture(*sample, p, q)
 
 
 def family_choice(config: RunConfig) -> FeatureChoice:
@@ -321,6 +341,8 @@ def describe_features(model: ModelConfig) -> str:
     elif model.rls_order:
         parts.append(f"RLS-AR({model.rls_order})")
     prior = ", family prior" if model.rls_prior == "family" or model.rls_prior_cov is not None else ""
-    if model.rls_prior_weights is not None:
+    if model.rls_prior == "mixture":
+        prior = f", family prior of {MIXTURE_SIZE} components"
+    elif model.rls_prior_weights is not None:
         prior = f", family prior of {len(model.rls_prior_weights)} components"
     return " + ".join(parts) + prior if parts else "none"
