@@ -14,6 +14,7 @@ from mop.cli import main
 from mop.config import DataConfig, RunConfig, to_dict
 from mop.experiments.presets import PRESETS
 from mop.experiments.training import RECORDED_MODEL, RECORDED_STEPS, training_config
+from mop.train.auto import MIXTURE_SIZE, STEP_COST, steps_for
 from mop.train.estimate import duration
 from mop.train.records import RecordedData, choose_split
 
@@ -143,7 +144,9 @@ def test_training_config_layers(tmp_path):
     rlc = training_config(str(toml), "smoke")
     assert rlc.system.family == "rlc-circuit" and rlc.train.steps == PRESETS["smoke"].train.steps
     small = training_config(str(toml), "small")  # the small preset's model.features=auto, resolved
-    assert small.model.features == "given" and small.model.arx_order > 0 and small.train.steps == 2100
+    assert small.model.features == "given" and small.model.arx_order > 0
+    assert len(small.model.rls_prior_weights) == MIXTURE_SIZE  # rlc-circuit takes the mixture prior
+    assert small.train.steps == steps_for(PRESETS["small"].train.steps, STEP_COST["mixture"])
     named = training_config(None, "small", overrides=["model.rls_order=3"])  # a named key: auto is off
     assert (named.model.features, named.model.rls_order, named.train.steps) == ("given", 3, 2500)
     quad = training_config(None, "small", overrides=["system.family=quadrotor", "train.steps=700"])

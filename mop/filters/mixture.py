@@ -37,6 +37,7 @@ from mop.filters.arx import arx_regressors
 from mop.filters.rls import rls_innovation_update
 
 EM_ITERATIONS = 200
+EM_TOLERANCE = 1e-6  # ... or until the mean log-likelihood per system gains less than this
 EM_SEED = 0  # the components' initial means: K systems drawn with this seed
 COV_FLOOR = 1e-3  # each component's covariance + 1e-3 mean(diag of the pooled covariance) I
 
@@ -156,7 +157,8 @@ def fit_mixture(theta: Tensor, noise: float, size: int, ridge: float = 1e-6) -> 
     """EM fit of a size-K mixture to per-system coefficients theta (N, d, m) (each system's m columns drawn
     from one component, a covariance shared by them); covs returned over `noise` (sigma^2), floored by
     COV_FLOOR and ridge times the mean variance (positive definite where a coefficient never varies).
-    Deterministic: the initial means are K systems drawn with EM_SEED, all covariances start pooled."""
+    Deterministic: the initial means are K systems drawn with EM_SEED, all covariances start pooled; it
+    stops after EM_ITERATIONS or once the mean log-likelihood per system gains less than EM_TOLERANCE."""
     theta = theta.double()
     N, d, m = theta.shape
     if size < 1 or size > N:
@@ -168,8 +170,14 @@ def fit_mixture(theta: Tensor, noise: float, size: int, ridge: float = 1e-6) -> 
     means = theta[torch.randperm(N, generator=g)[:size]].clone()  # (K, d, m)
     covs = (pooled + floor).expand(size, d, d).clone()
     weights = torch.full((size,), 1.0 / size, dtype=theta.dtype)
+    last = -math.inf
     for _ in range(EM_ITERATIONS if size > 1 else 1):
-        resp = torch.softmax(_log_density(theta, weights, means, covs), dim=1)  # (N, K)
+        log_density = _log_density(theta, weights, means, covs)  # (N, K)
+        total = float(torch.logsumexp(log_density, dim=1).mean())
+        if total - last < EM_TOLERANCE:
+            break
+        last = total
+        resp = torch.softmax(log_density, dim=1)
         counts = resp.sum(0).clamp_min(1e-12)
         weights = counts / N
         means = torch.einsum("nk,nim->kim", resp, theta) / counts[:, None, None]
@@ -180,15 +188,11 @@ def fit_mixture(theta: Tensor, noise: float, size: int, ridge: float = 1e-6) -> 
 
 
 def _log_density(theta: Tensor, weights: Tensor, means: Tensor, covs: Tensor) -> Tensor:
-    """(N, K): log w_k + sum over the m columns of log N(theta_i[:, j]; mu_k[:, j], C_k), up to a constant."""
-    m = theta.shape[2]
+    """(N, K): log w_k + sum over the m columns of log N(theta_i[:, j]; mu_k[:, j], C_k)."""
+    N, d, m = theta.shape
     L = torch.linalg.cholesky(covs)  # (K, d, d)
+    precision = torch.cholesky_inverse(L)
     diff = theta[:, None] - means[None]  # (N, K, d, m)
-    z = torch.linalg.solve_triangular(L[None], diff, upper=False)
+    quad = torch.einsum("nkim,kij,nkjm->nk", diff, precision, diff)
     half_logdet = L.diagonal(dim1=-2, dim2=-1).log().sum(-1)  # (K,)
-    return (
-        weights.log()
-        - 0.5 * z.pow(2).sum((2, 3))
-        - m * half_logdet
-        - 0.5 * m * theta.shape[1] * math.log(2 * math.pi)
-    )
+    return weights.log() - 0.5 * quad - m * half_logdet - 0.5 * m * d * math.log(2 * math.pi)
