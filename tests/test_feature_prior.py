@@ -105,7 +105,7 @@ def test_prior_errors():
         build_model(tiny(rls_prior=[1.0, 2.0, 3.0]))
     with pytest.raises(MopError, match="needs model.rls_order > 0"):
         build_model(tiny(rls_order=0, arx_order=0, rls_offset=False, rls_prior="fit"))
-    with pytest.raises(MopError, match="'none', 'fit', 'family' or a list"):
+    with pytest.raises(MopError, match="'none', 'fit', 'family', 'mixture' or a list"):
         build_model(tiny(rls_prior="fitted"))
 
 
