@@ -25,7 +25,7 @@ def test_bench_features_times_the_configs_the_small_preset_trains(capsys):
     # dead-time: the running scale and the identifier, then its mixture (mop.train.auto's step budget)
     budget, scale = PRESETS["small"].train.steps, STEP_COST["scale"]
     assert rows["one Gaussian"]["steps"] == steps_for(budget, scale * STEP_COST["identifier"])
-    assert rows["auto"]["steps"] == steps_for(budget, scale * STEP_COST["mixture"]) == 1600
+    assert rows["auto"]["steps"] == steps_for(budget, scale * STEP_COST["mixture"])
     for row in rows.values():
         assert row["ms_per_step"] > 0
         assert row["cost_vs_plain"] == pytest.approx(row["ms_per_step"] / rows["plain"]["ms_per_step"])

@@ -24,7 +24,7 @@ seed (AUTO_SEED, apart from every training and test stream), y (N, T+1, m) and u
   recursions weighed by their evidence), fitted by EM to the least-squares coefficients of MIXTURE_SYSTEMS
   other systems (seed MIXTURE_SEED), where it cuts the identifier's error on the scored trajectories by more
   than MIXTURE_GAIN (3%): where the family's coefficients are far from one Gaussian. Its K recursions cost
-  1.28x the identifier's step (STEP_COST), so the model gets fewer steps. Measured (the identifier's error
+  1.3-1.5x the identifier's step (STEP_COST), so the model gets fewer steps. Measured (the identifier's error
   with 16 components over one Gaussian's, on the scored trajectories; then MOP / KF over t in [20, 50],
   seed 0, one Gaussian at 2100 steps -> the mixture at 1700, the same 500 test systems): dead-time 0.907,
   1.384 -> 1.267 (a dead time of 1-3 samples puts the input's weight on different lags); rlc-circuit
@@ -84,10 +84,12 @@ SCALE_SPREAD = 5.0  # q90 / q10 of the per-system RMS above 5: sizes too differe
 # 97.8 against 83.7 ms (quadrotor, ARX(2, 2)). One factor serves RLS-AR and ARX: both run the same recursion
 # (mop.filters.rls.rls_loop), whose own time (4.2 to 12 ms a batch for d = 2 to 15 regressors, T = 50,
 # batch 64) is small against the step.
-# The mixture prior's K recursions (mop.filters.mixture) on top: 88.1 against 68.7 ms a step for dead-time's
-# ARX(3, 6) with 16 components against one Gaussian (1.27 to 1.31 over three side-by-side runs).
+# The mixture prior's 16 recursions (mop.filters.mixture) on top of one Gaussian's, `mop bench features`
+# on the idle 2-core AMD EPYC (20 rounds): dead-time ARX(3, 6), m = 1: 1.29 and 1.32 (89.3 against 69.4,
+# 100.7 against 76.3 ms); rlc-circuit ARX(3, 3), m = 2: 1.51 (103.5 against 68.6); thermal-network ARX(4, 6),
+# m = 2: 1.53 (124.7 against 81.6). One factor, 1.4, is within 10% of each.
 STEP_COST = {"scale": 77 / 74, "identifier": 97.8 / 83.7}
-STEP_COST["mixture"] = STEP_COST["identifier"] * 88.1 / 68.7
+STEP_COST["mixture"] = STEP_COST["identifier"] * 1.4
 FEATURE_KEYS = (
     "input_scale",
     "rls_order",
