@@ -31,6 +31,7 @@ from mop.errors import MopError
 from mop.experiments.files import import_plugin
 from mop.experiments.presets import get_preset
 from mop.models import build_model
+from mop.systems import FAMILIES
 from mop.train.auto import FeatureChoice, describe_features, steps_for
 from mop.train.data import TrainingData
 from mop.train.optim import LossModule, make_optimizer, train_step
@@ -40,7 +41,7 @@ STEPS_PER_ROUND = 4
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--family", default="linear-inputs", help="system family (linear-inputs)")
+    parser.add_argument("--family", default=None, help="system family (the default family)")
     parser.add_argument(
         "--plugin", action="append", default=[], help="a family's Python file to import first (repeatable)"
     )
@@ -110,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
         raise MopError("--rounds must be at least 1 and --warmup at least 0")
     for plugin in args.plugin:
         import_plugin(Path(plugin))
-    configs = variants(args.family)
+    family = args.family or FAMILIES.default()
+    configs = variants(family)
     ms = measure(configs, args.rounds, args.warmup)
     rows = [
         {
@@ -122,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         }
         for name, config in configs.items()
     ]
-    result = {"family": args.family, "threads": 1, "rounds": args.rounds, "variants": rows}
+    result = {"family": family, "threads": 1, "rounds": args.rounds, "variants": rows}
     if args.json:
         print(json.dumps(result))
         return 0
