@@ -24,8 +24,10 @@ from mop.config import ModelConfig, RunConfig, from_dict
 from mop.errors import MopError
 from mop.models import build_model, predictor_names, skip_presets
 from mop.models.predictor import LearnedPredictor, Normalization
+from mop.plugins import PLUGINS_FILE, import_plugin
 from mop.predictors import PREDICTORS, Predictor
 from mop.pretrained import resolve_run_dir
+from mop.systems import FAMILIES
 
 
 def retrain_hint(run_dir: str | os.PathLike) -> str:
@@ -53,13 +55,38 @@ def load_config(run_dir: str | os.PathLike) -> RunConfig:
     path = run_dir / "config.json"
     if not path.is_file():
         raise MopError(f"{run_dir} has no config.json; it is not a mop run directory")
+    import_run_plugins(run_dir)
     data = read_run_json(path)
+    system = data.get("system") if isinstance(data, dict) else None
+    family = system.get("family") if isinstance(system, dict) else None
+    if isinstance(family, str) and family not in FAMILIES:
+        raise MopError(
+            f"{run_dir} was trained on the system family {family!r}, which is not registered here (a "
+            f"plugin's family, in a run without {PLUGINS_FILE}): import its file first "
+            "(mop.plugins.import_plugin), or train the run again with this version, which records it"
+        )
     try:
         return from_dict(RunConfig, data)
     except MopError as err:
         raise MopError(
             f"{path} is damaged ({err}); delete the run directory {run_dir} and train it again"
         ) from None
+
+
+def import_run_plugins(run_dir: Path) -> None:
+    """Import the plugin files a run directory's PLUGINS_FILE lists (mop.plugins), one-line MopError for one
+    that is gone."""
+    listed = run_dir / PLUGINS_FILE
+    if not listed.is_file():
+        return
+    for name in read_run_json(listed):
+        plugin = Path(name)
+        if not plugin.is_file():
+            raise MopError(
+                f"{run_dir} was trained on a family from the plugin {plugin}, which is not there any more; "
+                f"put the file back (or edit {listed} to where it is now)"
+            )
+        import_plugin(plugin)
 
 
 def load_model(

@@ -20,7 +20,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mop"
 LAYERS: list[tuple[str, ...]] = [
     ("mop.errors", "mop.registry", "mop.atomic", "mop.progress", "mop.metrics", "mop.io", "mop.report"),
     ("mop.typecheck", "mop.identity"),  # core: they import no mop module
-    ("mop.memory", "mop.outputs"),  # core too: they import only errors and atomic
+    ("mop.memory", "mop.outputs", "mop.plugins"),  # core too: they import only errors and atomic
     ("mop.missing",),
     ("mop.pretrained",),  # the shipped runs' files and cards (mop.runs resolves pretrained:NAME with it)
     ("mop.plots", "mop.checkpoint"),

@@ -24,15 +24,14 @@ A threshold is a number, [low, high] with op "between", or a measure table.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
 from mop.config import from_dict
 from mop.errors import MopError
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
+from mop.plugins import import_plugin
 from mop.pretrained import is_pretrained
 
 
@@ -99,44 +98,6 @@ def _tables(value: Any, where: str) -> list[dict]:
         example = f"[[{where.split()[-1]}]]"
         raise MopError(f"{where} must be a list of tables ({example} in TOML), got {value!r}")
     return list(value)
-
-
-def import_plugin(path: Path) -> None:
-    """Import a Python file by path (its registrations run); importing the same file twice is a no-op.
-
-    Any error the file raises while importing (a SyntaxError, a missing module, its own exception) is a
-    one-line MopError naming the file, the line and the error.
-    """
-    if not path.is_file():
-        raise MopError(f"plugin {path} does not exist; plugins are paths relative to the experiment file")
-    name = f"mop_plugin_{path.stem}_{abs(hash(str(path.resolve())))}"
-    if name in sys.modules:
-        return
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    try:
-        spec.loader.exec_module(module)
-    except MopError as err:
-        del sys.modules[name]
-        raise MopError(f"plugin {path}: {err}") from None
-    except Exception as err:  # the plugin's own code: report it in one line, whatever it raised
-        del sys.modules[name]
-        raise MopError(f"plugin {path} failed to import: {_plugin_error(err, path)}") from None
-
-
-def _plugin_error(err: Exception, path: Path) -> str:
-    """`SyntaxError at line 3: invalid syntax`, `ModuleNotFoundError: No module named 'x' (line 1)`."""
-    if isinstance(err, SyntaxError):
-        return f"SyntaxError at line {err.lineno}: {err.msg}"
-    line = ""
-    tb = err.__traceback__
-    while tb is not None:
-        if Path(tb.tb_frame.f_code.co_filename).resolve() == path.resolve():
-            line = f" (line {tb.tb_lineno})"
-        tb = tb.tb_next
-    first = (str(err).splitlines() or [""])[0]
-    return f"{type(err).__name__}: {first}{line}"
 
 
 def _measure(data: Any, where: str) -> Measure:

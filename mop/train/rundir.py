@@ -32,8 +32,9 @@ from mop.checkpoint import load_checkpoint, save_checkpoint, save_model
 from mop.config import RunConfig, to_dict
 from mop.errors import MopError
 from mop.models import check_arch
+from mop.plugins import PLUGINS_FILE, plugin_file
 from mop.runs import read_run_json, retrain_hint
-from mop.systems import make_family
+from mop.systems import FAMILIES, make_family
 from mop.train.auto import resolve_features
 from mop.train.data import validates_tails
 from mop.train.records import recorded_data
@@ -151,7 +152,12 @@ def _diff(a: dict, b: dict, prefix: str = "") -> str:
 
 
 def write_config(out_dir: Path, config: RunConfig) -> None:
+    """config.json, and beside it PLUGINS_FILE where the system family came from a plugin (mop.plugins), so
+    that loading the run imports the plugin before reading the config."""
     out_dir.mkdir(parents=True, exist_ok=True)
+    plugin = plugin_file(FAMILIES.get(config.system.family)) if config.data is None else None
+    if plugin is not None:
+        write_json(out_dir / PLUGINS_FILE, [str(plugin)])
     write_json(out_dir / "config.json", to_dict(config))
 
 
