@@ -10,17 +10,13 @@ import pytest
 import torch
 from scipy.special import logsumexp
 from scipy.stats import multivariate_normal
+from torch import Tensor
 
 from mop.config import DataConfig, ModelConfig, RunConfig, SystemConfig, from_dict
 from mop.errors import MopError
 from mop.experiments.files import import_plugin
 from mop.filters.arx import arx_predict, arx_regressors
-from mop.filters.mixture import (
-    MixturePrior,
-    closed_form_mixture_predict,
-    fit_mixture,
-    mixture_predict,
-)
+from mop.filters.mixture import MixturePrior, fit_mixture, mixture_predict
 from mop.models import build_model
 from mop.models.features import feature_prior
 from mop.models.predict import stream
@@ -82,6 +78,32 @@ def test_prediction_is_the_exact_posterior_mean_scipy():
     # the start-up: yhat_0 = 0, yhat_t = y_{t-1} up to r
     np.testing.assert_array_equal(yhat[:, 0], 0)
     np.testing.assert_array_equal(yhat[:, 1 : r + 1], y[:, :r].numpy())
+
+
+def closed_form_mixture_predict(y: Tensor, u: Tensor, p: int, q: int, prior: MixturePrior) -> Tensor:
+    """mixture_predict's yhat (B, T, m) for complete y (B, T, m) and u (B, T, k), all steps at once in
+    information form: the pairs' sums S_t = sum phi phi^T and b_t = sum phi y^T shared by the components,
+    Lambda = P_k^-1 + S_t, theta = Lambda^-1 (P_k^-1 mu_k + b_t), and the evidence
+    log N(Y; X mu_k, sigma^2 (I + X P_k X^T)) per output column, the product of the recursion's one-step
+    densities. A reference for the tests, not a path mop runs: its batched Cholesky factorisations of B T K
+    small matrices took 186 against 65 ms for mixture_predict's loop (B = 64, T = 51, K = 8, d = 12)."""
+    B, T, m = y.shape
+    r = max(p, q)
+    phi = arx_regressors(y, u, p, q)  # (B, T, d)
+    head = torch.cat([y.new_zeros(B, 1, m), y[:, :r]], dim=1)  # yhat_0 = 0, yhat_t = y_{t-1} up to r
+    X, Y = phi[:, r - 1 : T - 2], y[:, r : T - 1]  # the pairs (phi_{s-1}, y_s), s = r..T-2
+    S = torch.cumsum(X[..., :, None] * X[..., None, :], dim=1)  # (B, n, d, d)
+    b = torch.cumsum(X[..., :, None] * Y[..., None, :], dim=1)  # (B, n, d, m)
+    yy = torch.cumsum(Y.pow(2).sum(-1), dim=1)  # (B, n)
+    prior_prec = torch.linalg.inv(prior.covs)  # (K, d, d)
+    prior_b = prior_prec @ prior.means  # (K, d, m)
+    L = torch.linalg.cholesky(prior_prec + S[:, :, None])  # (B, n, K, d, d)
+    theta = torch.cholesky_solve(prior_b + b[:, :, None], L)  # (B, n, K, d, m): the posterior means
+    quad = (prior.means * prior_b).sum((-2, -1)) - (theta * (prior_b + b[:, :, None])).sum((-2, -1))
+    logdet = 2 * L.diagonal(dim1=-2, dim2=-1).log().sum(-1) + torch.logdet(prior.covs)  # log det(P_k Lambda)
+    log_w = prior.weights.log() - 0.5 * ((yy[..., None] + quad) / prior.noise + m * logdet)  # (B, n, K)
+    each = (theta.mT @ phi[:, r : T - 1, None, :, None])[..., 0]  # (B, n, K, m): yhat_{r+1+i}
+    return torch.cat([head, (torch.softmax(log_w, -1)[..., None] * each).sum(2)], dim=1)
 
 
 def test_recursion_equals_its_closed_form():

@@ -91,56 +91,6 @@ class MixtureState:
         return (w[..., None] * each.reshape(B, K, -1)).sum(1)
 
 
-def closed_form_mixture_predict(y: Tensor, u: Tensor | None, p: int, q: int, prior: MixturePrior) -> Tensor:
-    """One-step predictions yhat (B, T, m), yhat[:, t] of y_t from y_{<t} and u_{<t}, for y (B, T, m)
-    complete and u (B, T, k) or None (q ignored): ARX(p, q) (RLS-AR(p) without inputs) under the mixture
-    prior, float64; start-up as mop.filters.arx.arx_predict.
-
-    All steps at once in information form, the pairs' sums S_t = sum phi phi^T and b_t = sum phi y^T
-    shared by the K components: Lambda = P_k^-1 + S_t, theta = Lambda^-1 (P_k^-1 mu_k + b_t), and the
-    evidence log N(Y; X mu_k, sigma^2 (I + X P_k X^T)) per output column, which is the product of the
-    recursion's one-step densities. Equal to mixture_predict to rounding (tests/test_mixture_prior.py), and
-    the reference it is checked against, not the path the model runs: its batched Cholesky factorisations of
-    B T K small matrices take 186 against 65 ms for mixture_predict's loop (B = 64, T = 51, K = 8, d = 12,
-    one thread)."""
-    if torch.isnan(y).any():
-        raise MopError("the ARX feature under a mixture prior needs complete outputs; this record has gaps")
-    B, T, m = y.shape
-    y = y.double()
-    r = p if u is None else max(p, q)
-    phi = arx_regressors(y, None if u is None else u.double(), p, max(q, 1))  # (B, T, d)
-    d = phi.shape[-1]
-    if d != prior.means.shape[1] or m != prior.means.shape[2]:
-        raise MopError(
-            f"the mixture prior holds {tuple(prior.means.shape[1:])} coefficients, ARX({p}, {q}) on {m} "
-            f"outputs needs {(d, m)}"
-        )
-    head = torch.cat([y.new_zeros(B, 1, m), y[:, : min(r, T - 1)]], dim=1)  # yhat_0 = 0, yhat_t = y_{t-1}
-    if T <= r + 1:
-        return head[:, :T]
-    X, Y = phi[:, r - 1 : T - 2], y[:, r : T - 1]  # the pairs (phi_{s-1}, y_s), s = r..T-2: (B, n, d|m)
-    S = torch.cumsum(X[..., :, None] * X[..., None, :], dim=1)  # (B, n, d, d): the sums over s <= r + i
-    b = torch.cumsum(X[..., :, None] * Y[..., None, :], dim=1)  # (B, n, d, m)
-    yy = torch.cumsum(Y.pow(2).sum(-1), dim=1)  # (B, n)
-    prior_prec = torch.linalg.inv(prior.covs.to(y))  # (K, d, d)
-    prior_b = prior_prec @ prior.means.to(y)  # (K, d, m)
-    prec = prior_prec + S[:, :, None]  # (B, n, K, d, d)
-    L = torch.linalg.cholesky(prec)
-    theta = torch.cholesky_solve(prior_b + b[:, :, None], L)  # (B, n, K, d, m): the posterior means
-    quad = (prior.means.to(y) * prior_b).sum((-2, -1)) - (theta * (prior_b + b[:, :, None])).sum((-2, -1))
-    logdet = 2 * (L.diagonal(dim1=-2, dim2=-1).log().sum(-1) - _half_logdet(prior.covs.to(y), inverse=True))
-    log_w = prior.weights.to(y).log() - 0.5 * ((yy[..., None] + quad) / prior.noise + m * logdet)  # (B, n, K)
-    w = torch.softmax(log_w, dim=-1)
-    each = (theta.mT @ phi[:, r : T - 1, None, :, None])[..., 0]  # (B, n, K, m): yhat_{r+1+i} per component
-    return torch.cat([head, (w[..., None] * each).sum(2)], dim=1)
-
-
-def _half_logdet(covs: Tensor, inverse: bool = False) -> Tensor:
-    """(K,): half the log-determinant of each covariance (of its inverse with inverse=True)."""
-    half = torch.linalg.cholesky(covs).diagonal(dim1=-2, dim2=-1).log().sum(-1)
-    return -half if inverse else half
-
-
 def mixture_predict(y: Tensor, u: Tensor | None, p: int, q: int, prior: MixturePrior) -> Tensor:
     """mixture_predict by the K recursions one pair at a time (MixtureState, as the streaming feature runs
     it): the same predictions to rounding."""
