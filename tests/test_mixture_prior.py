@@ -170,6 +170,19 @@ def test_mixture_prior_errors(change, message):
         build_model(mixture_model(**change))
 
 
+def test_gaps_or_other_orders_are_one_line_errors():
+    y, u = data()
+    prior = random_prior(2, 2 * 2 + 3, 2)
+    gapped = y.clone()
+    gapped[0, 5, 1] = float("nan")
+    with pytest.raises(MopError, match="needs complete outputs; this record has gaps"):
+        mixture_predict(gapped, u, 2, 3, prior)
+    with pytest.raises(
+        MopError, match=r"holds \(7, 2\) coefficients, ARX\(3, 3\) on 2 outputs needs \(9, 2\)"
+    ):
+        mixture_predict(y, u, 3, 3, prior)
+
+
 def test_mixture_prior_needs_its_noise():
     with pytest.raises(MopError, match="rls_prior_noise must be > 0"):
         mixture_model(rls_prior_noise=0.0)

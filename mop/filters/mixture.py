@@ -92,11 +92,21 @@ class MixtureState:
 
 
 def mixture_predict(y: Tensor, u: Tensor | None, p: int, q: int, prior: MixturePrior) -> Tensor:
-    """mixture_predict by the K recursions one pair at a time (MixtureState, as the streaming feature runs
-    it): the same predictions to rounding."""
+    """One-step predictions yhat (B, T, m), yhat[:, t] of y_t from y_{<t} and u_{<t}, for y (B, T, m)
+    complete and u (B, T, k) or None (q ignored): ARX(p, q) (RLS-AR(p) without inputs) under the mixture
+    prior, float64, by its K recursions one pair at a time (MixtureState, as the streaming feature runs
+    them); start-up as mop.filters.arx.arx_predict. Outputs with gaps, or a prior of other orders, are a
+    one-line MopError."""
+    if torch.isnan(y).any():
+        raise MopError("the ARX feature under a mixture prior needs complete outputs; this record has gaps")
     B, T, m = y.shape
     r = p if u is None else max(p, q)
     phi = arx_regressors(y.double(), None if u is None else u.double(), p, max(q, 1))
+    if phi.shape[-1] != prior.means.shape[1] or m != prior.means.shape[2]:
+        raise MopError(
+            f"the mixture prior holds {tuple(prior.means.shape[1:])} coefficients, ARX({p}, {q}) on {m} "
+            f"outputs needs {(phi.shape[-1], m)}"
+        )
     state = MixtureState(prior, B, y)
     phi_k, y_k = phi.repeat_interleave(prior.size, 0), y.double().repeat_interleave(prior.size, 0)
     preds = [y.new_zeros(B, m).double()] + [y[:, t - 1].double() for t in range(1, min(r + 1, T))]
