@@ -2,6 +2,11 @@
 Kalman filter (mop.filters.kalman, tested against filterpy), its likelihood by scipy, the weights by
 scipy.special.softmax."""
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -10,12 +15,13 @@ from scipy.stats import multivariate_normal
 
 from mop.config import SystemConfig
 from mop.errors import MopError, MopWarning
-from mop.filters.bayes import bayes_mixture, draw_bank
+from mop.filters.bayes import bank_sums, bayes_mixture, draw_bank
 from mop.filters.kalman import KalmanPredictor, kalman_filter
 from mop.filters.linear_gaussian import linear_systems
 from mop.predictors import forecast, make_predictor, nan_beyond_horizon
 from mop.systems import generator, make_family
 
+ROOT = Path(__file__).resolve().parents[1]  # the child imports this checkout of mop
 SYSTEM = SystemConfig(family="linear-inputs", state_dim=2, output_dim=2, input_dim=1)
 
 
@@ -48,6 +54,18 @@ def test_mixture_equals_brute_force_bayes():
     np.testing.assert_allclose(yhat.numpy(), ref_yhat, rtol=1e-8, atol=1e-10)
     np.testing.assert_allclose(ess.numpy(), ref_ess, rtol=1e-8)
     assert float(ess[:, 0].min()) == pytest.approx(5.0)  # no data yet: the prior's equal weights
+
+
+def test_shards_combine_to_the_bank_of_their_union():
+    """scripts/bayes_bank.py runs a bank as shards in separate processes and adds their BankSums: the sum
+    is the union's mixture, against the brute-force reference, whatever the split."""
+    bank = draw_bank(SYSTEM, 7, seed=5)
+    traj = make_family(SYSTEM, torch.float64).generate(3, 10, generator=generator(9))
+    ref_yhat, ref_ess = _reference(bank, traj.y, traj.u)
+    for split in (1, 4, 6):
+        sums = bank_sums(bank[split:], traj.y, traj.u) + bank_sums(bank[:split], traj.y, traj.u)
+        np.testing.assert_allclose(sums.mean[:, :, 0].numpy(), ref_yhat, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(sums.ess.numpy(), ref_ess, rtol=1e-8)
 
 
 def test_a_bank_of_the_true_system_is_its_kalman_filter():
@@ -88,3 +106,28 @@ def test_a_collapsed_bank_is_said():
     traj = make_family(SYSTEM, torch.float64).generate(8, 30, generator=generator(1))
     with pytest.warns(MopWarning, match="effective sample size"):
         make_predictor("bayes", shared={"system": SYSTEM}, bank_size=50).predict(traj)
+
+
+def test_bank_script_first_shard_is_the_reports_bayes_row(tmp_path):
+    """scripts/bayes_bank.py's first row is the `bayes` predictor at bank_size SIZE (seed 0) on the test
+    systems the experiment's report evaluates (smoke preset: N = 32); then one row per added shard."""
+    from mop.experiments import run_config
+    from mop.experiments.evaluating import test_system, test_trajectories
+    from mop.experiments.files import load_experiment
+    from mop.metrics import mse_ratio_ci
+
+    experiment, out = ROOT / "examples" / "two_mass.toml", tmp_path / "bank.json"
+    args = ["--shards", "2", "--size", "40", "--jobs", "1", "--preset", "smoke", "--out", str(out)]
+    script = [sys.executable, str(ROOT / "scripts" / "bayes_bank.py"), str(experiment), *args]
+    r = subprocess.run(script, capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    rows = json.loads(out.read_text())["rows"]
+    exp = load_experiment(experiment)
+    trained = run_config(exp, "smoke", 0)
+    system = test_system(trained, exp.conditions[0])
+    traj = test_trajectories(system, 32, trained.train.horizon, 0)
+    error = lambda yhat: (yhat.double() - traj.y).norm(dim=-1).numpy()  # noqa: E731
+    bayes = make_predictor("bayes", system=system, bank_size=40, seed=0).predict(traj)
+    ratio = mse_ratio_ci(error(bayes), error(KalmanPredictor().predict(traj)), 20, traj.horizon + 1)[0]
+    assert [row["systems"] for row in rows] == [40, 80]
+    assert rows[0]["ratio"] == pytest.approx(ratio, rel=1e-9)

@@ -30,6 +30,7 @@ experiment lists it (the smoke and small presets leave it out unless asked).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 
@@ -69,6 +70,45 @@ def _chunk_terms(bank: LinearSystems, y: Tensor, u: Tensor | None, steps: int) -
     return torch.stack(out, 3), loglik
 
 
+@dataclasses.dataclass(frozen=True)
+class BankSums:
+    """What a bank's mixture needs of its systems, over N trajectories: lse = log sum_j p_j(y_{<t}) and
+    lse2 = log sum_j p_j(y_{<t})^2 (N, T+1), and mean the weighted mean of their forecasts (N, T+1, K, m).
+    Two banks' sums combine (`+`) into those of their union, so a bank can be split into chunks, or into
+    shards run in separate processes (scripts/bayes_bank.py), with the same result up to float rounding."""
+
+    lse: Tensor
+    lse2: Tensor
+    mean: Tensor
+
+    def __add__(self, other: BankSums) -> BankSums:
+        total = torch.logaddexp(self.lse, other.lse)
+        mean = (self.lse - total).exp()[..., None, None] * self.mean
+        mean = mean + (other.lse - total).exp()[..., None, None] * other.mean
+        return BankSums(total, torch.logaddexp(self.lse2, other.lse2), mean)
+
+    @property
+    def ess(self) -> Tensor:
+        """(N, T+1): the weights' effective sample size 1 / sum_j w_j^2."""
+        return (2 * self.lse - self.lse2).exp()
+
+
+def bank_sums(bank: LinearSystems, y: Tensor, u: Tensor | None, chunk: int = 512, steps: int = 1) -> BankSums:
+    """The BankSums of `bank` over y (N, T+1, m) complete and u (N, T+1, k) or None, float64, processed in
+    chunks of `chunk` systems (memory O(chunk N T K m))."""
+    if torch.isnan(y).any():
+        raise MopError("bayes: the outputs have gaps (NaN); the Bayes mixture needs complete outputs")
+    y = y.double()
+    u = None if u is None else u.double()
+    sums = None
+    for lo in range(0, bank.A.shape[0], chunk):
+        preds, loglik = _chunk_terms(bank[lo : lo + chunk], y, u, steps)
+        weights = torch.softmax(loglik, 0)[..., None, None]
+        part = BankSums(torch.logsumexp(loglik, 0), torch.logsumexp(2 * loglik, 0), (weights * preds).sum(0))
+        sums = part if sums is None else sums + part
+    return sums
+
+
 def bayes_mixture(
     bank: LinearSystems, y: Tensor, u: Tensor | None, chunk: int = 512, steps: int = 1
 ) -> tuple[Tensor, Tensor]:
@@ -77,23 +117,8 @@ def bayes_mixture(
     prediction; the module docstring), weighted by p(y_{<t}), and the weights' effective sample size, for y
     (N, T+1, m) complete, u (N, T+1, k) or None. The bank is processed in chunks of `chunk` systems (memory
     O(chunk N T K m)); the result does not depend on the chunking up to float rounding."""
-    if torch.isnan(y).any():
-        raise MopError("bayes: the outputs have gaps (NaN); the Bayes mixture needs complete outputs")
-    y = y.double()
-    u = None if u is None else u.double()
-    lse = lse2 = num = None
-    for lo in range(0, bank.A.shape[0], chunk):
-        preds, loglik = _chunk_terms(bank[lo : lo + chunk], y, u, steps)
-        c_lse = torch.logsumexp(loglik, 0)  # (N, T+1)
-        c_num = (torch.softmax(loglik, 0)[..., None, None] * preds).sum(0)  # (N, T+1, K, m): chunk's mean
-        c_lse2 = torch.logsumexp(2 * loglik, 0)
-        if lse is None:
-            lse, lse2, num = c_lse, c_lse2, c_num
-            continue
-        total = torch.logaddexp(lse, c_lse)
-        num = (lse - total).exp()[..., None, None] * num + (c_lse - total).exp()[..., None, None] * c_num
-        lse, lse2 = total, torch.logaddexp(lse2, c_lse2)
-    return num, (2 * lse - lse2).exp()
+    sums = bank_sums(bank, y, u, chunk, steps)
+    return sums.mean, sums.ess
 
 
 def draw_bank(system: SystemConfig, size: int, seed: int, horizon: int = 0) -> LinearSystems:
