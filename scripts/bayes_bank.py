@@ -19,13 +19,16 @@ systems (N = 500, T = 50, n = 5).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import multiprocessing
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from mop.errors import MopError
 from mop.experiments import run_config
 from mop.experiments.evaluating import test_system, test_trajectories
 from mop.experiments.files import load_experiment
@@ -36,8 +39,10 @@ from mop.predictors import make_predictor
 from mop.systems.base import Trajectories
 
 
+@functools.lru_cache(maxsize=1)
 def test_set(path: str, preset: str, seed: int) -> tuple[object, Trajectories]:
-    """(the test family's SystemConfig, its test trajectories) of the experiment's first condition."""
+    """(the test family's SystemConfig, its test trajectories) of the experiment's first condition (once per
+    process: a worker runs several shards)."""
     exp = load_experiment(path)
     trained = run_config(exp, preset, seed)
     system = test_system(trained, exp.conditions[0])
@@ -65,7 +70,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    _, traj = test_set(args.experiment, args.preset, args.seed)
+    try:  # a missing file or a family without a linear-Gaussian model: one line, before any shard runs
+        system, traj = test_set(args.experiment, args.preset, args.seed)
+        draw_bank(system, 1, args.seed, traj.horizon)
+    except MopError as err:
+        sys.exit(f"bayes_bank: {err}")
     y = traj.y.double()
     e_kf = (make_predictor("kalman").predict(traj).double() - y).norm(dim=-1).numpy()
     tasks = [(args.experiment, args.preset, args.seed, args.size, i) for i in range(args.shards)]

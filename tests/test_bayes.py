@@ -15,9 +15,12 @@ from scipy.stats import multivariate_normal
 
 from mop.config import SystemConfig
 from mop.errors import MopError, MopWarning
+from mop.experiments import evaluating, run_config  # evaluating.test_*: not collected as tests
+from mop.experiments.files import load_experiment
 from mop.filters.bayes import bank_sums, bayes_mixture, draw_bank
 from mop.filters.kalman import KalmanPredictor, kalman_filter
 from mop.filters.linear_gaussian import linear_systems
+from mop.metrics import mse_ratio_ci
 from mop.predictors import forecast, make_predictor, nan_beyond_horizon
 from mop.systems import generator, make_family
 
@@ -111,11 +114,6 @@ def test_a_collapsed_bank_is_said():
 def test_bank_script_first_shard_is_the_reports_bayes_row(tmp_path):
     """scripts/bayes_bank.py's first row is the `bayes` predictor at bank_size SIZE (seed 0) on the test
     systems the experiment's report evaluates (smoke preset: N = 32); then one row per added shard."""
-    from mop.experiments import run_config
-    from mop.experiments.evaluating import test_system, test_trajectories
-    from mop.experiments.files import load_experiment
-    from mop.metrics import mse_ratio_ci
-
     experiment, out = ROOT / "examples" / "two_mass.toml", tmp_path / "bank.json"
     args = ["--shards", "2", "--size", "40", "--jobs", "1", "--preset", "smoke", "--out", str(out)]
     script = [sys.executable, str(ROOT / "scripts" / "bayes_bank.py"), str(experiment), *args]
@@ -124,10 +122,22 @@ def test_bank_script_first_shard_is_the_reports_bayes_row(tmp_path):
     rows = json.loads(out.read_text())["rows"]
     exp = load_experiment(experiment)
     trained = run_config(exp, "smoke", 0)
-    system = test_system(trained, exp.conditions[0])
-    traj = test_trajectories(system, 32, trained.train.horizon, 0)
+    system = evaluating.test_system(trained, exp.conditions[0])
+    traj = evaluating.test_trajectories(system, 32, trained.train.horizon, 0)
     error = lambda yhat: (yhat.double() - traj.y).norm(dim=-1).numpy()  # noqa: E731
     bayes = make_predictor("bayes", system=system, bank_size=40, seed=0).predict(traj)
     ratio = mse_ratio_ci(error(bayes), error(KalmanPredictor().predict(traj)), 20, traj.horizon + 1)[0]
     assert [row["systems"] for row in rows] == [40, 80]
     assert rows[0]["ratio"] == pytest.approx(ratio, rel=1e-9)
+
+
+def test_bank_script_refuses_a_family_without_a_linear_gaussian_model_in_one_line():
+    """The pendulum is nonlinear: no bank of Kalman filters, said in one line before any shard runs."""
+    script = [
+        sys.executable,
+        str(ROOT / "scripts" / "bayes_bank.py"),
+        str(ROOT / "examples" / "pendulum.toml"),
+    ]
+    r = subprocess.run([*script, "--preset", "smoke"], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("bayes_bank: "), r.stderr
