@@ -158,9 +158,11 @@ class BayesPredictor:
             warnings.warn(
                 MopWarning(
                     f"bayes: the median effective sample size of its {self.bank_size} systems is {ess:.1f} "
-                    f"at t = {traj.horizon}: the family has too many unknowns for sampling from its prior, "
-                    "so the mixture is far from the Bayes predictor (its error is only an upper bound of "
-                    "the Bayes error); a larger bank_size moves it closer"
+                    f"at t = {traj.horizon}: few of the drawn systems explain the data (a narrow posterior, "
+                    "or too many unknowns for sampling from the prior), so the mixture may be far from the "
+                    "Bayes predictor (its error is only an upper bound of the Bayes error); a larger "
+                    "bank_size moves it closer (scripts/bayes_bank.py EXPERIMENT grows it in shards until "
+                    "the estimate settles)"
                 ),
                 stacklevel=2,
             )
