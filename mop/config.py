@@ -177,6 +177,11 @@ class ModelConfig:
     # without a listed rls_prior, the feature's P_0 = rls_p0 I, i.e. a ridge 1 / rls_p0 towards 0 (1: the
     # paper's RLS); larger: closer to least squares, for data a model identifies exactly (no noise)
     rls_p0: float = 1.0
+    # the family's units (mop.train.auto.family_units): the model reads y_t / output_units and u_t /
+    # input_units (one positive number per channel, m and k; None: as simulated) and its predictions are
+    # multiplied back, like a recorded-data run's normalisation (mop.runs.load_normalization)
+    output_units: list[float] | None = None
+    input_units: list[float] | None = None
     # "given": input_scale / rls_order / arx_order as set; "auto": chosen from the family's shapes and data,
     # train.steps scaled by the feature's step cost (mop.train.auto; resolved before training, so saved)
     features: str = "given"
@@ -214,6 +219,12 @@ class ModelConfig:
             self.rls_prior_weights is None or self.rls_prior_noise > 0,
             f"model.rls_prior_noise must be > 0 beside model.rls_prior_weights, got {self.rls_prior_noise}",
         )
+        for name in ("output_units", "input_units"):
+            units = getattr(self, name)
+            check(
+                units is None or (isinstance(units, list) and all(float(v) > 0 for v in units)),
+                f"model.{name} must be a list of positive numbers, one per channel, got {units!r:.60}",
+            )
         check(
             0 < self.residual_decay < 1,
             f"model.residual_decay must be in (0, 1) (the error k steps back weighs decay^k), got "

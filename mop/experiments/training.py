@@ -216,11 +216,13 @@ def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConf
         keep_best=True,
         simulate_after=FINE_TUNE_SIMULATE_AFTER if source.train.simulate_after else 0,
     )
-    data = config.data
+    data, model = config.data, config.model
     if data is not None and source.data is not None and source.data.fitted:
         kept = {k: getattr(source.data, k) for k in ("y_mean", "y_std", "u_mean", "u_std")}
         data = dataclasses.replace(data, **kept)
-    return dataclasses.replace(config, train=train, data=data)
+    if data is not None:  # the record's normalisation replaces a simulated source's family units
+        model = dataclasses.replace(model, output_units=None, input_units=None)
+    return dataclasses.replace(config, model=model, train=train, data=data)
 
 
 # record_norm's pseudo-steps at the estimation record's moments (model.record_prior_steps) in a fine-tune

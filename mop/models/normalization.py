@@ -1,6 +1,9 @@
 """A learned predictor's input handling: the affine normalisation of a recorded-data run, and the check
 that flags inputs far outside the training data.
 
+A model trained in its family's units (model.output_units / input_units, set by model.features=auto where
+the family's signals are far from unit scale) reads y / output_units and u / input_units, and its
+predictions are multiplied back (Normalization.of_units, what LearnedPredictor uses when given none).
 A model trained on recorded data (`mop train --data`) reads normalised inputs: Normalization maps
 z -> (z - z_mean) / z_std before the model (in float64) and the model's mean mu -> mu * y_std + y_mean
 (variance var * y_std^2) after it, so predictions are in the data's units.
@@ -22,6 +25,9 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from mop.config import ModelConfig
+from mop.models.features import input_count
+
 OOD_RMS = 5.0  # warn when an input channel's RMS z-score against the training inputs exceeds this
 
 InputStats = tuple[Sequence[float], Sequence[float]]  # per input channel: training mean, training std
@@ -42,6 +48,17 @@ class Normalization:
     ) -> Normalization:
         t = lambda v: torch.tensor(list(v), dtype=torch.float64)  # noqa: E731
         return cls(t(y_mean), t(y_std), t(u_mean), t(u_std))
+
+    @classmethod
+    def of_units(cls, model: ModelConfig) -> Normalization | None:
+        """Reading data in a simulated model's units (model.output_units / input_units, the family's units:
+        y / units, u / units, no shift), None where the model has none."""
+        if model.output_units is None and model.input_units is None:
+            return None
+        m, k = model.output_dim, input_count(model)
+        y_units = model.output_units or [1.0] * m
+        u_units = model.input_units or [1.0] * k
+        return cls.from_lists([0.0] * m, y_units, [0.0] * k, u_units)
 
     def inputs(self, z: Tensor) -> Tensor:
         """z (B, T, m + k) in data units -> normalised, float64."""

@@ -71,12 +71,12 @@ class ModelPredictor:
         name = name or predictor_names().get(model.cfg.arch, model.cfg.arch)  # "": its architecture's entry
         self.model, self.name, self.mode, self.chunk_size = model, name, mode, chunk_size
         self.cfg = model.cfg
-        self.normalization = normalization
         self.source = source  # the run directory or pretrained:NAME it was loaded from, for messages
         if input_stats is None and normalization is not None:
             d_in = self.cfg.input_dim
             input_stats = ([0.0] * d_in, [1.0] * d_in)  # normalised training inputs
         self.input_stats = input_stats
+        self.normalization = normalization or Normalization.of_units(self.cfg)  # the family's units
         self._warned = False
 
     def inputs(self, traj: Trajectories) -> Tensor:

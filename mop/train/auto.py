@@ -32,9 +32,15 @@ seed (AUTO_SEED, apart from every training and test stream), y (N, T+1, m) and u
   0.950, 1.108 -> 1.094; thermal-network 0.959, 1.145 -> 1.129; two-mass 0.971, 1.141 -> 1.142;
   pendulum 0.972; quadrotor 0.987; linear-inputs 1.002. So the rule takes it where the identifier gains
   more than 3% (dead-time, rlc-circuit, thermal-network);
+- the family's units (family_units), first: where some output (input) channel's median RMS over systems
+  is outside [1 / SCALE_FAR, SCALE_FAR], a family written in other units, the model reads every output
+  (input) channel divided by its median RMS (model.output_units, model.input_units; its predictions are
+  multiplied back, mop.models.normalization), and the rest of the rule reads the sample in those units. No
+  built-in or example family is that far (channel medians 0.26 to 4.7), so they read their data as
+  simulated; the thermal network written 30x larger or smaller gets the units and the keys of the original;
 - the running output scale (mop.models.features) where the outputs are far from unit scale: the per-system
   RMS of y, s_i = sqrt(mean_t ||y_t||^2 / m), has a median outside [1 / SCALE_FAR, SCALE_FAR] or a ratio of
-  its 90% to its 10% quantile above SCALE_SPREAD (scale_far_from_unit).
+  its 90% to its 10% quantile above SCALE_SPREAD (scale_far_from_unit), in the family's units.
 Measured on the built-in families (256 systems, T = 50): q90 / q10 of s is 2.3 (quadrotor) to 3.7
 (linear-inputs) for every family whose plain model reads y as is, and 6.3 on upper-triangular, the one
 whose model needed the scale (MOP/KF 4.29 plain, 3.45 with it); medians 0.6 (rlc-circuit) to 5.0
@@ -109,7 +115,8 @@ class FeatureChoice:
     """What auto picks: the running scale on or off, the identifier's output order p (0 = none), input
     order q (0 = output-only RLS-AR(p)), and its prior: theta_0 (d rows of m, flat) and P_0 (d x d, flat),
     empty without one; a mixture prior (mop.filters.mixture): K blocks of each, the K weights and the
-    noise variance sigma^2 that weighs them (empty and 0 for one Gaussian)."""
+    noise variance sigma^2 that weighs them (empty and 0 for one Gaussian); the family's units of the
+    outputs and of the inputs (family_units; empty: as simulated), in which all of it was chosen."""
 
     scale: bool = False
     order: int = 0
@@ -118,6 +125,8 @@ class FeatureChoice:
     prior_cov: tuple[float, ...] = ()
     prior_weights: tuple[float, ...] = ()
     prior_noise: float = 0.0
+    output_units: tuple[float, ...] = ()
+    input_units: tuple[float, ...] = ()
 
     @property
     def cost(self) -> float:
@@ -131,6 +140,25 @@ def scale_far_from_unit(y: Tensor) -> bool:
     rms = y.double().pow(2).mean((1, 2)).sqrt()  # (N,)
     q10, q50, q90 = torch.quantile(rms, torch.tensor([0.1, 0.5, 0.9], dtype=rms.dtype)).tolist()
     return not (1 / SCALE_FAR <= q50 <= SCALE_FAR) or q90 > SCALE_SPREAD * max(q10, 1e-12)
+
+
+def family_units(signal: Tensor | None) -> tuple[float, ...]:
+    """The units of a signal y or u (N, T+1, c) of the family's sample: each channel's median over systems
+    of its RMS, where some channel's is outside [1 / SCALE_FAR, SCALE_FAR] (a family written in other
+    units); () where every channel is near unit scale, or there is no signal."""
+    if signal is None:
+        return ()
+    rms = signal.double().pow(2).mean(1).sqrt().median(0).values  # (c,)
+    if bool(((rms >= 1 / SCALE_FAR) & (rms <= SCALE_FAR)).all()):
+        return ()
+    return tuple(rms.clamp_min(1e-12).tolist())
+
+
+def in_units(signal: Tensor | None, units: tuple[float, ...]) -> Tensor | None:
+    """signal (N, T+1, c) / units (c,) (unchanged for ())."""
+    if signal is None or not units:
+        return signal
+    return signal / torch.tensor(units, dtype=signal.dtype)
 
 
 def system_coefficients(y: Tensor, u: Tensor | None, p: int, q: int) -> tuple[Tensor, Tensor]:
@@ -229,10 +257,15 @@ def choose_features(
 def _family_choice(system_json: str, horizon: int, drops_outputs: bool) -> FeatureChoice:
     family = make_family(from_dict(SystemConfig, json.loads(system_json)), dtype=torch.float64)
     traj = family.generate(AUTO_SYSTEMS, horizon, generator=generator(AUTO_SEED))
+    y_units, u_units = family_units(traj.y), family_units(traj.u)
+    scaled = lambda y, u: (in_units(y, y_units), in_units(u, u_units))  # noqa: E731  the model's units
     needs_prior = traj.u is not None and not drops_outputs  # choose_features: the prior where ARX is chosen
-    fit = _prior_sample(system_json, horizon) if needs_prior else None
-    mixture_fit = _prior_sample(system_json, horizon, MIXTURE_SYSTEMS, MIXTURE_SEED) if needs_prior else None
-    return choose_features(traj.y, traj.u, fit, drops_outputs, mixture_fit)
+    fit = scaled(*_prior_sample(system_json, horizon)) if needs_prior else None
+    mixture_fit = None
+    if needs_prior:
+        mixture_fit = scaled(*_prior_sample(system_json, horizon, MIXTURE_SYSTEMS, MIXTURE_SEED))
+    choice = choose_features(*scaled(traj.y, traj.u), fit, drops_outputs, mixture_fit)
+    return dataclasses.replace(choice, output_units=y_units, input_units=u_units)
 
 
 @functools.lru_cache(maxsize=32)
@@ -312,6 +345,8 @@ def apply_choice(config: RunConfig, choice: FeatureChoice, scale_steps: bool = T
         rls_prior_cov=list(choice.prior_cov) if choice.prior_cov else None,
         rls_prior_weights=list(choice.prior_weights) if choice.prior_weights else None,
         rls_prior_noise=choice.prior_noise,
+        output_units=list(choice.output_units) if choice.output_units else None,
+        input_units=list(choice.input_units) if choice.input_units else None,
     )
     steps = steps_for(config.train.steps, choice.cost) if scale_steps else config.train.steps
     train = dataclasses.replace(config.train, steps=steps)

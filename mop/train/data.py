@@ -32,7 +32,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from mop.config import RunConfig, TrainConfig
+from mop.config import ModelConfig, RunConfig, TrainConfig
 from mop.errors import MopError
 from mop.filters.linear_gaussian import family_systems, kalman_means
 from mop.missing import drop_mask, drop_outputs, masked_inputs
@@ -42,11 +42,27 @@ from mop.train.records import recorded_data
 NUM_VAL_SYSTEMS = 256
 
 
+def in_model_units(z: Tensor, y: Tensor, model: ModelConfig) -> tuple[Tensor, Tensor]:
+    """Simulated inputs z (B, T, m + k) and targets y (B, T, m) in the model's units: y_t / output_units and
+    u_t / input_units (model.output_units / input_units, the family's units; unchanged without them)."""
+    m = y.shape[-1]
+    if model.output_units is not None:
+        y_units = torch.tensor(model.output_units, dtype=z.dtype, device=z.device)
+        z = torch.cat([z[..., :m] / y_units, z[..., m:]], dim=-1)
+        y = y / y_units.to(y.dtype)
+    if model.input_units is not None:
+        u_units = torch.tensor(model.input_units, dtype=z.dtype, device=z.device)
+        z = torch.cat([z[..., :m], z[..., m:] / u_units], dim=-1)
+    return z, y
+
+
 class TrainingData:
-    """Batches of (inputs (B, T, d_in), targets (B, T, m)) on `device`, all randomness from one generator."""
+    """Batches of (inputs (B, T, d_in), targets (B, T, m)) on `device`, all randomness from one generator;
+    simulated ones in the model's units (in_model_units)."""
 
     def __init__(self, config: RunConfig, device: torch.device) -> None:
         self.cfg = config.train
+        self.model = config.model
         self.masked = config.model.observation_mask
         self.generator = torch.Generator(device=device).manual_seed(self.cfg.seed)
         self.inputs = self.targets = None
@@ -70,6 +86,7 @@ class TrainingData:
         traj = self.family.generate(num_systems, self.cfg.horizon, generator=self.generator)
         z = traj.model_inputs()  # (B, T+1, d_in)
         y = traj.y if self.cfg.target == "outputs" else self._optimal(traj)  # (B, T+1, m)
+        z, y = in_model_units(z, y, self.model)
         return z[:, :-1].float().contiguous(), y[:, 1:].float().contiguous()
 
     def _optimal(self, traj) -> Tensor:
@@ -173,7 +190,8 @@ def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, T
     else:
         family = make_family(config.system)
         traj = family.generate(NUM_VAL_SYSTEMS, config.train.horizon, generator=g)
-        val = traj.model_inputs()[:, :-1].float(), traj.y[:, 1:].float()  # (N, T, d_in), (N, T, m)
+        z, y = in_model_units(traj.model_inputs(), traj.y, config.model)
+        val = z[:, :-1].float(), y[:, 1:].float()  # (N, T, d_in), (N, T, m)
     if config.model.observation_mask:  # the same kind of drop-outs as in training, seeded apart
         return with_drop_outs(*val, config.train, g)
     return val
