@@ -37,7 +37,7 @@ seed (AUTO_SEED, apart from every training and test stream), y (N, T+1, m) and u
   (input) channel divided by its median RMS (model.output_units, model.input_units; its predictions are
   multiplied back, mop.models.normalization), and the rest of the rule reads the sample in those units. No
   built-in or example family is that far (channel medians 0.26 to 4.7), so they read their data as
-  simulated; the thermal network written 30x larger or smaller gets the units and the keys of the original;
+  simulated; the thermal network written 30x larger and 30x smaller gets the same keys at either size;
 - the running output scale (mop.models.features) where the outputs are far from unit scale: the per-system
   RMS of y, s_i = sqrt(mean_t ||y_t||^2 / m), has a median outside [1 / SCALE_FAR, SCALE_FAR] or a ratio of
   its 90% to its 10% quantile above SCALE_SPREAD (scale_far_from_unit), in the family's units.
