@@ -83,6 +83,8 @@ def test_a_model_in_units_predicts_in_the_datas_units(tmp_path):
     yhat_big = LearnedPredictor(big).predict(test(thermal(30.0)))
     yhat_tiny = LearnedPredictor(tiny).predict(test(thermal(1 / 30)))
     torch.testing.assert_close(yhat_big.double(), 900 * yhat_tiny.double(), rtol=1e-3, atol=1e-4)
+    streamed = LearnedPredictor(big, mode="stream").predict(test(thermal(30.0)))  # the KV cache, in units too
+    torch.testing.assert_close(streamed, yhat_big, rtol=1e-4, atol=1e-4)
     plain = _trained(thermal(1.0), None, tmp_path / "plain")
     ones = RunConfig(
         system=thermal(1.0),
