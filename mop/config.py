@@ -179,7 +179,7 @@ class ModelConfig:
     rls_p0: float = 1.0
     # the family's units (mop.train.auto.family_units): the model reads y_t / output_units and u_t /
     # input_units (one positive number per channel, m and k; None: as simulated) and its predictions are
-    # multiplied back, like a recorded-data run's normalisation (mop.runs.load_normalization)
+    # multiplied back, like a recorded-data run's normalisation (mop.models.normalization, of_units)
     output_units: list[float] | None = None
     input_units: list[float] | None = None
     # "given": input_scale / rls_order / arx_order as set; "auto": chosen from the family's shapes and data,

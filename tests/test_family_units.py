@@ -99,3 +99,10 @@ def test_a_model_in_units_predicts_in_the_datas_units(tmp_path):
 def test_bad_units_are_one_line():
     with pytest.raises(MopError, match="model.output_units must be a list of positive numbers"):
         ModelConfig(output_units=[1.0, -2.0])
+
+
+def test_units_of_another_channel_count_are_one_line():
+    from mop.models import build_model
+
+    with pytest.raises(MopError, match=r"model.input_units needs one number per channel \(1\), got 2"):
+        build_model(ModelConfig(output_dim=2, input_dim=3, input_units=[1.0, 2.0]))

@@ -101,6 +101,10 @@ def check_features(cfg: ModelConfig) -> None:
             "model.rls_prior starts the RLS / ARX feature from fitted coefficients: it needs "
             "model.rls_order > 0"
         )
+    for name, count in (("output_units", cfg.output_dim), ("input_units", input_count(cfg))):
+        units = getattr(cfg, name)
+        if units is not None and len(units) != count:
+            raise MopError(f"model.{name} needs one number per channel ({count}), got {len(units)}")
     d = regressor_count(cfg)
     listed = isinstance(cfg.rls_prior, list)
     K = prior_components(cfg)
