@@ -36,6 +36,7 @@ from mop.config import ModelConfig, RunConfig, TrainConfig
 from mop.errors import MopError
 from mop.filters.linear_gaussian import family_systems, kalman_means
 from mop.missing import drop_mask, drop_outputs, masked_inputs
+from mop.models.normalization import Normalization
 from mop.systems import make_family
 from mop.train.records import recorded_data
 
@@ -43,17 +44,11 @@ NUM_VAL_SYSTEMS = 256
 
 
 def in_model_units(z: Tensor, y: Tensor, model: ModelConfig) -> tuple[Tensor, Tensor]:
-    """Simulated inputs z (B, T, m + k) and targets y (B, T, m) in the model's units: y_t / output_units and
-    u_t / input_units (model.output_units / input_units, the family's units; unchanged without them)."""
-    m = y.shape[-1]
-    if model.output_units is not None:
-        y_units = torch.tensor(model.output_units, dtype=z.dtype, device=z.device)
-        z = torch.cat([z[..., :m] / y_units, z[..., m:]], dim=-1)
-        y = y / y_units.to(y.dtype)
-    if model.input_units is not None:
-        u_units = torch.tensor(model.input_units, dtype=z.dtype, device=z.device)
-        z = torch.cat([z[..., :m], z[..., m:] / u_units], dim=-1)
-    return z, y
+    """Simulated inputs z (B, T, m + k) and targets y (B, T, m) in the model's units (model.output_units /
+    input_units, the family's units: Normalization.of_units, the same scaling its predictor reads data
+    with; float64), unchanged without them."""
+    norm = Normalization.of_units(model)
+    return (z, y) if norm is None else (norm.inputs(z), norm.output_units(y.double()))
 
 
 class TrainingData:
