@@ -28,9 +28,9 @@ import torch
 
 from mop.config import RunConfig, SystemConfig, from_dict
 from mop.errors import MopError
-from mop.experiments.files import import_plugin
 from mop.experiments.presets import get_preset
 from mop.models import build_model
+from mop.plugins import import_plugin
 from mop.systems import FAMILIES
 from mop.train.auto import FeatureChoice, describe_features, steps_for
 from mop.train.data import TrainingData
