@@ -1,0 +1,124 @@
+"""A measured input-output record: the type a user's data, a benchmark's split and an identifier all share.
+
+It has the shape of the identification field's `Input_output_data` (the official `nonlinear_benchmarks`
+loader, deepSI): outputs y (T, m) and inputs u (T, k) sampled at the same instants, a sampling time, a name,
+and the length of the state-initialization window (the first `init_window` outputs a simulation may read
+before it runs from the inputs alone). Slicing with a time slice gives a record of those steps.
+
+Time index t runs 0..T-1 (T = len(record)); y[t] and u[t] are measured at the same instant t * sampling_time.
+Missing outputs are NaN in y; inputs must be complete.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from mop.errors import MopError
+from mop.io import read_trajectories
+
+Pair = tuple[np.ndarray, np.ndarray | None]  # (y (T, m), u (T, k) | None): the arrays mop's functions take
+
+
+def _as_2d(name: str, a: np.ndarray | Sequence[float], where: str) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim == 1:
+        a = a[:, None]
+    if a.ndim != 2:
+        raise MopError(f"{where}: {name} has shape {a.shape}; give (T,) or (T, channels)")
+    return a
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Record:
+    """One record: y (T, m) and u (T, k) or None, at `sampling_time` seconds (None: not known).
+
+    `init_window`: how many first outputs initialize a simulation of this record (the benchmark's
+    state_initialization_window_length; 0 where none is defined). 1-D y or u are read as one channel.
+    """
+
+    y: np.ndarray
+    u: np.ndarray | None = None
+    sampling_time: float | None = None
+    name: str = ""
+    init_window: int = 0
+
+    def __post_init__(self) -> None:
+        where = f"record {self.name!r}" if self.name else "record"
+        y = _as_2d("y", self.y, where)
+        object.__setattr__(self, "y", y)
+        if self.u is not None:
+            u = _as_2d("u", self.u, where)
+            if len(u) != len(y):
+                raise MopError(f"{where}: u has {len(u)} steps and y {len(y)}; they must be sampled together")
+            if not np.isfinite(u).all():
+                raise MopError(f"{where}: u holds NaN or Inf; inputs must be complete, fill them")
+            object.__setattr__(self, "u", u)
+        if np.isinf(y).any():
+            raise MopError(f"{where}: y holds Inf; leave a missing output as NaN")
+        if self.sampling_time is not None and not (
+            math.isfinite(self.sampling_time) and self.sampling_time > 0
+        ):
+            raise MopError(
+                f"{where}: sampling_time {self.sampling_time} must be a positive number of seconds"
+            )
+        if not 0 <= self.init_window <= len(y):
+            raise MopError(f"{where}: init_window {self.init_window} must be in [0, {len(y)}] (its length)")
+
+    def __len__(self) -> int:
+        return len(self.y)
+
+    def __getitem__(self, steps: slice) -> Record:
+        """The record of the time steps `steps` (a slice); its init_window is kept where it still fits."""
+        if not isinstance(steps, slice):
+            raise TypeError("a Record is sliced in time with a slice, e.g. record[100:2000]")
+        y = self.y[steps]
+        return dataclasses.replace(
+            self,
+            y=y,
+            u=None if self.u is None else self.u[steps],
+            init_window=min(self.init_window, len(y)),
+        )
+
+    @property
+    def num_outputs(self) -> int:
+        return self.y.shape[1]
+
+    @property
+    def num_inputs(self) -> int:
+        return 0 if self.u is None else self.u.shape[1]
+
+    @property
+    def pair(self) -> Pair:
+        """(y, u) as the functions of mop.records, mop.identify and mop.train take one record."""
+        return self.y, self.u
+
+    def split(self, fraction: float) -> tuple[Record, Record]:
+        """(first part, last part) in time; the last part is ceil(fraction * T) steps (never rounded away)."""
+        if not 0 < fraction < 1:
+            raise MopError(f"split fraction {fraction} must be in (0, 1)")
+        tail = math.ceil(fraction * len(self))
+        if tail >= len(self):
+            raise MopError(f"record {self.name!r}: {len(self)} steps are too few to hold out {fraction:.0%}")
+        return self[: len(self) - tail], self[len(self) - tail :]
+
+
+def as_pairs(records: Sequence[Record]) -> list[Pair]:
+    """The records as the list of (y, u) pairs the older functions take."""
+    return [r.pair for r in records]
+
+
+def from_pairs(pairs: Sequence[Pair], names: Sequence[str] | None = None, **fields) -> list[Record]:
+    """Records from (y, u) pairs (and names); `fields` (sampling_time, init_window) apply to each."""
+    names = list(names) if names is not None else [str(i) for i in range(len(pairs))]
+    return [Record(y=y, u=u, name=n, **fields) for (y, u), n in zip(pairs, names, strict=True)]
+
+
+def read_records(path: str | os.PathLike, sampling_time: float | None = None) -> list[Record]:
+    """The records of a .csv or .npz file (mop.io's formats), read once."""
+    names, pairs = read_trajectories(path)
+    return from_pairs(pairs, names, sampling_time=sampling_time)
