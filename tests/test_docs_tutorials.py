@@ -1,6 +1,6 @@
-"""The documentation runs: the tutorials' marked code blocks are executed in order, in a fresh folder, as a
-reader would paste them; the generated reference pages cover every command and every configuration knob; the
-README's links point at pages that exist.
+"""The documentation runs: the marked code blocks of each page of docs/ (the tutorials, the API examples) are
+executed in order, in a fresh folder, as a reader would paste them; the generated reference pages cover every
+command and every configuration knob; the README's links point at pages that exist.
 
 A block runs when the line before its opening fence is a marker comment:
 
@@ -24,8 +24,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-TUTORIALS = sorted((ROOT / "docs" / "tutorials").glob("*.md"))
 MARKER = re.compile(r"^<!-- docs-test: (run|file) ?(.*?) -->$")
+PAGES = sorted(p for p in (ROOT / "docs").rglob("*.md") if "<!-- docs-test:" in p.read_text())
+TUTORIALS = sorted((ROOT / "docs" / "tutorials").glob("*.md"))
 FENCE = re.compile(r"^```(\w*)")
 
 
@@ -66,8 +67,8 @@ def run_block(language: str, code: str, cwd: Path) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("page", TUTORIALS, ids=[p.stem for p in TUTORIALS])
-def test_tutorial_runs(page: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("page", PAGES, ids=[p.stem for p in PAGES])
+def test_page_runs(page: Path, tmp_path: Path) -> None:
     blocks = marked_blocks(page.read_text())
     assert any(action == "run" for action, *_ in blocks), f"{page.name} has no block marked to run"
     for action, argument, language, code in blocks:
@@ -78,6 +79,10 @@ def test_tutorial_runs(page: Path, tmp_path: Path) -> None:
             assert old in code, f"{page.name}: the replaced text {old!r} is not in its block"
             code = code.replace(old, new)
         run_block(language, code, tmp_path)
+
+
+def test_every_tutorial_runs_something():
+    assert TUTORIALS and set(TUTORIALS) <= set(PAGES)
 
 
 def test_markers_are_read():
