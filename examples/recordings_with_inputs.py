@@ -21,8 +21,8 @@ simulation.
    recordings together, as `mop predict` prints its overall line).
 
 Budgets: smoke (seconds; a tiny model trained for 30 steps, for the test suite: its MOP numbers mean little)
-and full (2 layers of width 64, 4000 training recordings, 1500 steps; see the README for its numbers and
-time).
+and full (2 layers of width 64, 4000 training recordings, 1500 steps; docs/results/families.md has its
+numbers and time).
 """
 
 from __future__ import annotations

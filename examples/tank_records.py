@@ -18,7 +18,7 @@ record with mop's defaults beside the fitted ARX and N4SID and the online arx-be
    their range.
 
 Budgets: smoke (seconds, for the test suite: a tiny model trained for a few steps, its numbers mean little)
-and full (the defaults; see the README's "Recorded data" for its numbers and time).
+and full (the defaults; docs/results/families.md has its numbers).
 """
 
 from __future__ import annotations

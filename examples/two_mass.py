@@ -1,5 +1,5 @@
 """A family written outside the package, with one known input: two masses on springs and dampers driven by
-one random force, the mechanical system of issue 33. Importing this file registers it as "two-mass"
+one random force, a mechanical system. Importing this file registers it as "two-mass"
 (examples/two_mass.toml names it as a plugin).
 
 Continuous time, positions p1, p2 [m] and velocities v1, v2 [m/s] of two masses in a line: a spring k1 and a

@@ -1,4 +1,4 @@
-"""Checkpoints and weights in safetensors + JSON metadata: loading never unpickles (issue 6).
+"""Checkpoints and weights in safetensors + JSON metadata: loading never unpickles.
 
 A checkpoint is one file, written atomically (mop.atomic), so a crash mid-write leaves the previous one whole:
     tensors   "model.<name>"               model parameters and buffers

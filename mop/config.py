@@ -132,14 +132,14 @@ class ModelConfig:
     """The learned predictor. input_dim / output_dim of 0 mean "take them from the system family"."""
 
     arch: str = "gpt"  # a name in mop.models' registry: "gpt" (the paper's GPT-2 body), "gru" (baseline)
-    num_layers: int = 12
-    num_heads: int = 8
-    width: int = 256
+    num_layers: int = 12  # transformer blocks (the paper's 12)
+    num_heads: int = 8  # attention heads per block; must divide width
+    width: int = 256  # embedding width d_model (the paper's 256)
     context: int = 50  # maximum positions the model attends over (the paper's T)
-    input_dim: int = 0
-    output_dim: int = 0
+    input_dim: int = 0  # channels the model reads per step; 0: from the family (m + k, + m with a mask)
+    output_dim: int = 0  # outputs it predicts per step; 0: the family's m
     readout: str = "mean"  # "mean" (MSE) or "gaussian" (mean and variance, NLL)
-    dropout: float = 0.0
+    dropout: float = 0.0  # dropout rate in the transformer body (the paper's 0)
     position: str = "learned"  # "learned" (GPT-2 absolute, the paper) or "rope" (rotary; exact streaming)
     input_scale: str = "none"  # "none" or "running": causal per-trajectory scale (mop.models.features)
     record_norm: str = "none"  # "causal": each channel by its running mean and std (mop.models.recordnorm)
@@ -310,25 +310,25 @@ class TrainConfig:
         model.forecast_mode = "gap"). Outputs missing in recorded data stay unscored.
     """
 
-    steps: int = 10000
-    batch_size: int = 64
-    lr: float = 3e-4
-    weight_decay: float = 0.01
-    grad_clip: float = 1.0
+    steps: int = 10000  # optimizer steps (a preset's budget is in plain-model steps, model.features)
+    batch_size: int = 64  # trajectories per step
+    lr: float = 3e-4  # AdamW learning rate (the peak, with warm-up and a schedule)
+    weight_decay: float = 0.01  # AdamW weight decay
+    grad_clip: float = 1.0  # gradients clipped to this global norm
     lr_schedule: str = "constant"  # "constant" or "cosine"
-    warmup_steps: int = 0
+    warmup_steps: int = 0  # linear learning-rate warm-up from 0 over this many steps
     num_source_systems: int = 20000
     horizon: int = 50
-    seed: int = 0
+    seed: int = 0  # training seed: initial weights, systems drawn, batches
     device: str = "auto"  # "auto", "cpu", "cuda", "cuda:1", ...
     precision: str = "auto"  # "auto" (bf16 on GPU, fp32 on CPU), "fp32", "bf16"
     compile: str = "auto"  # "auto", "on", "off"
-    log_every: int = 50
-    checkpoint_every: int = 1000
-    deterministic: bool = False
+    log_every: int = 50  # steps between logged training losses (the run's log, the progress bar)
+    checkpoint_every: int = 1000  # steps between checkpoints (validation loss, state to resume from)
+    deterministic: bool = False  # torch.use_deterministic_algorithms (slower on GPU)
     missing_rate: float = 0.0
-    missing_burst_rate: float = 0.0
-    missing_burst_length: int = 5
+    missing_burst_rate: float = 0.0  # chance per step that a burst of missing outputs starts there
+    missing_burst_length: int = 5  # steps of each burst (every channel missing)
     score_dropped: bool = False
     simulate_after: int = 0  # c > 0: y_s.. dropped and scored, s ~ U{c..T}: a simulation loss (data.py)
     init: str = ""  # a run directory or pretrained:NAME whose weights step 0 starts from (mop.train.init)
@@ -399,7 +399,7 @@ class DataConfig:
 
     path: str = ""
     validation_fraction: float = 0.1
-    split_seed: int = 0
+    split_seed: int = 0  # seed of the permutation that picks the validation trajectories
     split: str = "auto"
     validation_path: str = ""
     y_mean: list[float] | None = None

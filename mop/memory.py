@@ -5,7 +5,7 @@
 The limit is MOP_MEMORY_LIMIT_GB when set, else 80% of the memory the operating system reports available
 now (Linux: MemAvailable of /proc/meminfo; elsewhere the free physical pages; no limit where neither can be
 read). The estimates are a stated multiple of the arrays a job must hold at once (each caller documents
-its factor), measured on the 2-core CPU machine of the README.
+its factor), measured on a 2-core AMD EPYC CPU.
 """
 
 from __future__ import annotations

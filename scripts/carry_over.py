@@ -2,7 +2,7 @@
 and one validation record of 1024 steps, `mop fit arx` and `mop train --init SOURCE` (one fine-tune per
 training seed) on the estimation record, then `mop predict RUN val.csv --simulate C` from several starts
 C; prints the simulation RMSE over the simulated steps per plant, predictor and start, and writes them to
-OUT/carry.json. The README's carry-over tables ("Class models") are its output.
+OUT/carry.json. The carry-over table of docs/results/class-models.md is its output.
 
     python scripts/carry_over.py cascaded-tanks pretrained:cascaded-tanks OUT [--plants 1,5,3]
     python scripts/carry_over.py wiener-hammerstein pretrained:wiener-hammerstein OUT [--plants 1,2,3]

@@ -1,7 +1,7 @@
 """Zero-shot class models on their own class and on neighbouring ones (distribution shift): every shipped SISO
 class model, in context, on held-out systems of every class, beside the least-squares ARX, `arx-best`, `last`
-and the filter that knows each system. Prints one table per data set and writes OUT/shift.json; the README's
-"Class models on other classes" table is its output.
+and the filter that knows each system. Prints one table per data set and writes OUT/shift.json; the table
+"On other classes" of docs/results/class-models.md is its output.
 
     python scripts/class_shift.py OUT [--systems 100] [--seed 2026]
 

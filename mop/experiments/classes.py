@@ -132,7 +132,7 @@ EXACT_FEATURE = {"model.residual_scale": "running"}
 # repays (its validation loss still falling at step 600). On wiener-hammerstein (noise-free, smooth) the same
 # keys at its 300 steps take the one-step error over t >= 50 below the least-squares ARX it reads (0.2271
 # against 0.2285; plain 0.2288) and keep the simulation below it (0.4994 against 0.5098; plain 0.4963): the
-# README "Class models" has every variant's numbers
+# README.md at 07be122 has every variant's numbers
 BALANCED = {"model.residual_scale": "measured", "model.gap_loss": "balanced"}
 CLASS_EXPERIMENTS = (
     class_experiment("class-lti-siso", "lti-siso", "kalman", 15, 1e-3, recipe=EXACT_FEATURE),

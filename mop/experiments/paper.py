@@ -19,7 +19,7 @@ def early_claim(holds_above_one: bool) -> Claim:
 
 
 def below_identifiers_claims() -> tuple[Claim, ...]:
-    """MOP's error over t in [1,20) is below the online identifiers' (issue 5)."""
+    """MOP's error over t in [1,20) is below the online identifiers'."""
     return tuple(
         Claim(
             f"MOP's error is below {other} over t in [1,20)",

@@ -55,7 +55,7 @@ from mop.train.auto import resolve_features
 from mop.train.init import PRIOR_KEYS
 from mop.train.records import recorded_data
 
-# The records recipe (README, "Recorded data": measured on examples/tank_records.py, one record of 1024
+# The records recipe (docs/results/families.md: measured on examples/tank_records.py, one record of 1024
 # samples): a small network reading the fitted ARX's prediction and predicting its residual, so it starts as
 # that ARX; the 2 x 64 small-preset model trained 2500 steps overfits one record (one-step RMSE 2.5x ARX's)
 RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2}
@@ -187,10 +187,10 @@ def with_recorded_features(config: RunConfig, overrides: list[str], chosen: bool
 
 # 125: on the tank_records plants 1-6 (pretrained:cascaded-tanks fine-tuned on est.csv, seeds 0 / 1, the
 # validation record simulated from steps 0, 50 and 200; with the record's moments and tails from step 1) the
-# 36 simulations average 0.450 V RMSE after 125 steps against 0.476 after 250 (session 5, before those two:
+# 36 simulations average 0.450 V RMSE after 125 steps against 0.476 after 250 (before those two:
 # 250 steps 0.616, 500 0.644, 125 0.626 on plants 1, 5, 3); the held-out 10%'s simulation, which picks the
 # kept weights, still falls later, but the simulation of a record the fine-tune never saw stops improving
-# earlier (README "Class models")
+# earlier (README.md at 07be122, "Class models")
 FINE_TUNE_STEPS = 125
 FINE_TUNE_LR_FACTOR = 0.1
 # a source trained for simulation (train.simulate_after > 0) fine-tunes with its simulated tails starting
@@ -198,7 +198,7 @@ FINE_TUNE_LR_FACTOR = 0.1
 # included (the benchmarks' protocol), and with the record's moments (RECORD_PRIOR_STEPS) the network acts
 # there. tank_records plants 1 / 5 / 3 from steps 0, 50, 200 (seeds 0 / 1): 18 simulations at 0.546 mean
 # RMSE against 0.571 with the source's start scaled to the windows (step 41 of 103); 3 Wiener-Hammerstein
-# systems: 0.349 against 0.377, all 18 below their fitted ARX against 13 (README "Class models")
+# systems: 0.349 against 0.377, all 18 below their fitted ARX against 13 (README.md at 07be122)
 FINE_TUNE_SIMULATE_AFTER = 1
 
 
@@ -238,8 +238,8 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     REC` chooses on the whole record (record_orders), unless an override names model.rls_order or
     model.arx_order: simulated with the correction's gain 0 (mop.train.shrink) the model is then the linear
     model the user fits on REC (refitted on the training part; a simulation reads no outputs to update it).
-    Measured with scripts/carry_over.py, seeds 0 / 1, simulations from steps 0, 50, 200 (README "Class
-    models"), against the source's ARX(10, 10): tank plants 1-6 below their fitted ARX in 32 of 36 (mean
+    Measured with scripts/carry_over.py, seeds 0 / 1, simulations from steps 0, 50, 200 (README.md at
+    07be122), against the source's ARX(10, 10): tank plants 1-6 below their fitted ARX in 32 of 36 (mean
     RMSE 0.471) against 24 (0.465), Wiener-Hammerstein 1-3 in 18 of 18 both (0.341 against 0.326),
     noise-free LTI 1-3 0.0183 against 0.0239. With the orders chosen on the training part alone (the records
     recipe's fitted_orders) 24 of 36 tank simulations were below (0.506): the order choice moves with the
@@ -289,7 +289,7 @@ def _record_horizon(train: TrainConfig, data: DataConfig) -> TrainConfig:
     both sides (train.simulate_after scaled alike), so `--init` works on a short record as it is. With a
     validation record (--val) the windows are those the split in time would give, as long as the last
     data.validation_fraction of the estimation record: the same fine-tune with or without --val (windows
-    of 500 steps on one record of 1024 fit its tail and simulate the validation record worse, README)."""
+    of 500 steps on one record of 1024 fit its tail and simulate the validation record worse, measured)."""
     split = recorded_data(data)
     longest = [max(len(a) for a in split.train_parts), max(len(a) for a in split.val_parts)]
     if split.split == "file":

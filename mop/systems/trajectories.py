@@ -40,7 +40,7 @@ class Trajectories:
         if self.params is not None and not isinstance(self.params, SystemParams):
             raise MopError(
                 f"Trajectories.params must be the family's parameter type (a SystemParams), got "
-                f"{type(self.params).__name__}; a family declares it as `Params` (README: add a family)"
+                f"{type(self.params).__name__}; a family declares it as `Params` (docs/design/extending.md)"
             )
 
     @property

@@ -26,7 +26,7 @@ seed (AUTO_SEED, apart from every training and test stream), y (N, T+1, m) and u
   than MIXTURE_GAIN (3%): where the family's coefficients are far from one Gaussian. Its K recursions cost
   1.3-1.5x the identifier's step (STEP_COST), so the model gets fewer steps. Measured (the identifier's error
   with 16 components over one Gaussian's, on the scored trajectories; then MOP / KF over t in [20, 50],
-  seed 0, one Gaussian at 2100 steps -> the mixture at 1700, the same 500 test systems; the README has the
+  seed 0, one Gaussian at 2100 steps -> the mixture at 1700, the same 500 test systems; docs/results has the
   shipped rule's runs, 1500 steps, seeds 0 / 1): dead-time 0.907,
   1.384 -> 1.267 (a dead time of 1-3 samples puts the input's weight on different lags); rlc-circuit
   0.950, 1.108 -> 1.094; thermal-network 0.959, 1.145 -> 1.129; two-mass 0.971, 1.141 -> 1.142;

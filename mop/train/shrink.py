@@ -17,7 +17,7 @@ plants its correction then drifts over a record-long free run where the fitted A
 training sees it (tank_records plant 2: the fine-tune simulates est.csv at 0.60 against its feature's
 0.52). The gain is one number chosen on the estimation record alone, so the validation record stays unseen;
 on plants where the network's correction is worth its whole size the choice is g = 1 and nothing changes
-(README "Class models").
+(docs/results/class-models.md).
 """
 
 from __future__ import annotations

@@ -1,0 +1,153 @@
+"""MkDocs hooks: the pages that are generated from the code, so they cannot drift from it.
+
+A page holds a marker comment; the hook replaces it with text built from the package at build time:
+
+    <!-- mop:cli -->        `mop COMMAND --help` of every command in mop.cli.COMMANDS (and their subcommands)
+    <!-- mop:knobs -->      one table per config dataclass of mop/config.py: key, type, default, meaning
+    <!-- mop:cards -->      the shipped models' cards, mop/pretrained/*/CARD.md
+    <!-- mop:changelog -->  CHANGELOG.md
+
+The functions are plain Python (tests/test_docs_tutorials.py calls them too).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import io
+import os
+import re
+import tokenize
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+KNOB_CLASSES = {"ModelConfig": "model", "TrainConfig": "train", "DataConfig": "data"}
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    return {}
+
+
+def _help_sections(prog: str, parser: argparse.ArgumentParser, level: int) -> list[str]:
+    out = [f"{'#' * level} `{prog}`", "", "```text", parser.format_help().rstrip(), "```", ""]
+    for name, sub in _subcommands(parser).items():
+        out += _help_sections(f"{prog} {name}", sub, level + 1)
+    return out
+
+
+def cli_reference() -> str:
+    """`mop COMMAND --help` for every command the CLI's table names, subcommands nested below."""
+    os.environ["COLUMNS"] = "100"  # argparse wraps at the terminal's width: fix it for a stable page
+    from mop import cli
+
+    out = []
+    for name in cli.COMMANDS:
+        parser = _subcommands(cli.build_parser(name))[name]
+        out += _help_sections(f"mop {name}", parser, 2)
+    return "\n".join(out)
+
+
+def _comments(source: str) -> dict[int, str]:
+    """{line: comment text} of every comment in `source`."""
+    found = {}
+    for tok in tokenize.generate_tokens(io.StringIO(source).readline):
+        if tok.type == tokenize.COMMENT:
+            found[tok.start[0]] = tok.string.lstrip("#").strip()
+    return found
+
+
+def _docstring_entries(doc: str, names: list[str]) -> dict[str, str]:
+    """'name: text' paragraphs of a class docstring (continuation lines indented), by field name."""
+    entries: dict[str, str] = {}
+    current = None
+    for line in doc.splitlines():
+        head = re.match(r"^(\w+(?:, \w+)*)(?: \([^)]*\))?(?:, \w+(?: \([^)]*\))?)*: (.*)$", line)
+        if head and not line.startswith(" "):
+            keys = [k for k in re.findall(r"\w+", line.split(":")[0]) if k in names]
+            current = keys or None
+            for key in keys:
+                entries[key] = head.group(2)
+        elif current and line.startswith(" ") and line.strip():
+            for key in current:
+                entries[key] += " " + line.strip()
+        else:
+            current = None
+    return entries
+
+
+def config_knobs(path: Path = ROOT / "mop" / "config.py") -> dict[str, list[tuple[str, str, str, str]]]:
+    """{class name: [(key, type, default, meaning)]} of the config dataclasses, read from the source: a
+    field's meaning is the comment block right above it and its trailing comment, else its 'name: ...' entry
+    in the class docstring, else the block of the field right before it (no blank line between: a group
+    such as output_units / input_units shares one comment)."""
+    source = path.read_text()
+    comments = _comments(source)
+    lines = source.splitlines()
+    tables = {}
+    for node in ast.parse(source).body:
+        if not (isinstance(node, ast.ClassDef) and node.name in KNOB_CLASSES):
+            continue
+        fields = [s for s in node.body if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)]
+        from_doc = _docstring_entries(ast.get_docstring(node) or "", [f.target.id for f in fields])
+        rows, previous_end, previous_block = [], -1, ""
+        for field in fields:
+            above, line = [], field.lineno - 1
+            while line in comments and lines[line - 1].lstrip().startswith("#"):
+                above.insert(0, comments[line])
+                line -= 1
+            block = " ".join(above)
+            parts = [block, comments.get(field.end_lineno, "")]
+            meaning = " ".join(p for p in parts if p) or from_doc.get(field.target.id, "")
+            if not meaning and previous_end == field.lineno - 1:
+                meaning = previous_block
+            previous_end, previous_block = field.end_lineno, block or previous_block * (not meaning)
+            default = ast.unparse(field.value) if field.value is not None else ""
+            if "default_factory" in default:
+                default = "(its own defaults)"
+            rows.append((field.target.id, ast.unparse(field.annotation), default, meaning))
+        tables[node.name] = rows
+    return tables
+
+
+def knobs_reference() -> str:
+    out = []
+    for name, rows in config_knobs().items():
+        prefix = KNOB_CLASSES[name]
+        out += [f"## `{prefix}.*` ({name})", "", "| key | type | default | meaning |", "|---|---|---|---|"]
+        for key, kind, default, meaning in rows:
+            cell = meaning.replace("|", "\\|")
+            out.append(f"| `{prefix}.{key}` | `{kind}` | `{default}` | {cell} |")
+        out.append("")
+    return "\n".join(out)
+
+
+def cards_page() -> str:
+    """Every shipped model's CARD.md, its headings one level down."""
+    out = []
+    for card in sorted((ROOT / "mop" / "pretrained").glob("*/CARD.md")):
+        text = card.read_text()
+        out.append(re.sub(r"^(#+) ", lambda m: "#" + m.group(1) + " ", text, flags=re.M).rstrip() + "\n")
+    return "\n".join(out)
+
+
+def changelog() -> str:
+    text = (ROOT / "CHANGELOG.md").read_text()
+    return text.split("\n", 1)[1] if text.startswith("# ") else text
+
+
+GENERATORS = {
+    "<!-- mop:cli -->": cli_reference,
+    "<!-- mop:knobs -->": knobs_reference,
+    "<!-- mop:cards -->": cards_page,
+    "<!-- mop:changelog -->": changelog,
+}
+
+
+def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001 (MkDocs' hook signature)
+    for marker, make in GENERATORS.items():
+        if marker in markdown:
+            markdown = markdown.replace(marker, make())
+    return markdown
