@@ -36,6 +36,8 @@ import numpy as np
 from mop.config import RunConfig, parse_overrides
 from mop.errors import MopError
 from mop.experiments.training import training_config
+from mop.identify.arx import ARX as ArxIdentifier
+from mop.identify.n4sid import N4SID as N4sidIdentifier
 from mop.identify.select import SIMULATION, fit, fit_orders
 from mop.models import build_model
 from mop.predictors import Predictor
@@ -177,7 +179,7 @@ class ARX(_Identified):
     without inputs). Orders left None are chosen as `mop fit arx` does: the grid up to max_order scored by
     `select` ("simulation" or "one-step") on the last 20% of each record, then refitted on all of it."""
 
-    kind = "arx"
+    kind = ArxIdentifier.kind
 
     def __init__(
         self, na: int | None = None, nb: int | None = None, select: str = SIMULATION, max_order: int = 10
@@ -191,7 +193,7 @@ class N4SID(_Identified):
     """N4SID subspace identification (mop.identify.n4sid) of state order `order`; None: chosen as `mop fit
     n4sid` does (see ARX)."""
 
-    kind = "n4sid"
+    kind = N4sidIdentifier.kind
 
     def __init__(self, order: int | None = None, select: str = SIMULATION, max_order: int = 10) -> None:
         super().__init__(None if order is None else {"n": order}, select, max_order)

@@ -143,15 +143,14 @@ def fit_orders(
     identifier = IDENTIFIERS.get(kind)
     record = complete_record(data, source)
     k = record[0][1].shape[1]
-    grid = identifier.candidates(1, k)[0]
-    if set(orders) != set(grid) or not all(isinstance(v, int) and v >= 0 for v in orders.values()):
-        raise MopError(f"{kind} orders must be integers {', '.join(grid)} >= 0, got {orders}")
-    if kind == "arx" and (orders["p"] < 1 or (orders["q"] == 0) != (k == 0)):
-        need = "q >= 1 (the record has inputs)" if k else "q = 0 (the record has no inputs)"
-        raise MopError(f"arx orders {orders}: need p >= 1 and {need}")
-    if kind == "n4sid" and orders["n"] < 1:
-        raise MopError(f"n4sid order {orders['n']}: need n >= 1")
-    largest = max(max_order, *orders.values())
+    ints = bool(orders) and all(isinstance(v, int) and v >= 0 for v in orders.values())
+    largest = max(max_order, *orders.values()) if ints else max_order
+    valid = identifier.candidates(largest, k)
+    if orders not in valid:
+        inputs = f"{k} input(s)" if k else "no inputs"
+        raise MopError(
+            f"{kind} orders {orders} do not fit a record with {inputs}; give orders like {valid[-1]}"
+        )
     if not identifier.feasible(record, orders, largest):
         steps = sum(len(y) for y, _ in record)
         raise MopError(f"{source}: {steps} steps are too few to fit {kind} {orders}; lower the orders")
