@@ -39,6 +39,7 @@ from mop.experiments.training import training_config
 from mop.identify.arx import ARX as ArxIdentifier
 from mop.identify.n4sid import N4SID as N4sidIdentifier
 from mop.identify.select import SIMULATION, fit, fit_orders
+from mop.io import reading_once
 from mop.models import build_model
 from mop.predictors import Predictor
 from mop.record import Record, as_pairs, read_records, write_records
@@ -243,10 +244,11 @@ class Learned(Estimator):
         if val is not None:
             val_records, _ = as_records(val, "validation data")
             val_path = str(write_records(val_records, base / "validation.csv"))
-        config = training_config(None, None, str(path), val_path, self.overrides, self.init)
-        if self.budget_minutes is not None and "train.steps" not in parse_overrides(self.overrides):
-            config = within_budget(config, self.budget_minutes)
-        self.run_dir_ = train(config, base / "run", progress=self.progress)
+        with reading_once():  # as `mop train --data`: the records' file is read once
+            config = training_config(None, None, str(path), val_path, self.overrides, self.init)
+            if self.budget_minutes is not None and "train.steps" not in parse_overrides(self.overrides):
+                config = within_budget(config, self.budget_minutes)
+            self.run_dir_ = train(config, base / "run", progress=self.progress)
         self.predictor_ = load_predictor(self.run_dir_)
         return self
 
