@@ -12,7 +12,8 @@ import torch
 import mop
 from mop.cli import main
 from mop.errors import MopError
-from mop.estimators import ARX, N4SID, Learned, as_records
+from mop.estimators import ARX, N4SID, Learned, as_records, within_budget
+from mop.experiments.training import training_config
 from mop.identify import fit
 from mop.predictors import simulate
 from mop.record import Record, read_records, write_records
@@ -163,6 +164,15 @@ def test_learned_trains_through_mop_train_data_and_predicts_as_mop_load(tmp_path
     with pytest.raises(MopError) as e:
         Learned(budget_minutes=0)
     assert "budget_minutes" in one_line(e)
+
+
+def test_a_budget_cuts_the_steps_and_never_raises_them(tmp_path):
+    path = write_records([plant(160, 9, "r")], tmp_path / "r.csv")
+    overrides = [f"{k.replace('__', '.')}={v}" for k, v in TINY.items() if k != "train__steps"]
+    config = training_config(None, None, str(path), None, overrides)
+    assert config.train.steps > 1
+    assert within_budget(config, 1e-9).train.steps == 1  # no time: one step
+    assert within_budget(config, 1e6).train.steps == config.train.steps  # all the time: the recipe's
 
 
 def test_compare_estimators_example_runs():
