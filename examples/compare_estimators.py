@@ -7,6 +7,10 @@ RECORD.csv: mop.io's CSV (trajectory,t,y0..,u0..; its first record is used); wit
 system stands in (a damped second-order plant driven by a random input, its output through tanh, measured
 with noise; 1000 steps). --minutes: the learned model's training budget (2); --tiny: a tiny model trained a
 few steps (seconds, for the test suite; its numbers mean little). The ten lines that matter are in compare().
+
+Measured on the Wiener system (2-core CPU, one thread; the output's std 0.78; 23 s in all, the learned model's
+records recipe of 1000 steps well inside its 2 minutes): simulation RMSE over the last 250 steps ARX 0.396,
+N4SID 0.364, Learned 0.293.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ def compare(record: mop.Record, minutes: float, **options: object) -> dict[str, 
 def wiener_record(steps: int = 1000, seed: int = 0) -> mop.Record:
     """y_t = tanh(x1_t) + noise, x_{t+1} = A x_t + b u_t (poles 0.9 +- 0.3 i), u ~ N(0, 1) held 3 steps."""
     rng = np.random.default_rng(seed)
-    A, b = np.array([[1.8, -0.9], [1.0, 0.0]]), np.array([0.5, 0.0])
+    A, b = np.array([[1.8, -0.9], [1.0, 0.0]]), np.array([0.15, 0.0])
     u, x, y = np.repeat(rng.normal(size=steps // 3 + 1), 3)[:steps], np.zeros(2), np.zeros(steps)
     for t in range(steps):
         y[t] = np.tanh(x[0]) + 0.02 * rng.normal()
