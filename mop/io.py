@@ -13,10 +13,12 @@ Every problem raises MopError with a one-line message.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -148,11 +150,41 @@ def _cell(text: str, column: str, path: Path, line: int) -> float:
 Data = list[tuple[np.ndarray, np.ndarray | None]]
 
 
+# file version (path, mtime, size) -> what read_trajectories returned, while a reading_once() block runs
+_read_once: dict[tuple, tuple[list[str], Data]] | None = None
+
+
+@contextlib.contextmanager
+def reading_once() -> Iterator[None]:
+    """Within the block, read_trajectories parses each version of a file (its path, mtime and size) once and
+    hands every caller its own copy of the arrays: `mop train --data FILE` reads FILE once, however many
+    steps of its recipe look at the record. Nested blocks share the outer one's memory."""
+    global _read_once
+    outer = _read_once
+    _read_once = {} if outer is None else outer
+    try:
+        yield
+    finally:
+        _read_once = outer
+
+
 def read_trajectories(path: str | os.PathLike) -> tuple[list[str], Data]:
-    """(names, [(y (T_i+1, m), u (T_i+1, k) | None)]) from a .csv or .npz file."""
+    """(names, [(y (T_i+1, m), u (T_i+1, k) | None)]) from a .csv or .npz file (read once per version of the
+    file inside a reading_once() block)."""
     path = Path(path)
     if not path.is_file():
         raise MopError(f"data file {path} does not exist")
+    if _read_once is None:
+        return _read_file(path)
+    stat = path.stat()
+    key = (os.path.abspath(path), stat.st_mtime_ns, stat.st_size)
+    if key not in _read_once:
+        _read_once[key] = _read_file(path)
+    names, data = _read_once[key]
+    return list(names), [(y.copy(), None if u is None else u.copy()) for y, u in data]
+
+
+def _read_file(path: Path) -> tuple[list[str], Data]:
     if path.suffix == ".npz":
         data = read_npz(path)
         return [str(i) for i in range(len(data))], data

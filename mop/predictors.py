@@ -147,11 +147,14 @@ def simulate(predictor: Predictor, traj: Trajectories, context: int) -> Tensor:
 
     It is the k-step forecast from origin c, forecast[:, c, j]; a predictor may answer it directly with a
     `simulate(traj, context)` method (the filters and learned models do: one rollout instead of one from
-    every origin). MopError unless 1 <= c <= T and the predictor has a forecast or a simulate.
+    every origin). c = 0 simulates from the record's start with y_0 its initial condition, as c = 1 and
+    `mop predict --simulate 0` do: (B, T, m), y_1..y_T. MopError unless 0 <= c <= T and the predictor has a
+    forecast or a simulate.
     """
     T = traj.horizon
-    if not isinstance(context, int) or not 1 <= context <= T:
-        raise MopError(f"simulation context must be an integer in [1, T = {T}], got {context!r}")
+    if not isinstance(context, int) or not 0 <= context <= T:
+        raise MopError(f"simulation context must be an integer in [0, T = {T}], got {context!r}")
+    context = max(context, 1)
     method = getattr(predictor, "simulate", None)
     if callable(method):
         return method(traj, context)

@@ -11,13 +11,16 @@ Missing outputs are NaN in y; inputs must be complete.
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import math
 import os
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
+from mop.atomic import atomic_path
 from mop.errors import MopError
 from mop.io import read_trajectories
 
@@ -72,6 +75,13 @@ class Record:
     def __len__(self) -> int:
         return len(self.y)
 
+    def __repr__(self) -> str:
+        dt = "" if self.sampling_time is None else f", sampling_time={self.sampling_time}"
+        return (
+            f"Record({self.name!r}, T={len(self)}, m={self.num_outputs}, k={self.num_inputs}{dt}, "
+            f"init_window={self.init_window})"
+        )
+
     def __getitem__(self, steps: slice) -> Record:
         """The record of the time steps `steps` (a slice); its init_window is kept where it still fits."""
         if not isinstance(steps, slice):
@@ -122,3 +132,27 @@ def read_records(path: str | os.PathLike, sampling_time: float | None = None) ->
     """The records of a .csv or .npz file (mop.io's formats), read once."""
     names, pairs = read_trajectories(path)
     return from_pairs(pairs, names, sampling_time=sampling_time)
+
+
+def write_records(records: Sequence[Record], path: str | os.PathLike) -> Path:
+    """Write records as mop.io's long CSV `trajectory,t,y0..,u0..` (values as repr: read back bit for bit;
+    a missing output an empty cell), atomically; returns the path. Names default to r0, r1, ..."""
+    path = Path(path)
+    if not records:
+        raise MopError(f"{path}: no records to write")
+    m, k = records[0].num_outputs, records[0].num_inputs
+    if any((r.num_outputs, r.num_inputs) != (m, k) for r in records):
+        raise MopError(f"{path}: the records differ in their channels; write one kind per file")
+    names = [r.name or f"r{i}" for i, r in enumerate(records)]
+    if len(set(names)) != len(names):
+        raise MopError(f"{path}: two records share a name; name them apart")
+    header = ["trajectory", "t", *[f"y{i}" for i in range(m)], *[f"u{i}" for i in range(k)]]
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        for name, r in zip(names, records, strict=True):
+            for t in range(len(r)):
+                ys = ["" if np.isnan(v) else repr(float(v)) for v in r.y[t]]
+                us = [] if r.u is None else [repr(float(v)) for v in r.u[t]]
+                w.writerow([name, t, *ys, *us])
+    return path

@@ -219,6 +219,26 @@ def filterpy_predict_gaps(A, C, Q, R, y, x0, P0):
     return out
 
 
+def filterpy_distribution_gaps(A, C, Q, R, y, x0, P0):
+    """filterpy_predict_gaps with the predictive covariances: (mean (B, T, m), S (B, T, m, m)) where
+    S_t = H P_t H^T + R of filterpy's prior P_t before its update at t, i.e. of the whole y_t, after earlier
+    steps were skipped (update(None)) or conditioned on their measured channels only."""
+    Bn, T, m = y.shape
+    mean, S = np.zeros_like(y), np.zeros((Bn, T, m, m))
+    for b in range(Bn):
+        kf = KalmanFilter(dim_x=A.shape[-1], dim_z=m)
+        kf.F, kf.H, kf.Q, kf.R, kf.x, kf.P = A[b], C[b], Q[b], R[b], x0[b].copy(), P0[b].copy()
+        for t in range(T):
+            mean[b, t], S[b, t] = C[b] @ kf.x, C[b] @ kf.P @ C[b].T + R[b]
+            seen = ~np.isnan(y[b, t])
+            if not seen.any():
+                kf.update(None)
+            else:
+                kf.update(y[b, t, seen], R=R[b][np.ix_(seen, seen)], H=C[b][seen])
+            kf.predict()
+    return mean, S
+
+
 def joint_gaussian_predict(A, C, Q, R, P0, y):
     """E[y_t | the measured entries of y_0..y_{t-1}] by brute force, one system: every y_t is linear in
     xi = (x_0, w_0..w_{T-1}, v_0..v_T) (zero mean), so the outputs are jointly Gaussian with covariance

@@ -53,8 +53,8 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
     ("mop.predictors", "forecast"): "the Predictor method's name",
     ("mop.experiments.analyses", "rmse"): "the simulation table's RMSE column",
     ("mop.commands.bench", "forecast"): "the `mop bench forecast` subcommand",
-    ("mop.pretrained.build", "forecast"): "the Predictor method and the card's forecast table",
-    ("mop.pretrained.build", "error"): "the forecast table's errors",
+    ("mop.experiments.pretrained_build", "forecast"): "the Predictor method and the card's forecast table",
+    ("mop.experiments.pretrained_build", "error"): "the forecast table's errors",
     ("mop.pretrained.card", "error"): "the forecast table's errors",
     ("mop.pretrained.card", "forecast"): "the card's forecast table",
     (

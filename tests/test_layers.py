@@ -22,16 +22,19 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.typecheck", "mop.identity"),  # core: they import no mop module
     ("mop.memory", "mop.outputs", "mop.plugins"),  # core too: they import only errors and atomic
     ("mop.missing",),
+    ("mop.record",),  # a measured record (mop.io's files read once)
     ("mop.pretrained",),  # the shipped runs' files and cards (mop.runs resolves pretrained:NAME with it)
     ("mop.plots", "mop.checkpoint"),
     ("mop.systems", "mop.config"),
     ("mop.predictors",),
+    ("mop.records",),  # a predictor over a user's records and the figures of merit
     ("mop.filters",),
     ("mop.identify",),  # fitted identifiers: built on the filters' subspace code, loaded by mop predict
     ("mop.models", "mop.runs"),
     ("mop.evaluate",),
     ("mop.train",),
-    ("mop.experiments", "mop.pretrained.build"),
+    ("mop.experiments",),  # mop.experiments.pretrained_build builds and cards the shipped models
+    ("mop.estimators",),  # ARX, N4SID and the learned model with one face (mop train --data path)
     ("mop.bench",),
     ("mop.commands", "mop.cli", "mop.__main__", "mop"),
 ]

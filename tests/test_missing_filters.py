@@ -10,12 +10,18 @@ import torch
 
 from mop.config import SystemConfig
 from mop.filters.ekf import EKFPredictor
-from mop.filters.kalman import kalman_predict
+from mop.filters.kalman import kalman_filter, kalman_predict
 from mop.filters.particle import ParticleFilterPredictor
 from mop.filters.ukf import UKFPredictor
 from mop.predictors import make_predictor
 from mop.systems import generator, make_family
-from tests.reference import filterpy_predict_gaps, joint_gaussian_predict, linear_traj, monte_carlo_bias
+from tests.reference import (
+    filterpy_distribution_gaps,
+    filterpy_predict_gaps,
+    joint_gaussian_predict,
+    linear_traj,
+    monte_carlo_bias,
+)
 from tests.test_kalman import random_spd, random_system, simulate
 
 
@@ -54,6 +60,33 @@ def test_single_missing_channels_equal_joint_gaussian_conditioning(n, m):
         np.testing.assert_allclose(yhat[b], ref, atol=1e-8, rtol=0)
     ref_fp = filterpy_predict_gaps(A, C, Q, R, y, np.zeros((2, n)), P0)
     np.testing.assert_allclose(yhat, ref_fp, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("partial", [False, True])
+def test_predictive_covariance_across_missing_outputs_equals_filterpy(partial):
+    # S_t = C P_t C^T + R of filterpy's prior, with whole steps skipped (update(None)) and, for `partial`,
+    # single channels conditioned on the measured ones only: the covariance after a gap grows, and is
+    # that of all of y_t at a step where some channels are missing
+    rng = np.random.default_rng(7 + partial)
+    A, C, Q, R = random_system(rng, 3, 3, 2)
+    y = simulate(rng, A, C, Q, R, 24)
+    y[:, [4, 5, 6, 15]] = np.nan
+    if partial:
+        y[rng.random(y.shape) < 0.3] = np.nan
+    x0, P0 = rng.normal(size=(3, 3)), random_spd(rng, 3, 3, scale=1.0)
+    ref_mean, ref_S = filterpy_distribution_gaps(A, C, Q, R, y, x0, P0)
+    out = kalman_filter(A, C, Q, R, y, x0, P0)
+    np.testing.assert_allclose(out.yhat, ref_mean, atol=1e-9, rtol=0)
+    np.testing.assert_allclose(out.S, ref_S, atol=1e-9, rtol=1e-9)
+
+
+def test_kalman_predictor_variance_with_gaps_equals_filterpy():
+    traj = with_gaps(linear_traj(num_systems=3, horizon=20), whole_steps=(7, 8))
+    _, var = make_predictor("kalman").predict_distribution(traj)
+    p = {k: v.numpy() for k, v in traj.params.as_dict().items()}
+    m0 = np.zeros((3, p["A"].shape[-1]))
+    _, ref_S = filterpy_distribution_gaps(p["A"], p["C"], p["Q"], p["R"], traj.y.numpy(), m0, p["P0"])
+    np.testing.assert_allclose(var.numpy(), np.diagonal(ref_S, axis1=-2, axis2=-1), atol=1e-9, rtol=1e-9)
 
 
 def test_kalman_predictor_distribution_with_gaps_is_finite_and_skips_missing():

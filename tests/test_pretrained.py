@@ -311,7 +311,7 @@ def test_build_writes_measured_numbers_and_is_deterministic(tmp_path, tiny_smoke
     """A smoke build of `linear`: its card's MOP/KF ratio is recomputed independently (the shipped files,
     filterpy's KF, a numpy MSE on the card's test systems); a second build from scratch gives the same
     weights bit for bit."""
-    import mop.pretrained.build as build
+    import mop.experiments.pretrained_build as build
     from mop.experiments.evaluating import test_trajectories
 
     monkeypatch.setattr(build, "NOISE_SHIFT_SYSTEMS", 4)
@@ -343,12 +343,12 @@ def test_build_reads_overrides_after_the_options():
 
 
 def test_the_build_measures_a_condition_as_the_report_does(tmp_path, tiny_smoke, monkeypatch):
-    """One evaluation: the card's numbers (mop.pretrained.build.measure) are the report's, bit for bit, on a
-    condition with missing outputs, and both name the experiment's best predictor: its reference when it
-    names none, even where another predictor (here the KF, against `last`) has the lower error."""
+    """One evaluation: the card's numbers (mop.experiments.pretrained_build.measure) are the report's, bit for
+    bit, on a condition with missing outputs, and both name the experiment's best predictor: its reference
+    when it names none, even where another predictor (here the KF, against `last`) has the lower error."""
     import dataclasses
 
-    import mop.pretrained.build as build
+    import mop.experiments.pretrained_build as build
     from mop.experiments import Condition, get_experiment
     from mop.experiments.runner import run_experiment
     from mop.pretrained.catalog import ShippedModel

@@ -14,6 +14,7 @@ from mop.cli import main
 from mop.config import DataConfig, RunConfig, to_dict
 from mop.experiments.presets import PRESETS
 from mop.experiments.training import RECORDED_MODEL, RECORDED_STEPS, training_config
+from mop.record import Record
 from mop.train.auto import MIXTURE_SIZE, STEP_COST, steps_for
 from mop.train.estimate import duration
 from mop.train.records import RecordedData, choose_split
@@ -75,6 +76,18 @@ def test_one_record_splits_in_time_and_no_window_crosses_the_cut(tmp_path):
     assert vin.shape == (20 - 8, 8, 2)  # every window of 9 steps inside 180..199
     first = vin[:, 0, 0].double() * stats["y_std"][0] + 89.5
     assert first.min() > 179.5 and first.max() < 191.5 + 1e-3
+
+
+def test_time_split_rounds_the_validation_length_up_as_record_split_does(tmp_path):
+    # 0.1 * 203 = 20.3 and 0.1 * 57 = 5.7: floor (20, 5), round (20, 6) and ceil (21, 6) all differ
+    path = write_record(tmp_path / "two.csv", lengths=(203, 57))
+    rec = RecordedData(DataConfig(path=str(path), split="time", validation_fraction=0.1))
+    assert [len(v) for v in rec.val_parts] == [21, 6]
+    assert [len(t) for t in rec.train_parts] == [182, 51]
+    for i, (train, val) in enumerate(zip(rec.train_parts, rec.val_parts, strict=True)):
+        head, tail = Record(y=np.concatenate([train, val])[:, :1]).split(0.1)
+        assert (len(head), len(tail)) == (len(train), len(val))
+        np.testing.assert_array_equal(val[:, 0], 1000 * i + np.arange(len(train), len(train) + len(val)))
 
 
 def test_a_validation_record_validates_and_all_of_data_trains(tmp_path):

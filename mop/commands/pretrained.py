@@ -11,8 +11,8 @@ from pathlib import Path
 
 from mop.commands import OverridesAnywhere
 from mop.errors import MopError
+from mop.experiments.pretrained_build import build
 from mop.pretrained import PREFIX, ROOT, dimensions, read_card, shipped_dir, shipped_names
-from mop.pretrained.build import build
 
 EPILOG = """examples:
   mop pretrained                              # the shipped models, one line each, and their cards

@@ -11,6 +11,7 @@ import argparse
 from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
 from mop.experiments.training import feature_line, training_config
+from mop.io import reading_once
 from mop.runs import read_run_json
 from mop.train import train
 from mop.train.data import validates_tails
@@ -80,6 +81,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    with reading_once():  # the record is read once, whichever steps of the recipe look at it
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     source, overrides = args.source, list(args.overrides or [])
     if source is not None and "=" in source:  # no config file: the first word is an override
         source, overrides = None, [source, *overrides]

@@ -134,6 +134,32 @@ def fit(
     return fitted
 
 
+def fit_orders(
+    kind: str, data: RecordData, orders: dict[str, int], max_order: int = 10, source: str = "record"
+) -> FittedPredictor:
+    """The `kind` model of the given orders (e.g. {"p": 2, "q": 2}, {"n": 3}) fitted on the whole record, no
+    order chosen; max_order sets what the grid would (N4SID's block rows, at least those of the order).
+    MopError, before any fit, where the record is too short for those orders."""
+    identifier = IDENTIFIERS.get(kind)
+    record = complete_record(data, source)
+    k = record[0][1].shape[1]
+    ints = bool(orders) and all(isinstance(v, int) and v >= 0 for v in orders.values())
+    largest = max(max_order, *orders.values()) if ints else max_order
+    valid = identifier.candidates(largest, k)
+    if orders not in valid:
+        inputs = f"{k} input(s)" if k else "no inputs"
+        raise MopError(
+            f"{kind} orders {orders} do not fit a record with {inputs}; give orders like {valid[-1]}"
+        )
+    if not identifier.feasible(record, orders, largest):
+        steps = sum(len(y) for y, _ in record)
+        raise MopError(f"{source}: {steps} steps are too few to fit {kind} {orders}; lower the orders")
+    info = {"estimation": Path(source).name, "select": "given", "max_order": largest}
+    fitted = identifier.fit_grid(record, [orders], info, largest)[0]
+    fitted.info[POLE_RADIUS] = pole_radius(fitted.model.A)
+    return fitted
+
+
 def pole_radius(A: np.ndarray) -> float:
     """The largest modulus of A's eigenvalues (the fitted model's poles); >= 1: its free run does not
     decay, and above 1 grows without bound (tank_records plant 4's N4SID: 1.034, a 1024-step record

@@ -8,7 +8,7 @@ Each shipped model is a run directory inside the package, installed by pip with 
     mop/pretrained/<name>/CARD.md            the card, rendered from card.json (mop.pretrained.card)
 
 Loading a shipped model checks both SHA-256 digests first, so tampered or truncated weights are refused
-with a one-line MopError. `mop pretrained build` (mop.pretrained.build) rebuilds them.
+with a one-line MopError. `mop pretrained build` (mop.experiments.pretrained_build) rebuilds them.
 This module imports nothing of mop above the errors, so the run loader (mop.runs) can use it.
 """
 

@@ -1,6 +1,6 @@
 """CARD.md of a shipped model, rendered from its card.json alone (so the card's numbers are the build's).
 
-card.json (written by mop.pretrained.build):
+card.json (written by mop.experiments.pretrained_build):
     name, summary, not_for, rebuild (the command)
     family        the trained family's SystemConfig (the data distribution)
     model         the ModelConfig; num_parameters; size_bytes of model.safetensors

@@ -37,6 +37,18 @@ class Trajectories:
     family: str = ""
 
     def __post_init__(self) -> None:
+        y_shape = tuple(getattr(self.y, "shape", ()))
+        if len(y_shape) != 3:
+            raise MopError(
+                f"Trajectories.y has shape {y_shape}; it is a batch (B, T+1, m): add the batch axis "
+                "(y[None]), or give one record to mop.estimators as it is"
+            )
+        u_shape = None if self.u is None else tuple(self.u.shape)
+        if u_shape is not None and (len(u_shape) != 3 or u_shape[:2] != y_shape[:2]):
+            raise MopError(
+                f"Trajectories.u has shape {u_shape} and y {y_shape}; u is (B, T+1, k) of the "
+                "same B and T+1 as y"
+            )
         if self.params is not None and not isinstance(self.params, SystemParams):
             raise MopError(
                 f"Trajectories.params must be the family's parameter type (a SystemParams), got "

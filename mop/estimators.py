@@ -1,0 +1,262 @@
+"""Estimators with one face: ARX, N4SID and the learned model, each built with its options, fitted on records,
+then asked for one-step predictions, k-step forecasts and free-run simulations in the records' units.
+
+    from mop.estimators import ARX, N4SID, Learned
+    est, val = mop.read_records("est.csv")[0], mop.read_records("val.csv")[0]
+    for model in (ARX(), N4SID(), Learned(budget_minutes=2)):
+        ysim = model.fit(est).simulate(val, init=50)         # (T, m), NaN for t < 50
+
+The data an estimator takes: a mop.record.Record, a list of Records, a path to a .csv / .npz (mop.io's
+formats), or arrays (y, u) with y (T, m) or (T,) and u (T, k), (T,) or None, or y alone (one record; y
+(B, T, m) with u (B, T, k) is B records). What it returns follows what it was given: one array for one
+record, a list for a list (or a file, or a batch).
+Time convention (mop.predictors): predict(r)[t] predicts y_t from y_<t, u_<t; forecast(r, K)[t, j] predicts
+y_{t+j} from y_<t and u_<t+j (NaN where t + j >= T); simulate(r, init=c)[t] predicts y_t for t >= c from
+y_<c and the inputs alone (NaN for t < c), exactly the numbers `mop predict MODEL DATA --simulate c` writes
+(init=0: from the record's start, y_0 its initial condition, t >= 1).
+
+ARX and N4SID are mop.identify's fits (`mop fit arx|n4sid`); Learned trains through the path `mop train --data
+FILE [--init RUN]` takes (mop.experiments.training.training_config, then mop.train.train): the records are
+written to a CSV in the run's directory, which the run's config names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mop.config import RunConfig, parse_overrides
+from mop.errors import MopError
+from mop.experiments.training import training_config
+from mop.identify.arx import ARX as ArxIdentifier
+from mop.identify.n4sid import N4SID as N4sidIdentifier
+from mop.identify.select import SIMULATION, fit, fit_orders
+from mop.io import reading_once
+from mop.models import build_model
+from mop.predictors import Predictor
+from mop.record import Record, as_pairs, read_records, write_records
+from mop.records import predict_all, simulate_all
+from mop.runs import load_predictor
+from mop.train import resolve_config, resolve_device, train
+from mop.train.estimate import step_seconds
+
+Records = Record | Sequence[Record] | str | os.PathLike | tuple[Any, Any]
+
+
+def as_records(data: Records, where: str = "data") -> tuple[list[Record], bool]:
+    """(records, one): the records of `data` (see the module docstring) and whether it was a single record.
+    MopError naming the shape for anything else, before any work."""
+    if isinstance(data, Record):
+        return [data], True
+    if isinstance(data, (str, os.PathLike)):
+        return read_records(data), False
+    if isinstance(data, (list, tuple)) and data and all(isinstance(r, Record) for r in data):
+        return list(data), False
+    if isinstance(data, np.ndarray):  # outputs alone
+        data = (data, None)
+    if isinstance(data, tuple) and len(data) == 2:
+        y = np.asarray(data[0], dtype=np.float64)
+        u = None if data[1] is None else np.asarray(data[1], dtype=np.float64)
+        if y.ndim == 3:
+            if u is not None and (u.ndim != 3 or u.shape[:2] != y.shape[:2]):
+                shape = u.shape
+                raise MopError(f"{where}: y is {y.shape} (B, T, m), so u must be (B, T, k); got u {shape}")
+            return [Record(y=y[b], u=None if u is None else u[b]) for b in range(len(y))], False
+        if y.ndim in (1, 2):
+            return [Record(y=y, u=u)], True
+        raise MopError(f"{where}: y has shape {y.shape}; give y (T, m), (T,) or a batch (B, T, m)")
+    raise MopError(
+        f"{where}: got {type(data).__name__}; give a mop.record.Record, a list of them, a .csv / .npz path, "
+        "or arrays (y, u) with y (T, m) and u (T, k) or None"
+    )
+
+
+class Estimator:
+    """The face every estimator shares; a subclass sets `predictor_` (a mop Predictor) in `fit`."""
+
+    name = "estimator"
+
+    def __init__(self) -> None:
+        self.predictor_: Predictor | None = None
+        self.shape_: tuple[int, int] | None = None  # (m, k) of the records fitted on
+
+    def fit(self, data: Records) -> Estimator:
+        raise NotImplementedError
+
+    def _records(self, data: Records) -> tuple[list[Record], bool]:
+        if self.predictor_ is None:
+            raise MopError(f"{self.name} is not fitted yet; call .fit(record) first")
+        records, one = as_records(data)
+        m, k = self.shape_
+        for r in records:
+            if (r.num_outputs, r.num_inputs) != (m, k):
+                raise MopError(
+                    f"{self.name} was fitted on {m} output(s) and {k} input(s); record {r.name!r} has "
+                    f"{r.num_outputs} and {r.num_inputs}: give records with the estimation record's columns"
+                )
+        return records, one
+
+    def _fitted_on(self, records: list[Record]) -> None:
+        shapes = {(r.num_outputs, r.num_inputs) for r in records}
+        if len(shapes) != 1:
+            raise MopError(
+                f"{self.name}: the records differ in their channels {sorted(shapes)}; fit on one kind"
+            )
+        self.shape_ = shapes.pop()
+
+    def predict(self, data: Records) -> np.ndarray | list[np.ndarray]:
+        """One-step predictions (T, m) per record: [t] predicts y_t from y_<t and u_<t."""
+        records, one = self._records(data)
+        out = predict_all(self.predictor_, as_pairs(records))
+        return out[0] if one else out
+
+    def forecast(self, data: Records, horizon: int) -> np.ndarray | list[np.ndarray]:
+        """k-step forecasts (T, horizon, m) per record: [t, j] predicts y_{t+j} from y_<t (NaN past T)."""
+        records, one = self._records(data)
+        longest = max(len(r) for r in records)
+        if not isinstance(horizon, int) or not 1 <= horizon <= longest:
+            raise MopError(f"forecast horizon must be an integer in [1, {longest}] (the longest record)")
+        out = predict_all(self.predictor_, as_pairs(records), steps=horizon)
+        return out[0] if one else out
+
+    def simulate(self, data: Records, init: int | None = None) -> np.ndarray | list[np.ndarray]:
+        """Free-run simulations (T, m) per record: [t] for t >= c from y_<c and the inputs alone, NaN before.
+        c = init, or each record's init_window where init is None; 0 simulates from the record's start with
+        y_0 its initial condition, as `mop predict --simulate 0` (so [0] is NaN too)."""
+        records, one = self._records(data)
+        starts = [r.init_window if init is None else init for r in records]
+        for r, c in zip(records, starts, strict=True):
+            if not isinstance(c, (int, np.integer)) or not 0 <= c <= len(r) - 1:
+                raise MopError(f"simulate init must be an integer in [0, {len(r) - 1}] for record {r.name!r}")
+        out: list[np.ndarray] = [np.empty(0)] * len(records)
+        for context in sorted({max(int(c), 1) for c in starts}):
+            idx = [i for i, c in enumerate(starts) if max(int(c), 1) == context]
+            sims = simulate_all(self.predictor_, as_pairs([records[i] for i in idx]), context)
+            for i, sim in zip(idx, sims, strict=True):
+                full = np.full_like(records[i].y, np.nan)
+                full[context:] = sim
+                out[i] = full
+        return out[0] if one else out
+
+
+class _Identified(Estimator):
+    """An identifier of mop.identify: its orders given, or chosen on the held-out 20% (`mop fit`)."""
+
+    kind = ""
+
+    def __init__(self, orders: dict[str, int] | None, select: str, max_order: int) -> None:
+        super().__init__()
+        self.orders, self.select, self.max_order = orders, select, max_order
+        self.name = self.kind.upper()
+
+    def fit(self, data: Records) -> Estimator:
+        records, _ = as_records(data)
+        self._fitted_on(records)
+        pairs, source = as_pairs(records), records[0].name or "record"
+        if self.orders is None:
+            self.predictor_ = fit(self.kind, pairs, self.select, self.max_order, source=source)
+        else:
+            self.predictor_ = fit_orders(self.kind, pairs, self.orders, self.max_order, source=source)
+        return self
+
+    @property
+    def chosen_orders(self) -> dict[str, int]:
+        """The orders fitted (given, or chosen by the held-out score)."""
+        if self.predictor_ is None:
+            raise MopError(f"{self.name} is not fitted yet; call .fit(record) first")
+        return dict(self.predictor_.orders)
+
+
+class ARX(_Identified):
+    """ARX(na, nb) by least squares with an intercept (mop.identify.arx): na output lags, nb input lags (0
+    without inputs). Orders left None are chosen as `mop fit arx` does: the grid up to max_order scored by
+    `select` ("simulation" or "one-step") on the last 20% of each record, then refitted on all of it."""
+
+    kind = ArxIdentifier.kind
+
+    def __init__(
+        self, na: int | None = None, nb: int | None = None, select: str = SIMULATION, max_order: int = 10
+    ) -> None:
+        if (na is None) != (nb is None):
+            raise MopError("ARX: give both orders na and nb, or neither (chosen on held-out data)")
+        super().__init__(None if na is None else {"p": na, "q": nb}, select, max_order)
+
+
+class N4SID(_Identified):
+    """N4SID subspace identification (mop.identify.n4sid) of state order `order`; None: chosen as `mop fit
+    n4sid` does (see ARX)."""
+
+    kind = N4sidIdentifier.kind
+
+    def __init__(self, order: int | None = None, select: str = SIMULATION, max_order: int = 10) -> None:
+        super().__init__(None if order is None else {"n": order}, select, max_order)
+
+
+class Learned(Estimator):
+    """The learned model trained on the records as `mop train --data FILE [--init RUN] key=value ...` trains.
+
+    budget_minutes: at most about this long: train.steps is cut to the minutes over a measured step time
+    (mop.train.estimate.step_seconds; never raised above the recipe's steps; machine-dependent, so give
+    train.steps for a run that must repeat). init: fine-tune a run directory or pretrained:NAME (--init).
+    overrides: dotted config keys, as keyword arguments with "__" for "." (train__steps=200) or as a dict
+    (**{"train.steps": 200}). out_dir: where the run directory and the records' CSV go (default: a new
+    temporary directory). The seed is train.seed (0)."""
+
+    name = "Learned"
+
+    def __init__(
+        self,
+        budget_minutes: float | None = None,
+        init: str | None = None,
+        *,
+        out_dir: str | os.PathLike | None = None,
+        progress: bool = False,
+        **overrides: Any,
+    ) -> None:
+        super().__init__()
+        if budget_minutes is not None and not (
+            isinstance(budget_minutes, (int, float)) and math.isfinite(budget_minutes) and budget_minutes > 0
+        ):
+            raise MopError(f"Learned: budget_minutes must be a positive number, got {budget_minutes!r}")
+        self.budget_minutes, self.init, self.progress = budget_minutes, init, progress
+        self.out_dir = None if out_dir is None else Path(out_dir)
+        self.overrides = [f"{k.replace('__', '.')}={json.dumps(v)}" for k, v in overrides.items()]
+        parse_overrides(self.overrides)
+        self.run_dir_: Path | None = None
+
+    def fit(self, data: Records, val: Records | None = None) -> Estimator:
+        """Train on `data` (its last 10% validates, as `mop train --data`), or on all of it with `val` the
+        validation records (--val). The run directory is run_dir_."""
+        records, _ = as_records(data)
+        self._fitted_on(records)
+        base = self.out_dir or Path(tempfile.mkdtemp(prefix="mop-learned-"))
+        base.mkdir(parents=True, exist_ok=True)
+        path = write_records(records, base / "records.csv")
+        val_path = None
+        if val is not None:
+            val_records, _ = as_records(val, "validation data")
+            val_path = str(write_records(val_records, base / "validation.csv"))
+        with reading_once():  # as `mop train --data`: the records' file is read once
+            config = training_config(None, None, str(path), val_path, self.overrides, self.init)
+            if self.budget_minutes is not None and "train.steps" not in parse_overrides(self.overrides):
+                config = within_budget(config, self.budget_minutes)
+            self.run_dir_ = train(config, base / "run", progress=self.progress)
+        self.predictor_ = load_predictor(self.run_dir_)
+        return self
+
+
+def within_budget(config: RunConfig, minutes: float) -> RunConfig:
+    """config with train.steps cut to what `minutes` allow at the measured time of one step."""
+    resolved = resolve_config(config)
+    device = resolve_device(resolved.train.device)
+    seconds = step_seconds(resolved, build_model(resolved.model), device)
+    steps = max(1, min(config.train.steps, int(minutes * 60 / max(seconds, 1e-9))))
+    return dataclasses.replace(config, train=dataclasses.replace(config.train, steps=steps))
