@@ -90,7 +90,7 @@ def test_kalman_simulation_is_the_noise_free_model_rollout(traj):
 
 
 def test_bad_context_is_refused(traj):
-    for bad in (0, traj.horizon + 1, 2.5):
+    for bad in (-1, traj.horizon + 1, 2.5):  # 0 is accepted: it means --simulate 0 (context 1)
         with pytest.raises(MopError, match="simulation context"):
             simulate(make_predictor("last"), traj, bad)
 
