@@ -1,6 +1,7 @@
 """Reading users' measured trajectories (.csv long format or .npz as `mop simulate` writes).
 
-CSV: a header, one row per (trajectory, time step): columns `trajectory, t, y0..y{m-1}[, u0..u{k-1}]`.
+CSV: a header, one row per (trajectory, time step): columns `trajectory, t, y0..y{m-1}[, u0..u{k-1}]`, the
+value columns read by their names in any order (`t,u0,y0` is the output y0 and the input u0).
 Trajectories may have different lengths; t runs 0..T_i within each trajectory (rows in any order). One
 record, as identification data comes, may leave out the trajectory column (`t, y0.., u0..`: one
 trajectory named after the file) or both (`y0.., u0..`: one trajectory, its rows in time order).
@@ -25,7 +26,9 @@ import numpy as np
 
 from mop.errors import MopError
 
-MAX_ABS = 1e6  # larger magnitudes are refused: a model trained on O(1) data cannot use them
+# larger magnitudes are refused as garbage (an overflowed logger, a wrong column); records in large units
+# (pressures in Pa, encoder counts) load, since every predictor normalises each channel
+MAX_ABS = 1e12
 
 
 def _check_values(name: str, a: np.ndarray, where: str, gaps: bool = False) -> None:
@@ -37,7 +40,7 @@ def _check_values(name: str, a: np.ndarray, where: str, gaps: bool = False) -> N
     if a.size and np.nan_to_num(np.abs(a)).max() > MAX_ABS:
         raise MopError(
             f"{where}: {name} holds values up to {np.nanmax(np.abs(a)):.3g} (limit {MAX_ABS:.0e}); "
-            "rescale the data"
+            "check the file (a garbled value?) or rescale that channel"
         )
 
 
@@ -76,16 +79,15 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
     rows = [r for r in rows if any(c.strip() for c in r)]
     if not rows:
         raise MopError(f"{path}: file is empty; expected a header `trajectory,t,y0,...` and rows")
+    written = ",".join(c.strip() for c in rows[0])  # the header as the user wrote it, for messages
+    rows = _with_trajectory_column([c.strip() for c in rows[0]], rows, path)
     header = [c.strip() for c in rows[0]]
-    rows = _with_trajectory_column(header, rows, path)
-    header = [c.strip() for c in rows[0]]
-    ycols = [i for i, c in enumerate(header) if re.fullmatch(r"y\d+", c)]
-    ucols = [i for i, c in enumerate(header) if re.fullmatch(r"u\d+", c)]
-    if header[:2] != ["trajectory", "t"] or not ycols or len(ycols) + len(ucols) + 2 != len(header):
+    if header[:2] != ["trajectory", "t"] or len(header) < 3:
         raise MopError(
-            f"{path}: header {','.join(header)!r} is not `trajectory,t,y0..y{{m-1}}[,u0..u{{k-1}}]` "
-            "(or, for one record, `t,y0..` or `y0..`)"
+            f"{path}: header {written!r} is not `trajectory,t,y0..y{{m-1}}[,u0..u{{k-1}}]` "
+            "(or, for one record, `t,y0..` or `y0..`; columns in any order)"
         )
+    ycols, ucols = _value_columns(header, written, path)
     trajs: dict[str, dict[int, list[float]]] = {}
     for n, r in enumerate(rows[1:], start=2):
         if len(r) != len(header):
@@ -94,7 +96,7 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
             t = int(r[1])
         except ValueError:
             raise MopError(f"{path}: line {n}, column t: {r[1]!r} is not an integer time step") from None
-        vals = [_cell(c, header[i], path, n) for i, c in enumerate(r[2:], start=2)]
+        vals = [_cell(r[i], header[i], path, n) for i in (*ycols, *ucols)]  # y0.., u0.. by name
         steps = trajs.setdefault(r[0].strip(), {})
         if t in steps:
             raise MopError(f"{path}: line {n}: trajectory {r[0]!r} has time step {t} twice")
@@ -117,12 +119,39 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
     return list(trajs), out
 
 
+def _value_columns(header: list[str], written: str, path: Path) -> tuple[list[int], list[int]]:
+    """(positions of y0..y{m-1}, positions of u0..u{k-1}) in `header`, found by name in any order; a
+    duplicate, a gap in the numbering or an unknown name is refused naming the column."""
+    found: dict[str, dict[int, int]] = {"y": {}, "u": {}}
+    for i, name in enumerate(header[2:], start=2):
+        match = re.fullmatch(r"([yu])(\d+)", name)
+        if match is None:
+            raise MopError(
+                f"{path}: column {name!r} of header {written!r} is neither an output y<i> nor an input u<j>; "
+                "name the outputs y0, y1, .. and the inputs u0, u1, .."
+            )
+        kind, number = match.group(1), int(match.group(2))
+        if number in found[kind]:
+            raise MopError(f"{path}: column {name!r} appears twice in header {written!r}; name each once")
+        found[kind][number] = i
+    if not found["y"]:
+        raise MopError(f"{path}: header {written!r} has no output column; name the outputs y0, y1, ..")
+    for kind, columns in found.items():
+        gap = next((j for j in range(len(columns)) if j not in columns), None)
+        if gap is not None:
+            raise MopError(
+                f"{path}: header {written!r} has {', '.join(f'{kind}{j}' for j in sorted(columns))} but no "
+                f"{kind}{gap}; number the {'outputs' if kind == 'y' else 'inputs'} from {kind}0 without gaps"
+            )
+    return [found["y"][j] for j in sorted(found["y"])], [found["u"][j] for j in sorted(found["u"])]
+
+
 def _with_trajectory_column(header: list[str], rows: list[list[str]], path: Path) -> list[list[str]]:
     """rows in the long format: a one-record header (`t,y0..` or `y0..`, see the module docstring) gets the
     trajectory column (the file's stem) and, without t, the time steps 0..T in row order."""
     if header[:1] == ["t"]:
         return [["trajectory", *rows[0]], *([path.stem, *r] for r in rows[1:])]
-    if header[:1] and re.fullmatch(r"y\d+", header[0]):
+    if header[:1] and re.fullmatch(r"[yu]\d+", header[0]):
         return [["trajectory", "t", *rows[0]], *([path.stem, str(t), *r] for t, r in enumerate(rows[1:]))]
     return rows
 
@@ -135,6 +164,10 @@ def _cell(text: str, column: str, path: Path, line: int) -> float:
         value = float(text) if text else float("nan")
     except ValueError:
         raise MopError(f"{path}: line {line}, column {column}: {text!r} is not a number") from None
+    if math.isinf(value) and column.startswith("u"):
+        raise MopError(
+            f"{path}: line {line}, column {column}: the input {text!r} is infinite; inputs must be finite"
+        )
     if math.isinf(value):
         raise MopError(
             f"{path}: line {line}, column {column}: {text!r} is infinite; leave the cell empty to mark a "
