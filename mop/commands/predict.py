@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,7 @@ from mop.predictors import (
     needs_system,
 )
 from mop.pretrained import is_pretrained
-from mop.records import observed_norms, predict_all, scores, simulate_all
+from mop.records import DIVERGENCE_FACTOR, divergence_step, observed_norms, predict_all, scores, simulate_all
 from mop.runs import load_predictor
 from mop.systems import FAMILIES
 from mop.systems.base import (
@@ -163,15 +164,28 @@ SIMULATION_HEADER = ("trajectory", "steps", "1-step rmse", "fit %", "sim rmse", 
 
 def print_simulation_errors(names, data, yhat, sims, context: int) -> None:
     """Per trajectory and overall, over t >= C: one-step (yhat) beside free-run simulation: RMSE, NRMSE and
-    fit % (mop.records.scores)."""
+    fit % (mop.records.scores). A simulation that diverged (mop.records.divergence_step) scores RMSE inf
+    and is named with its step; the overall row of any diverged one is inf too."""
     print("{:>12} {:>6} {:>12} {:>7} {:>12} {:>10} {:>10}".format(*SIMULATION_HEADER))
-    rows = [(n, y[context:], p[context:], s) for n, (y, _), p, s in zip(names, data, yhat, sims, strict=True)]
-    rows.append(("overall", [r[1] for r in rows], [r[2] for r in rows], [r[3] for r in rows]))
-    for name, y, p, s in rows:
+    rows, diverged = [], []
+    for n, (y, _), p, s in zip(names, data, yhat, sims, strict=True):
+        step = divergence_step(y, s)
+        rows.append((n, y[context:], p[context:], s, step is not None))
+        if step is not None:
+            diverged.append(f"{n} at step {context + step}")
+    rows.append(("overall", *[[r[i] for r in rows] for i in (1, 2, 3)], bool(diverged)))
+    for name, y, p, s, blown in rows:
         one, sim = scores(y, p), scores(y, s)
+        rmse, nrmse, fit = (math.inf, math.inf, -math.inf) if blown else (sim.rmse, sim.nrmse, sim.fit)
         print(
-            f"{name:>12} {sim.steps:>6} {one.rmse:>12.4g} {one.fit:>7.2f} {sim.rmse:>12.4g} "
-            f"{sim.nrmse:>10.4g} {sim.fit:>10.2f}"
+            f"{name:>12} {sim.steps:>6} {one.rmse:>12.4g} {one.fit:>7.2f} {rmse:>12.4g} "
+            f"{nrmse:>10.4g} {fit:>10.2f}"
+        )
+    if diverged:
+        print(
+            f"diverged: the simulation of {', '.join(diverged)} left the measured range by over "
+            f"{DIVERGENCE_FACTOR:g}x (or turned non-finite), so its sim rmse is inf, not a score over the "
+            "steps before"
         )
 
 
