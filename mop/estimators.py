@@ -39,6 +39,8 @@ from mop.experiments.training import training_config
 from mop.identify.arx import ARX as ArxIdentifier
 from mop.identify.n4sid import N4SID as N4sidIdentifier
 from mop.identify.select import SIMULATION, fit, fit_orders
+from mop.identify.store import FILE as FITTED_FILE
+from mop.identify.store import load as load_fitted
 from mop.io import reading_once
 from mop.models import build_model
 from mop.predictors import Predictor
@@ -47,6 +49,7 @@ from mop.records import predict_all, simulate_all
 from mop.runs import load_predictor
 from mop.train import resolve_config, resolve_device, train
 from mop.train.estimate import step_seconds
+from mop.train.selection import select_against_arx
 
 Records = Record | Sequence[Record] | str | os.PathLike | tuple[Any, Any]
 
@@ -203,9 +206,12 @@ class N4SID(_Identified):
 class Learned(Estimator):
     """The learned model trained on the records as `mop train --data FILE [--init RUN] key=value ...` trains.
 
-    budget_minutes: at most about this long: train.steps is cut to the minutes over a measured step time
-    (mop.train.estimate.step_seconds; never raised above the recipe's steps; machine-dependent, so give
-    train.steps for a run that must repeat). init: fine-tune a run directory or pretrained:NAME (--init).
+    budget_minutes: the records recipe's budget (`mop train --budget`: steps planned from the minutes and the
+    record's length, the same on every machine, mop.train.budget); for a fine-tune (init), train.steps is
+    cut to the minutes over a measured step time (mop.train.estimate.step_seconds; machine-dependent).
+    After a records-recipe fit, selection_ holds the held-out comparison with the fitted ARX
+    (mop.train.selection): where the ARX wins, predictor_ is that ARX, as mop.load(run_dir_) gives.
+    init: fine-tune a run directory or pretrained:NAME (--init).
     overrides: dotted config keys, as keyword arguments with "__" for "." (train__steps=200) or as a dict
     (**{"train.steps": 200}). out_dir: where the run directory and the records' CSV go (default: a new
     temporary directory). The seed is train.seed (0)."""
@@ -245,11 +251,21 @@ class Learned(Estimator):
             val_records, _ = as_records(val, "validation data")
             val_path = str(write_records(val_records, base / "validation.csv"))
         with reading_once():  # as `mop train --data`: the records' file is read once
-            config = training_config(None, None, str(path), val_path, self.overrides, self.init)
-            if self.budget_minutes is not None and "train.steps" not in parse_overrides(self.overrides):
+            recipe_budget = self.budget_minutes if self.init is None else None
+            config = training_config(
+                None, None, str(path), val_path, self.overrides, self.init, recipe_budget
+            )
+            if (
+                self.init is not None
+                and self.budget_minutes is not None
+                and "train.steps" not in parse_overrides(self.overrides)
+            ):
                 config = within_budget(config, self.budget_minutes)
             self.run_dir_ = train(config, base / "run", progress=self.progress)
-        self.predictor_ = load_predictor(self.run_dir_)
+            if self.init is None and config.model.rls_prior == "fit":  # the records recipe, as mop train
+                self.selection_ = select_against_arx(self.run_dir_, config)
+        fitted = self.run_dir_ / FITTED_FILE
+        self.predictor_ = load_fitted(fitted.parent) if fitted.is_file() else load_predictor(self.run_dir_)
         return self
 
 

@@ -13,9 +13,10 @@ import torch
 from mop.cli import main
 from mop.config import DataConfig, RunConfig, to_dict
 from mop.experiments.presets import PRESETS
-from mop.experiments.training import RECORDED_MODEL, RECORDED_STEPS, training_config
+from mop.experiments.training import RECORDED_MODEL, training_config
 from mop.record import Record
 from mop.train.auto import MIXTURE_SIZE, STEP_COST, steps_for
+from mop.train.budget import MIN_STEPS
 from mop.train.estimate import duration
 from mop.train.records import RecordedData, choose_split
 
@@ -143,9 +144,7 @@ def test_training_config_layers(tmp_path):
     with_inputs = write_record(tmp_path / "u.csv", lengths=(60,))
     without = write_record(tmp_path / "y.csv", lengths=(60,), inputs=False)
     recipe = training_config(None, None, str(with_inputs))
-    assert (
-        recipe.model.rls_prior == "fit" and recipe.model.rls_offset and recipe.train.steps == RECORDED_STEPS
-    )
+    assert recipe.model.rls_prior == "fit" and recipe.model.rls_offset and recipe.train.steps == MIN_STEPS
     assert all(getattr(recipe.model, k.split(".")[1]) == v for k, v in RECORDED_MODEL.items())
     assert training_config(None, None, str(with_inputs), overrides=["train.steps=9"]).train.steps == 9
     preset_model = dataclasses.replace(small.model, features="given")  # auto on records: the keys as given

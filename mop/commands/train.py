@@ -10,12 +10,14 @@ import argparse
 
 from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
-from mop.experiments.training import feature_line, training_config
+from mop.experiments.training import budget_plan, feature_line, training_config
 from mop.io import reading_once
 from mop.runs import read_run_json
 from mop.train import train
+from mop.train.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.train.data import validates_tails
 from mop.train.records import recorded_data
+from mop.train.selection import select_against_arx, selection_line
 from mop.train.shrink import SHRINK_FILE, shrink_line
 
 EPILOG = """examples:
@@ -67,6 +69,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(model.record_prior_steps=100), and a simulation model trains tails from step 1 and keeps its "
         "correction at the gain in 0..1 that simulates the record best (train.shrink_correction)",
     )
+    parser.add_argument(
+        "--budget",
+        type=str,
+        default=None,
+        metavar="MINUTES",
+        help="with --data and the records recipe: the training time to plan for (default 5); the steps grow "
+        "with the record's length, up to what the budget buys at 20 ms a step (mop.train.budget), the same "
+        "steps on every machine; a train.steps=N override wins",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--fresh",
@@ -89,7 +100,13 @@ def _run(args: argparse.Namespace) -> int:
     source, overrides = args.source, list(args.overrides or [])
     if source is not None and "=" in source:  # no config file: the first word is an override
         source, overrides = None, [source, *overrides]
-    config = training_config(source, args.preset, args.data, args.val, overrides, args.init)
+    budget = None if args.budget is None else check_budget(args.budget)
+    config = training_config(source, args.preset, args.data, args.val, overrides, args.init, budget)
+    recipe = config.data is not None and args.init is None and config.model.rls_prior == "fit"
+    if recipe:
+        plan = budget_plan(config, DEFAULT_BUDGET_MINUTES if budget is None else budget)
+        if plan.steps == config.train.steps:
+            print(plan.line())
     if config.data is not None:
         print(recorded_data(config.data).summary(config.train.horizon, validates_tails(config)))
         print(feature_line(config) or "feature: none (the network reads the record alone)")
@@ -107,6 +124,8 @@ def _run(args: argparse.Namespace) -> int:
         fresh=args.fresh,
         announce=print,
     )
+    if recipe:
+        print(selection_line(select_against_arx(out, config)))
     shrunk = out / SHRINK_FILE
     if config.train.shrink_correction and shrunk.is_file():
         print(shrink_line(read_run_json(shrunk), config.data.path))

@@ -7,7 +7,8 @@ Layers, later wins:
 2. `--data FILE` (data.path) and `--val FILE` (data.validation_path): recorded trajectories;
 3. on recorded data with inputs and complete outputs, where no source, no --preset and no override chose
    the feature, the
-   records recipe (recorded_recipe): a 1 x 32 model for RECORDED_STEPS steps whose ARX(p, q) feature with an
+   records recipe (recorded_recipe): a 1 x 32 model for the steps its budget buys on the record
+   (mop.train.budget: --budget MINUTES, default 5) whose ARX(p, q) feature with an
    intercept starts from the least-squares ARX of the training part (model.rls_prior = "fit"), the orders
    those `mop fit arx` chooses on that part (held-out free-run simulation); the last weights are kept (not
    train.keep_best: its one-step validation loss on one record's last 10% picked step 500 of seed 1 on
@@ -52,14 +53,14 @@ from mop.io import read_trajectories
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.auto import resolve_features
+from mop.train.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, check_budget, plan_steps
 from mop.train.init import PRIOR_KEYS
-from mop.train.records import recorded_data
+from mop.train.records import recorded_data, window_count
 
 # The records recipe (docs/results/families.md: measured on examples/tank_records.py, one record of 1024
 # samples): a small network reading the fitted ARX's prediction and predicting its residual, so it starts as
 # that ARX; the 2 x 64 small-preset model trained 2500 steps overfits one record (one-step RMSE 2.5x ARX's)
 RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2}
-RECORDED_STEPS = 1000
 # the identifier's keys (mop.train.auto's feature keys but the running scale): naming one turns the recipe off
 FEATURE_KEYS = tuple(f"model.{key}" for key in AUTO_KEYS if key != "input_scale")
 
@@ -146,14 +147,21 @@ def record_orders(path: str) -> tuple[int, int] | None:
     return arx_orders(read_trajectories(path)[1], path)
 
 
-def recorded_recipe(config: RunConfig) -> dict[str, object]:
+def budget_plan(config: RunConfig, minutes: float = DEFAULT_BUDGET_MINUTES) -> BudgetPlan:
+    """The steps `minutes` buy on config.data's training windows (mop.train.budget.plan_steps)."""
+    record = recorded_data(config.data)
+    windows = window_count(record.train_parts, config.train.horizon)
+    return plan_steps(minutes, windows, config.train.batch_size)
+
+
+def recorded_recipe(config: RunConfig, budget: float = DEFAULT_BUDGET_MINUTES) -> dict[str, object]:
     """The records recipe's settings for config.data: the ARX orders `mop fit arx` chooses on the training
-    part (fitted_orders), the feature started from their least-squares fit, RECORDED_MODEL and
-    RECORDED_STEPS."""
+    part (fitted_orders), the feature started from their least-squares fit, RECORDED_MODEL, and the steps
+    the budget (minutes) buys on the record (budget_plan: longer records train longer)."""
     p, q = fitted_orders(config.data)
     return {
         **RECORDED_MODEL,
-        "train.steps": RECORDED_STEPS,
+        "train.steps": budget_plan(config, budget).steps,
         "model.rls_order": p,
         "model.arx_order": q,
         "model.rls_offset": True,
@@ -170,7 +178,9 @@ def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
     return dataclasses.replace(config, model=dataclasses.replace(config.model, features="given"))
 
 
-def with_recorded_features(config: RunConfig, overrides: list[str], chosen: bool = False) -> RunConfig:
+def with_recorded_features(
+    config: RunConfig, overrides: list[str], chosen: bool = False, budget: float = DEFAULT_BUDGET_MINUTES
+) -> RunConfig:
     """Layer 3: the records recipe on recorded data with inputs and complete outputs, unless the source or
     --preset (`chosen`), the base's feature or an override chose the feature (overrides of sizes and steps
     apply on top of it, as layer 4)."""
@@ -182,7 +192,7 @@ def with_recorded_features(config: RunConfig, overrides: list[str], chosen: bool
     data = recorded_data(config.data)
     if data.input_dim == 0 or data.num_missing:
         return config
-    return apply_settings(config, recorded_recipe(config))
+    return apply_settings(config, recorded_recipe(config, budget))
 
 
 # 125: on the tank_records plants 1-6 (pretrained:cascaded-tanks fine-tuned on est.csv, seeds 0 / 1, the
@@ -310,13 +320,24 @@ def training_config(
     val: str | None = None,
     overrides: list[str] = (),
     init: str | None = None,
+    budget: float | None = None,
 ) -> RunConfig:
     """The RunConfig of `mop train [SOURCE] [--preset P] [--data FILE [--val FILE]] [--init RUN]
-    [key=value ...]`."""
+    [--budget MINUTES] [key=value ...]`; the budget (DEFAULT_BUDGET_MINUTES where None) plans the records
+    recipe's steps."""
+    if budget is not None:
+        check_budget(budget)
+    if budget is not None and data is None:
+        raise MopError("--budget MINUTES plans training on a record: give --data FILE too (or train.steps=N)")
+    if budget is not None and init is not None:
+        raise MopError(
+            "--budget plans the records recipe; a fine-tune (--init) has its own schedule: drop it"
+        )
     if init is None:
         config = with_records(base_config(source, preset), data, val)
         chosen = source is not None or preset is not None
-        config = with_recorded_features(config, list(overrides), chosen)
+        minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
+        config = with_recorded_features(config, list(overrides), chosen, minutes)
         config = apply_overrides(given_features(config, list(overrides)), list(overrides))
         return resolve_features(config, scale_steps="train.steps" not in parse_overrides(list(overrides)))
     if source is not None or preset is not None:

@@ -1,0 +1,118 @@
+"""The records recipe's budget (a pure plan from minutes and the record's windows) and its held-out
+comparison with the fitted ARX (never worse than `mop fit arx`: the ARX is kept, exactly, where it wins)."""
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+import mop
+from mop.cli import main
+from mop.errors import MopError
+from mop.experiments.training import training_config
+from mop.identify import load as load_fitted
+from mop.identify.select import fit
+from mop.io import read_trajectories
+from mop.records import simulate_all
+from mop.train.budget import MAX_EPOCHS, MIN_STEPS, NOMINAL_STEP_SECONDS, plan_steps
+from mop.train.selection import SELECTION_FILE, simulation_rmse
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def arx_plant(path, steps=700, seed=0):
+    """One record of y_t = 1.2 y_{t-1} - 0.5 y_{t-2} + 0.8 u_{t-1} + e_t: a linear ARX plant."""
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=steps)
+    y = np.zeros(steps)
+    for t in range(2, steps):
+        y[t] = 1.2 * y[t - 1] - 0.5 * y[t - 2] + 0.8 * u[t - 1] + 0.05 * rng.normal()
+    path.write_text("y0,u0\n" + "\n".join(f"{a:.8f},{b:.8f}" for a, b in zip(y, u, strict=True)) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    "minutes, windows, batch", [(5, 58505, 64), (5, 872, 64), (0.5, 10**6, 64), (60, 10**5, 32)]
+)
+def test_the_plan_is_the_smaller_of_budget_and_record_never_below_the_minimum(minutes, windows, batch):
+    plan = plan_steps(minutes, windows, batch)
+    by_budget = int(minutes * 60 / NOMINAL_STEP_SECONDS)
+    by_record = math.ceil(MAX_EPOCHS * windows / batch)
+    assert plan.steps == max(MIN_STEPS, min(by_budget, by_record))
+    assert plan.steps == plan_steps(minutes, windows, batch).steps  # pure: same inputs, same steps
+    assert f"{plan.steps} steps" in plan.line(0.02)
+
+
+def test_longer_records_and_budgets_train_longer_short_ones_keep_the_minimum():
+    assert plan_steps(5, 800, 64).steps == MIN_STEPS
+    assert plan_steps(5, 58505, 64).steps == 15000  # Silverbox's estimation part: the budget decides
+    assert plan_steps(10, 58505, 64).steps == 30000
+    assert plan_steps(5, 5000, 64).steps < plan_steps(5, 20000, 64).steps
+
+
+@pytest.mark.parametrize("bad", ["0", "-1", "nan", "five"])
+def test_a_bad_budget_is_one_line_before_any_work(tmp_path, capsys, bad):
+    rec = arx_plant(tmp_path / "rec.csv")
+    assert main(["train", "--data", str(rec), "--out", str(tmp_path / "run"), "--budget", bad]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "--budget" in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_budget_sets_the_recipes_steps_and_an_override_wins(tmp_path):
+    rec = arx_plant(tmp_path / "rec.csv", steps=4000)
+    windows = 3600 - 50  # the training part (the last 400 steps validate), windows of 51 steps
+    expected = plan_steps(1, windows, 64).steps
+    assert training_config(None, None, str(rec), budget=1).train.steps == expected
+    assert training_config(None, None, str(rec), overrides=["train.steps=7"], budget=1).train.steps == 7
+    with pytest.raises(MopError, match="--data"):
+        training_config(None, budget=1)
+
+
+def test_a_simulation_that_turns_non_finite_scores_inf_not_its_finite_steps(tmp_path):
+    _, data = read_trajectories(arx_plant(tmp_path / "rec.csv", steps=200))
+    arx = fit("arx", data)
+    assert simulation_rmse(arx, data, 50) < 1
+    unstable = dataclasses.replace(arx, model=dataclasses.replace(arx.model, A=3 * arx.model.A))
+    sims = simulate_all(unstable, data, 50)[0]
+    assert np.isfinite(sims[:20]).all() and not np.isfinite(sims).all()  # finite at first, then it blows up
+    assert simulation_rmse(unstable, data, 50) == math.inf
+
+
+def test_a_network_that_cannot_beat_the_arx_ends_as_the_arx_exactly(tmp_path, capsys):
+    """A linear ARX plant and a network ruined on purpose (learning rate 3, 40 steps): the run keeps the ARX,
+    and predicts exactly what `mop fit arx` fitted on the same record predicts."""
+    rec = arx_plant(tmp_path / "rec.csv")
+    run = tmp_path / "run"
+    argv = ["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=40", "train.lr=3"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    chosen = json.loads((run / SELECTION_FILE).read_text())
+    assert chosen["kept"] == "arx" and chosen["arx_rmse"] <= chosen["network_rmse"]
+    assert "keeps the ARX" in printed
+    assert main(["fit", "arx", str(rec), "--out", str(tmp_path / "arx")]) == 0
+    fitted = load_fitted(tmp_path / "arx")
+    _, data = read_trajectories(rec)
+    from_run = simulate_all(mop.load(run), data, 50)[0]
+    np.testing.assert_array_equal(from_run, simulate_all(fitted, data, 50)[0])
+
+
+def test_a_network_that_beats_the_arx_is_kept(tmp_path, capsys):
+    """A plant with a cubic nonlinearity that no ARX can follow: a short run already beats the ARX on the
+    held-out tail, and the run predicts with the network."""
+    rng = np.random.default_rng(1)
+    steps = 1500
+    u = rng.normal(size=steps)
+    y = np.zeros(steps)
+    for t in range(1, steps):
+        y[t] = 0.6 * y[t - 1] + 0.8 * np.tanh(3 * u[t - 1]) ** 3
+    rec = tmp_path / "rec.csv"
+    rec.write_text("y0,u0\n" + "\n".join(f"{a:.8f},{b:.8f}" for a, b in zip(y, u, strict=True)) + "\n")
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=300"]) == 0
+    chosen = json.loads((run / SELECTION_FILE).read_text())
+    assert chosen["kept"] == "network" and chosen["network_rmse"] < chosen["arx_rmse"]
+    assert not (run / "fitted.json").exists()
+    assert type(mop.load(run)).__name__ == "LearnedPredictor"
