@@ -3,8 +3,8 @@
 After a records-recipe run has trained, its network and the ARX that `mop fit arx` chooses on the same
 training part simulate the held-out part of the estimation record (data.validation_fraction: the last 10%
 of one record, or the held-out trajectories, or --val), each from its first INIT_WINDOW measured outputs
-and the inputs alone, and are scored by the RMSE of the rest (a simulation that turns non-finite scores
-inf). selection.json in the run directory holds both scores and the one kept:
+and the inputs alone, and are scored by the RMSE of the rest (a simulation that diverges scores inf:
+mop.records.divergence_step). selection.json in the run directory holds both scores and the one kept:
 - the network where it simulates better: the run predicts as trained;
 - the ARX otherwise: the run directory also holds that ARX refitted on the whole estimation record, exactly
   what `mop fit arx FILE` writes (fitted.json), and `mop predict RUN`, `mop.load(RUN)` load it (they read a
@@ -24,7 +24,7 @@ from mop.config import RunConfig
 from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
 from mop.io import read_trajectories
-from mop.records import simulate_all
+from mop.records import divergence_step, simulate_all
 from mop.runs import load_predictor
 from mop.train.records import recorded_data
 
@@ -36,9 +36,9 @@ def simulation_rmse(predictor, data: list[tuple[np.ndarray, np.ndarray]], init: 
     """RMSE of y[init:] simulated from y[:init] and the inputs, pooled over the records; inf where the
     simulation turned non-finite (a diverged run is not scored over its finite steps)."""
     sims = simulate_all(predictor, data, init)
-    errors = np.concatenate([y[init:] - s for (y, _), s in zip(data, sims, strict=True)])
-    if not np.isfinite(errors[~np.isnan(errors)]).all() or any(not np.isfinite(s).all() for s in sims):
+    if any(divergence_step(y, s) is not None for (y, _), s in zip(data, sims, strict=True)):
         return math.inf
+    errors = np.concatenate([y[init:] - s for (y, _), s in zip(data, sims, strict=True)])
     return float(np.sqrt(np.nanmean(errors**2)))
 
 
