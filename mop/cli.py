@@ -16,6 +16,7 @@ COMMANDS = {
     "simulate": ("mop.commands.simulate", "simulate trajectories of a system family to an .npz file"),
     "train": ("mop.commands.train", "train a meta-output-predictor"),
     "reproduce": ("mop.commands.reproduce", "reproduce a paper figure or run an experiment file"),
+    "benchmark": ("mop.commands.benchmark", "run the system-identification benchmarks' official protocol"),
     "fit": ("mop.commands.fit", "fit ARX or N4SID once on an estimation record (mop predict uses it)"),
     "predict": ("mop.commands.predict", "one- or k-step predictions of a run or baseline on your data"),
     "pretrained": ("mop.commands.pretrained", "the predictors shipped with mop: list, show, build"),

@@ -1,0 +1,231 @@
+"""`mop benchmark [NAME ...] [--data-dir DIR] [--out OUT] [--budget MINUTES]`: the system-identification
+benchmarks' official protocol (mop.benchmarks) for mop's fitted ARX and N4SID and MOP trained on the
+estimation part (the records recipe within --budget), or the same on a user's own records with
+`--est EST.csv --test TEST.csv [--init-window n]`.
+
+Writes OUT/results.json ({benchmark: {test: {predictor: {"rmse", "units", "diverged_at"}}}}), OUT/report.md
+(the table beside the published baselines, times, seeds, warnings), per test a figure (OUT/BENCH/TEST.png)
+and every predictor's simulation beside the measured output (OUT/BENCH/TEST_PREDICTOR.csv).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+from tqdm import tqdm
+
+from mop.atomic import atomic_path, write_json
+from mop.benchmarks import BENCHMARKS, Split, load_benchmark, present
+from mop.benchmarks.protocol import CITATION, PUBLISHED, TestScore, run_test, test_figure
+from mop.errors import MopError
+from mop.estimators import Learned
+from mop.identify import fit
+from mop.identify.select import POLE_RADIUS
+from mop.record import as_pairs, read_records
+from mop.train.budget import DEFAULT_BUDGET_MINUTES, check_budget
+
+PREDICTORS = ("arx", "n4sid", "mop")
+# Shipped class models run in context here once `mop predict --context` exists: {predictor: loader}
+IN_CONTEXT: dict[str, object] = {}
+
+EXAMPLES = """
+benchmarks: silverbox, f16 (Acceleration1, the official form), f16-3 (all three accelerations),
+cascaded-tanks, emps, wiener-hammerstein, ced.
+examples:
+  mop benchmark silverbox --data-dir ~/benchmarks          # folder laid out as silverbox/SNLS80mV.csv
+  mop benchmark --data-dir ~/benchmarks                    # every benchmark whose files are there
+  mop benchmark silverbox f16 --budget 10 --out runs/bench
+  mop benchmark --est est.csv --test val.csv --init-window 50   # your own records, the same protocol
+  mop benchmark silverbox --predictors arx,n4sid           # the fitted linear models only (fast)
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = EXAMPLES
+    parser.add_argument(
+        "names", nargs="*", metavar="NAME", help="benchmarks (default: all whose files are there)"
+    )
+    parser.add_argument(
+        "--data-dir", default=None, help="folder of the benchmark files (or $MOP_BENCHMARK_DATA)"
+    )
+    parser.add_argument("--out", default="runs/benchmark", help="output folder (runs/benchmark)")
+    parser.add_argument(
+        "--budget", default=None, metavar="MINUTES", help="MOP's training budget per benchmark (default 5)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="MOP's training seed (0)")
+    parser.add_argument("--predictors", default=",".join(PREDICTORS), help="comma-separated: arx,n4sid,mop")
+    parser.add_argument(
+        "--est", default=None, help="your estimation record (.csv / .npz) instead of a benchmark"
+    )
+    parser.add_argument("--test", action="append", default=None, help="your test record (repeatable)")
+    parser.add_argument("--init-window", type=int, default=50, help="with --test: measured outputs n (50)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _splits(args: argparse.Namespace) -> list[Split]:
+    """Every split to run, loaded (and so checked) before any fitting."""
+    if args.est is not None or args.test is not None:
+        if args.names:
+            raise MopError("give benchmark names or --est/--test, not both")
+        if args.est is None or not args.test:
+            raise MopError("your own records need both --est EST and --test TEST")
+        estimation = read_records(args.est)
+        tests = []
+        for path in args.test:
+            for r in read_records(path):
+                if args.init_window < 1 or args.init_window >= len(r):
+                    raise MopError(
+                        f"--init-window {args.init_window} must be in [1, {len(r) - 1}] for {path}"
+                    )
+                tests.append(dataclasses.replace(r, init_window=args.init_window))
+        widths = {(r.num_outputs, r.num_inputs) for r in estimation + tests}
+        if len(widths) > 1:
+            raise MopError(f"--est and --test differ in their output / input widths {sorted(widths)}")
+        if tests[0].num_inputs == 0:
+            raise MopError("the records have no input column u0: a simulation needs the inputs")
+        return [Split(Path(args.est).stem, estimation, tests, "")]
+    names = args.names or present(args.data_dir)
+    if not names:
+        raise MopError(
+            "no benchmark named and none found; give NAME (silverbox, f16, ...) with --data-dir DIR, "
+            "or set $MOP_BENCHMARK_DATA"
+        )
+    for name in names:
+        BENCHMARKS.get(name)  # an unknown name is one line, before any file is read
+    return [load_benchmark(name, args.data_dir) for name in names]
+
+
+def _fitted(kind: str, split: Split, warnings: list[str]):
+    fitted = fit(kind, as_pairs(split.estimation), source=split.name)
+    radius = fitted.info.get(POLE_RADIUS, 0.0)
+    if radius >= 1:
+        warnings.append(
+            f"{split.name}: the fitted {kind.upper()} {dict(fitted.orders)} is unstable (largest pole "
+            f"modulus {radius:.4g}); its simulations may diverge"
+        )
+    return fitted
+
+
+def _write_simulation(path: Path, test, score: TestScore) -> None:
+    """The simulation beside the measured output, one row per scored step."""
+    n = max(test.init_window, 1)
+    m = test.num_outputs
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t", *[f"y{i}" for i in range(m)], *[f"ysim{i}" for i in range(m)]])
+        for j, sim in enumerate(score.simulation):
+            w.writerow([n + j, *[f"{v:.7g}" for v in test.y[n + j]], *[f"{v:.7g}" for v in sim]])
+
+
+def _run_split(split: Split, args, predictors: list[str], budget: float, out: Path, bar) -> dict:
+    folder = out / split.name
+    folder.mkdir(parents=True, exist_ok=True)
+    warnings: list[str] = []
+    models, seconds = {}, {}
+    for name in predictors:
+        bar.set_postfix_str(f"{split.name}: fitting {name}")
+        start = time.perf_counter()
+        if name == "mop":
+            learned = Learned(budget_minutes=budget, out_dir=folder / "mop", train__seed=args.seed)
+            models[name] = learned.fit(split.estimation).predictor_
+            if getattr(learned, "selection_", {}).get("kept") == "arx":
+                warnings.append(
+                    f"{split.name}: MOP did not beat its fitted ARX on held-out data and is that ARX"
+                )
+        else:
+            models[name] = _fitted(name, split, warnings)
+        seconds[name] = time.perf_counter() - start
+        bar.update(1)
+    results: dict = {}
+    for test in split.tests:
+        scores = {}
+        for name, model in models.items():
+            bar.set_postfix_str(f"{split.name}: simulating {test.name} with {name}")
+            score = run_test(model, test)
+            scores[name] = score
+            _write_simulation(folder / f"{test.name}_{name}.csv", test, score)
+            if score.diverged_at is not None:
+                warnings.append(
+                    f"{split.name} {test.name}: {name}'s simulation diverged at step {score.diverged_at}"
+                )
+            bar.update(1)
+        test_figure(test, {k: s.simulation for k, s in scores.items()}, split.units, folder, test.name)
+        results[test.name] = {
+            k: {"rmse": s.rmse, "units": split.units, "diverged_at": s.diverged_at} for k, s in scores.items()
+        }
+    return {"results": results, "seconds": seconds, "warnings": warnings}
+
+
+def _fmt(x: float, scale: float) -> str:
+    return "diverged" if math.isinf(x) else f"{x * scale:.4g}"
+
+
+def _report(runs: dict, args, budget: float) -> str:
+    lines = ["# Benchmarks: free-run simulation RMSE on the official tests", ""]
+    lines.append(
+        "Protocol: fitted on the estimation part only; on each test the first n measured outputs initialize "
+        "and the rest is simulated from the input alone; RMSE of y[n:] in the output's units."
+    )
+    lines.append(f"MOP: the records recipe within a budget of {budget:g} min, seed {args.seed}.")
+    lines.append("")
+    for bench, run in runs.items():
+        units = next(iter(next(iter(run["results"].values())).values()))["units"]
+        scale, shown = (
+            (1e3, "mV") if units == "V" and bench in ("silverbox", "wiener-hammerstein") else (1, units)
+        )
+        published = PUBLISHED.get(bench, {})
+        predictors = list(next(iter(run["results"].values())))
+        pub_names = sorted({k for t in published.values() for k in t})
+        lines += [f"## {bench} ({shown})", ""]
+        lines.append("| test | " + " | ".join([*predictors, *[f"{p} (published)" for p in pub_names]]) + " |")
+        lines.append("|---" * (1 + len(predictors) + len(pub_names)) + "|")
+        for test, scores in run["results"].items():
+            cells = [_fmt(scores[p]["rmse"], scale) for p in predictors]
+            known = published.get(test, {})
+            cells += [_fmt(known[p], scale) if p in known else "-" for p in pub_names]
+            lines.append(f"| {test} | " + " | ".join(cells) + " |")
+        lines.append("")
+        lines.append(
+            "Fitting / training time: " + ", ".join(f"{k} {v:.0f} s" for k, v in run["seconds"].items())
+        )
+        for w in run["warnings"]:
+            lines.append(f"- warning: {w}")
+        lines.append("")
+        for test in run["results"]:
+            lines.append(f"![{bench} {test}]({bench}/{test}.png)")
+        lines.append("")
+    if any(b in PUBLISHED for b in runs):
+        lines += [f"Published baselines: {CITATION}.", ""]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    predictors = [p.strip() for p in args.predictors.split(",") if p.strip()]
+    unknown = [p for p in predictors if p not in PREDICTORS]
+    if unknown or not predictors:
+        raise MopError(
+            f"--predictors: unknown {', '.join(unknown) or '(none)'}; choose from {', '.join(PREDICTORS)}"
+        )
+    budget = DEFAULT_BUDGET_MINUTES if args.budget is None else check_budget(args.budget)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise MopError(f"--out {out} is a file; give a folder")
+    splits = _splits(args)
+    total = sum(len(predictors) * (1 + len(s.tests)) for s in splits)
+    runs = {}
+    with tqdm(total=total, disable=args.quiet, desc="benchmark", unit="task") as bar:
+        for split in splits:
+            runs[split.name] = _run_split(split, args, predictors, budget, out, bar)
+    write_json(out / "results.json", {b: r["results"] for b, r in runs.items()})
+    report = _report(runs, args, budget)
+    with atomic_path(out / "report.md") as tmp:
+        Path(tmp).write_text(report)
+    print(report)
+    print(f"wrote {out / 'results.json'} and {out / 'report.md'}")
+    return 0
