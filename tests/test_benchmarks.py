@@ -1,0 +1,163 @@
+"""mop.benchmarks: the official splits (against the official loader's definitions, written out here), both
+file layouts, the protocol's scoring against a numpy recomputation, and `mop benchmark`'s bad inputs
+and files."""
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.io import savemat
+
+from mop.benchmarks import load_benchmark, present
+from mop.benchmarks.protocol import run_test
+from mop.cli import main
+from mop.identify import fit
+from mop.predictors import make_predictor
+from mop.record import Record, read_records
+
+EXCERPTS = Path(__file__).parent / "data" / "benchmarks"
+SILVERBOX_LENGTH = 131072
+
+
+def synthetic_silverbox(folder: Path) -> Path:
+    """SNLS80mV.csv at full length with V1 = sample index and V2 = -index, in the authors' CSV format."""
+    index = np.arange(SILVERBOX_LENGTH, dtype=float)
+    path = folder / "silverbox" / "SNLS80mV.csv"
+    path.parent.mkdir(parents=True)
+    rows = "\n".join(f"{a:.0f},{-a:.0f}," for a in index)
+    path.write_text('"V1","V2",\n' + rows + "\n")
+    return path
+
+
+def test_silverbox_split_is_the_official_one(tmp_path):
+    """The official loader: estimation = the first int(0.75 * 86750) samples of [40650:127400]; tests its
+    rest, [100:40575] and the first 32000 of that; n = 50 for all three."""
+    synthetic_silverbox(tmp_path)
+    split = load_benchmark("silverbox", tmp_path)
+    (est,) = split.estimation
+    cut = int(0.75 * (127400 - 40650))
+    np.testing.assert_array_equal(est.u[:, 0], np.arange(40650, 40650 + cut))
+    np.testing.assert_array_equal(est.y[:, 0], -np.arange(40650, 40650 + cut))
+    expected = {
+        "test_multisine": (40650 + cut, 127400),
+        "test_arrow_full": (100, 40575),
+        "test_arrow_no_extrapolation": (100, 32100),
+    }
+    assert [t.name for t in split.tests] == list(expected)
+    for test in split.tests:
+        start, stop = expected[test.name]
+        np.testing.assert_array_equal(test.u[:, 0], np.arange(start, stop))
+        assert test.init_window == 50 and test.sampling_time == pytest.approx(1 / 610.35)
+    assert est.init_window == 0
+
+
+def test_silverbox_from_the_loaders_cache_layout_equals_the_csv_layout(tmp_path):
+    synthetic_silverbox(tmp_path / "csv")
+    index = np.arange(SILVERBOX_LENGTH, dtype=float)
+    mat = tmp_path / "cache" / "Silverbox" / "SilverboxFiles" / "SNLS80mV.mat"
+    mat.parent.mkdir(parents=True)
+    savemat(mat, {"V1": index[None], "V2": -index[None]})
+    a, b = load_benchmark("silverbox", tmp_path / "csv"), load_benchmark("silverbox", tmp_path / "cache")
+    for x, y in zip(a.estimation + a.tests, b.estimation + b.tests, strict=True):
+        np.testing.assert_array_equal(x.y, y.y)
+        np.testing.assert_array_equal(x.u, y.u)
+        assert (x.name, x.init_window) == (y.name, y.init_window)
+
+
+def test_f16_one_and_three_outputs_from_the_authors_files():
+    """F-16 excerpts: estimation = the non-validation levels 1, 3, 5, 7, tests = 2, 4, 6 with n = 50; the
+    official output is Acceleration1, f16-3 reads all three; input Force; Fs = 400 Hz."""
+    one, three = load_benchmark("f16", EXCERPTS), load_benchmark("f16-3", EXCERPTS)
+    assert [r.name[-6:] for r in one.estimation] == ["Level1", "Level3", "Level5", "Level7"]
+    assert [r.name for r in one.tests] == [f"F16Data_FullMSine_Level{k}_Validation" for k in (2, 4, 6)]
+    assert all(t.init_window == 50 for t in one.tests) and one.tests[0].sampling_time == 1 / 400
+    raw = np.genfromtxt(EXCERPTS / "f16" / "F16Data_FullMSine_Level1.csv", delimiter=",", skip_header=1)
+    np.testing.assert_array_equal(one.estimation[0].u[:, 0], raw[:, 0])
+    np.testing.assert_array_equal(one.estimation[0].y[:, 0], raw[:, 2])
+    np.testing.assert_array_equal(three.estimation[0].y, raw[:, 2:5])
+    assert sorted(present(EXCERPTS)) == ["f16", "f16-3"]
+
+
+def test_silverbox_excerpt_reads_as_the_authors_columns():
+    folder = EXCERPTS / "silverbox"
+    raw = np.genfromtxt(folder / "SNLS80mV_first3000.csv", delimiter=",", skip_header=1)
+    assert raw.shape == (3000, 3) and np.abs(raw[:, 0]).max() < 0.2 and np.abs(raw[:, 1]).max() < 0.3
+
+
+def test_the_protocol_scores_y_after_n_against_numpy():
+    """`last` simulates y_{n-1} held constant: RMSE = sqrt(mean_t>=n (y_t - y_{n-1})^2)."""
+    rng = np.random.default_rng(0)
+    y, u = rng.normal(size=(300, 2)), rng.normal(size=(300, 1))
+    test = Record(y=y, u=u, name="t", init_window=40)
+    score = run_test(make_predictor("last"), test)
+    assert score.diverged_at is None
+    assert score.rmse == pytest.approx(
+        np.sqrt(np.mean((y[40:] - y[39]) ** 2)), rel=1e-6
+    )  # predictors compute in float32
+
+
+def own_records(tmp_path, steps=600, seed=0):
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=steps)
+    y = np.zeros(steps)
+    for t in range(2, steps):
+        y[t] = 1.5 * y[t - 1] - 0.7 * y[t - 2] + u[t - 1] + 0.02 * rng.normal()
+    for name, part in (("est", slice(0, 400)), ("val", slice(400, steps))):
+        rows = "\n".join(f"{a:.10g},{b:.10g}" for a, b in zip(y[part], u[part], strict=True))
+        (tmp_path / f"{name}.csv").write_text("y0,u0\n" + rows + "\n")
+    return tmp_path / "est.csv", tmp_path / "val.csv"
+
+
+def test_own_records_run_the_protocol_and_write_named_files(tmp_path, capsys):
+    est, val = own_records(tmp_path)
+    out = tmp_path / "out"
+    argv = ["benchmark", "--est", str(est), "--test", str(val), "--init-window", "20"]
+    assert main([*argv, "--predictors", "arx,n4sid", "--out", str(out), "--quiet"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    scores = results["est"]["val"]
+    assert set(scores) == {"arx", "n4sid"} and all(s["diverged_at"] is None for s in scores.values())
+    written = np.genfromtxt(out / "est" / "val_arx.csv", delimiter=",", names=True)
+    rmse = np.sqrt(np.mean((written["y0"] - written["ysim0"]) ** 2))
+    assert written["t"][0] == 20 and rmse == pytest.approx(scores["arx"]["rmse"], rel=1e-5)
+    assert (out / "est" / "val.png").is_file() and "| val |" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["nosuch"], "unknown benchmark 'nosuch'"),
+        (["silverbox"], "silverbox/SNLS80mV.csv"),  # an empty --data-dir: which files go where
+        ([], "none found"),
+        (["--est", "E.csv"], "both --est EST and --test TEST"),
+    ],
+)
+def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, argv, words):
+    empty = tmp_path / "data"
+    empty.mkdir()
+    out = tmp_path / "out"
+    assert main(["benchmark", *argv, "--data-dir", str(empty), "--out", str(out), "--quiet"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert words in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_a_data_dir_that_is_not_a_folder_is_one_line(tmp_path, capsys):
+    assert (
+        main(["benchmark", "silverbox", "--data-dir", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
+        != 0
+    )
+    assert "is not a folder" in capsys.readouterr().err
+
+
+def test_a_diverging_model_is_reported_as_diverged(tmp_path):
+    """An ARX made unstable on purpose: the protocol's score is inf with the step it diverged at."""
+    est, val = own_records(tmp_path)
+    (record,) = read_records(est)
+    arx = fit("arx", [record.pair])
+    unstable = dataclasses.replace(arx, model=dataclasses.replace(arx.model, A=1.3 * arx.model.A))
+    (test,) = read_records(val)
+    score = run_test(unstable, dataclasses.replace(test, init_window=20))
+    assert math.isinf(score.rmse) and score.diverged_at >= 20
