@@ -35,6 +35,18 @@ DATA_MODULES = {
 
 # (module, literal) -> why that literal is not an entry's name there (a key or word that shares the name)
 NOT_AN_ENTRY: dict[tuple[str, str], str] = {
+    ("mop.benchmarks", "cascaded-tanks"): "the benchmark's name (a registry of benchmarks, not the family)",
+    (
+        "mop.benchmarks",
+        "wiener-hammerstein",
+    ): "the benchmark's name (a registry of benchmarks, not the family)",
+    ("mop.benchmarks.protocol", "cascaded-tanks"): "the benchmark whose published baselines these are",
+    ("mop.benchmarks.protocol", "wiener-hammerstein"): "the benchmark whose published baselines these are",
+    ("mop.train.selection", "arx"): "the identifier kind mop.identify.fit takes, as `mop fit arx` names it",
+    ("mop.commands.benchmark", "arx"): "the fitted identifier `mop benchmark --predictors arx` runs",
+    ("mop.commands.benchmark", "mop"): "the learned model trained on the estimation part (--predictors mop)",
+    ("mop.commands.benchmark", "rmse"): "results.json's RMSE key",
+    ("mop.commands.benchmark", "wiener-hammerstein"): "the benchmark whose table reads in mV",
     ("mop.checkpoint", "mop"): "the checkpoint file's metadata key",
     ("mop.cli", "mop"): "the program's name",
     ("mop.report", "mop"): "the package whose version the report prints",

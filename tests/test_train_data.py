@@ -208,7 +208,7 @@ def _bad_files(tmp: Path) -> dict[str, tuple[Path, str]]:
     inf[2, 3, 1] = np.inf
     np.savez(tmp / "inf.npz", y=inf)
     files["inf"] = (tmp / "inf.npz", "y holds Inf")
-    np.savez(tmp / "huge.npz", y=y * 1e7)
+    np.savez(tmp / "huge.npz", y=y * 1e13)  # beyond mop.io.MAX_ABS: garbage, not units
     files["huge"] = (tmp / "huge.npz", "limit")
     np.savez(tmp / "u.npz", y=y, u=np.zeros((6, 11, 1)))
     files["u width"] = (tmp / "u.npz", "u has shape")
