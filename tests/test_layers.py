@@ -28,7 +28,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.systems", "mop.config"),
     ("mop.predictors",),
     ("mop.records",),  # a predictor over a user's records and the figures of merit
-    ("mop.benchmarks",),  # the recorded benchmarks' splits and protocol
+    ("mop.benchmarks", "mop.incontext"),  # the benchmarks' splits and protocol; a record as context
     ("mop.filters",),
     ("mop.identify",),  # fitted identifiers: built on the filters' subspace code, loaded by mop predict
     ("mop.models", "mop.runs"),

@@ -32,6 +32,7 @@ from mop.atomic import atomic_path
 from mop.errors import MopError
 from mop.identify import is_fitted
 from mop.identify import load as load_fitted
+from mop.incontext import check_context, simulate_with_context
 from mop.io import read_system, read_trajectories
 from mop.memory import check_allocation
 from mop.predictors import (
@@ -41,6 +42,7 @@ from mop.predictors import (
     needs_system,
 )
 from mop.pretrained import is_pretrained
+from mop.record import Record, read_records
 from mop.records import DIVERGENCE_FACTOR, divergence_step, observed_norms, predict_all, scores, simulate_all
 from mop.runs import load_predictor
 from mop.systems import FAMILIES
@@ -73,6 +75,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="C",
         help="free-run simulation of y_C..y_T after a context of C outputs (0: from the start, y_0 its "
         "initial condition)",
+    )
+    parser.add_argument(
+        "--context",
+        metavar="FILE",
+        help="with --simulate: an estimation record the model reads before each test record (its in-context "
+        "data; the last part its window holds), used where it simulates the record's own held-out end at "
+        "least as well as without (mop.incontext)",
     )
 
 
@@ -264,6 +273,26 @@ def simulation_context(simulate: int, data) -> int:
     return max(simulate, 1)
 
 
+def simulated_in_context(predictor, names, data, init: int, path: str) -> list[np.ndarray]:
+    """Each test record simulated after the context file's last record (mop.incontext), with one line on
+    how the context was used."""
+    context = read_records(path)
+    tests = [Record(y=y, u=u, name=n) for n, (y, u) in zip(names, data, strict=True)]
+    for test in tests:
+        check_context(test, context)  # every record checked before any simulation
+    sims = []
+    for test in tests:
+        done = simulate_with_context(predictor, test, init, context)
+        held = done.held_out_rmse
+        evidence = (
+            "" if held is None else f" (its held-out end: RMSE {held[0]:.4g} alone, {held[1]:.4g} after it)"
+        )
+        used = f"the last {done.context_steps} steps" if done.context_steps else "none"
+        print(f"context {path} for {test.name}: read {used}{evidence}")
+        sims.append(done.simulation)
+    return sims
+
+
 def run(args: argparse.Namespace) -> int:
     data_path = Path(args.data)
     out = Path(args.out) if args.out else data_path.with_name(data_path.stem + "_pred" + data_path.suffix)
@@ -273,6 +302,8 @@ def run(args: argparse.Namespace) -> int:
         raise MopError(f"--steps must be >= 1, got {args.steps}")
     if args.simulate is not None and args.steps is not None:
         raise MopError("give --steps or --simulate, not both")
+    if args.context is not None and args.simulate is None:
+        raise MopError("--context FILE is read before a simulation: give --simulate C too")
     predictor, knows_system = resolve_predictor(args.predictor, args.stream)
     names, data = read_trajectories(data_path)
     check_predict_size(data, args.steps)
@@ -283,7 +314,10 @@ def run(args: argparse.Namespace) -> int:
     )
     yhat = predict_all(predictor, data, args.steps, family, params)
     if context is not None:
-        sims = simulate_all(predictor, data, context, family, params)
+        if args.context is not None:
+            sims = simulated_in_context(predictor, names, data, context, args.context)
+        else:
+            sims = simulate_all(predictor, data, context, family, params)
         print_simulation_errors(names, data, yhat, sims, context)
         write_simulation(out, names, sims, context)
         print(f"wrote {out}")
