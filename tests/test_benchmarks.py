@@ -125,6 +125,18 @@ def test_own_records_run_the_protocol_and_write_named_files(tmp_path, capsys):
     assert (out / "est" / "val.png").is_file() and "| val |" in (out / "report.md").read_text()
 
 
+def test_a_shipped_class_model_runs_in_context(tmp_path):
+    """pretrained:lti-siso reads the estimation record as context (mop.incontext) and is scored alike."""
+    est, val = own_records(tmp_path)
+    out = tmp_path / "out"
+    argv = ["benchmark", "--est", str(est), "--test", str(val), "--init-window", "20", "--out", str(out)]
+    assert main([*argv, "--predictors", "arx,pretrained:lti-siso", "--quiet"]) == 0
+    scores = json.loads((out / "results.json").read_text())["est"]["val"]
+    written = np.genfromtxt(out / "est" / "val_pretrained-lti-siso.csv", delimiter=",", names=True)
+    rmse = np.sqrt(np.mean((written["y0"] - written["ysim0"]) ** 2))
+    assert rmse == pytest.approx(scores["pretrained:lti-siso"]["rmse"], rel=1e-5)
+
+
 @pytest.mark.parametrize(
     "argv, words",
     [
@@ -132,6 +144,8 @@ def test_own_records_run_the_protocol_and_write_named_files(tmp_path, capsys):
         (["silverbox"], "silverbox/SNLS80mV.csv"),  # an empty --data-dir: which files go where
         ([], "none found"),
         (["--est", "E.csv"], "both --est EST and --test TEST"),
+        (["silverbox", "--predictors", "arx,lstm"], "unknown lstm"),
+        (["silverbox", "--predictors", "pretrained:nosuch"], "nosuch"),
     ],
 )
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, argv, words):

@@ -17,6 +17,7 @@ import math
 import time
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from mop.atomic import atomic_path, write_json
@@ -26,12 +27,13 @@ from mop.errors import MopError
 from mop.estimators import Learned
 from mop.identify import fit
 from mop.identify.select import POLE_RADIUS
+from mop.incontext import simulate_with_context
 from mop.record import as_pairs, read_records
+from mop.records import divergence_step
+from mop.runs import load_predictor
 from mop.train.budget import DEFAULT_BUDGET_MINUTES, check_budget
 
-PREDICTORS = ("arx", "n4sid", "mop")
-# Shipped class models run in context here once `mop predict --context` exists: {predictor: loader}
-IN_CONTEXT: dict[str, object] = {}
+PREDICTORS = ("arx", "n4sid", "mop")  # and pretrained:NAME, a shipped model in context (mop.incontext)
 
 EXAMPLES = """
 benchmarks: silverbox, f16 (Acceleration1, the official form), f16-3 (all three accelerations),
@@ -42,6 +44,7 @@ examples:
   mop benchmark silverbox f16 --budget 10 --out runs/bench
   mop benchmark --est est.csv --test val.csv --init-window 50   # your own records, the same protocol
   mop benchmark silverbox --predictors arx,n4sid           # the fitted linear models only (fast)
+  mop benchmark silverbox --predictors arx,pretrained:lti-siso   # a shipped class model in context
 """
 
 
@@ -59,7 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--budget", default=None, metavar="MINUTES", help="MOP's training budget per benchmark (default 5)"
     )
     parser.add_argument("--seed", type=int, default=0, help="MOP's training seed (0)")
-    parser.add_argument("--predictors", default=",".join(PREDICTORS), help="comma-separated: arx,n4sid,mop")
+    parser.add_argument(
+        "--predictors",
+        default=",".join(PREDICTORS),
+        help="comma-separated: arx, n4sid, mop, pretrained:NAME (in context)",
+    )
     parser.add_argument(
         "--est", default=None, help="your estimation record (.csv / .npz) instead of a benchmark"
     )
@@ -101,6 +108,21 @@ def _splits(args: argparse.Namespace) -> list[Split]:
     return [load_benchmark(name, args.data_dir) for name in names]
 
 
+class InContextModel:
+    """A shipped class model that reads the estimation part's last record before each test (mop.incontext),
+    with no training; run_test calls its simulate like any predictor's."""
+
+    def __init__(self, model, estimation) -> None:
+        self.model, self.estimation, self.name = model, estimation, model.name
+
+    def run(self, test) -> TestScore:
+        n = max(test.init_window, 1)
+        sim = simulate_with_context(self.model, test, n, self.estimation).simulation
+        step = divergence_step(test.y, sim)
+        rmse = math.inf if step is not None else float(np.sqrt(np.nanmean((test.y[n:] - sim) ** 2)))
+        return TestScore(rmse, None if step is None else n + step, sim)
+
+
 def _fitted(kind: str, split: Split, warnings: list[str]):
     fitted = fit(kind, as_pairs(split.estimation), source=split.name)
     radius = fitted.info.get(POLE_RADIUS, 0.0)
@@ -131,7 +153,9 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
     for name in predictors:
         bar.set_postfix_str(f"{split.name}: fitting {name}")
         start = time.perf_counter()
-        if name == "mop":
+        if name.startswith("pretrained:"):
+            models[name] = InContextModel(load_predictor(name), split.estimation)
+        elif name == "mop":
             learned = Learned(budget_minutes=budget, out_dir=folder / "mop", train__seed=args.seed)
             models[name] = learned.fit(split.estimation).predictor_
             if getattr(learned, "selection_", {}).get("kept") == "arx":
@@ -147,9 +171,9 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
         scores = {}
         for name, model in models.items():
             bar.set_postfix_str(f"{split.name}: simulating {test.name} with {name}")
-            score = run_test(model, test)
+            score = model.run(test) if isinstance(model, InContextModel) else run_test(model, test)
             scores[name] = score
-            _write_simulation(folder / f"{test.name}_{name}.csv", test, score)
+            _write_simulation(folder / f"{test.name}_{name.replace(':', '-')}.csv", test, score)
             if score.diverged_at is not None:
                 warnings.append(
                     f"{split.name} {test.name}: {name}'s simulation diverged at step {score.diverged_at}"
@@ -207,11 +231,15 @@ def _report(runs: dict, args, budget: float) -> str:
 
 def run(args: argparse.Namespace) -> int:
     predictors = [p.strip() for p in args.predictors.split(",") if p.strip()]
-    unknown = [p for p in predictors if p not in PREDICTORS]
+    unknown = [p for p in predictors if p not in PREDICTORS and not p.startswith("pretrained:")]
     if unknown or not predictors:
         raise MopError(
-            f"--predictors: unknown {', '.join(unknown) or '(none)'}; choose from {', '.join(PREDICTORS)}"
+            f"--predictors: unknown {', '.join(unknown) or '(none)'}; choose from {', '.join(PREDICTORS)} "
+            "or pretrained:NAME (mop pretrained list)"
         )
+    for name in predictors:
+        if name.startswith("pretrained:"):
+            load_predictor(name)  # an unknown shipped model is one line, before any work
     budget = DEFAULT_BUDGET_MINUTES if args.budget is None else check_budget(args.budget)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
