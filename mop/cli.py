@@ -8,6 +8,7 @@ import argparse
 import importlib
 import sys
 import warnings
+from importlib import metadata
 
 from mop.errors import MopError, MopWarning, is_out_of_memory, memory_error_message, os_error_message
 
@@ -20,7 +21,10 @@ COMMANDS = {
     "fit": ("mop.commands.fit", "fit ARX or N4SID once on an estimation record (mop predict uses it)"),
     "predict": ("mop.commands.predict", "one- or k-step predictions of a run or baseline on your data"),
     "pretrained": ("mop.commands.pretrained", "the predictors shipped with mop: list, show, build"),
-    "bench": ("mop.commands.bench", "benchmarks: simulate, filters, train, stream, recipe"),
+    "bench": (
+        "mop.commands.bench",
+        "speed and accuracy measurements of mop itself (mop bench --help lists them)",
+    ),
 }
 
 
@@ -30,6 +34,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mop", description="mop: meta-learned output prediction of dynamical systems."
     )
+    parser.add_argument("--version", action="version", version=f"mop {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         cmd = sub.add_parser(name, help=help_text, description=help_text)
@@ -37,6 +42,13 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
             importlib.import_module(module).add_arguments(cmd)
         cmd.set_defaults(_module=module)
     return parser
+
+
+def _version() -> str:
+    try:
+        return metadata.version("mop")
+    except metadata.PackageNotFoundError:  # run from a source tree that is not installed
+        return "(not installed)"
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:

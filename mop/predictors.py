@@ -48,6 +48,7 @@ class Predictor(Protocol):
 # architecture); `import mop` imports both. Plugins: the entry points of the group mop.predictors.
 PREDICTOR_KEYS = {
     "needs_system": "reads traj.params: it knows the system",
+    "needs_family": "is built with the family the systems come from (an experiment gives it; not data alone)",
     "gaussian": "has predict_distribution",
     "learned": "resolves a trained run directory (mop.runs.register_learned adds one)",
     "arch": "a learned predictor's model architecture",

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ from torch import nn
 
 from mop.checkpoint import load_model_weights
 from mop.config import ModelConfig, RunConfig, from_dict
-from mop.errors import MopError
+from mop.errors import MopError, MopWarning
 from mop.models import build_model, predictor_names, skip_presets
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.plugins import PLUGINS_FILE, import_plugin
@@ -111,9 +112,30 @@ def load_predictor(
     source = str(run_dir)
     run_dir = resolve_run_dir(run_dir)
     model, config = load_model(run_dir, device)
+    warn_if_unfinished(Path(run_dir), load_config(run_dir))
     name = predictor_names().get(config.arch, config.arch)  # the predictor its architecture registered
     norm, stats = load_normalization(run_dir), load_input_stats(run_dir)
     return LearnedPredictor(model, name=name, mode=mode, normalization=norm, input_stats=stats, source=source)
+
+
+def warn_if_unfinished(run_dir: Path, config: RunConfig) -> None:
+    """A MopWarning where the run stopped before its last step (no done.json): its predictions come from the
+    weights of its last checkpoint, which `mop train` with the same arguments resumes."""
+    if (run_dir / "done.json").exists() or not (run_dir / "metrics.jsonl").exists():
+        return
+    steps = [
+        json.loads(line).get("step", 0)
+        for line in (run_dir / "metrics.jsonl").read_text().splitlines()
+        if line
+    ]
+    reached = max(steps, default=0)
+    warnings.warn(
+        MopWarning(
+            f"{run_dir} is unfinished: trained to step {reached} of {config.train.steps}; these predictions "
+            "come from its last checkpoint's weights (run the same mop train command to finish it)"
+        ),
+        stacklevel=2,
+    )
 
 
 def load_input_stats(run_dir: str | os.PathLike) -> tuple[list[float], list[float]] | None:

@@ -87,7 +87,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def model_free() -> list[str]:
     """The registered predictors that need neither the system nor a run directory (from their metadata)."""
-    return [n for n in PREDICTORS.names() if not needs_system(n) and not is_learned(n)]
+    return [
+        n
+        for n in PREDICTORS.names()
+        if not needs_system(n) and not is_learned(n) and not PREDICTORS.meta(n).get("needs_family")
+    ]
 
 
 def resolve_predictor(spec: str, stream: bool = False):
@@ -295,6 +299,15 @@ def simulated_in_context(predictor, names, data, init: int, path: str) -> list[n
 
 def run(args: argparse.Namespace) -> int:
     data_path = Path(args.data)
+    if not data_path.is_file() or data_path.suffix not in (".csv", ".npz"):
+        problem = (
+            "is a folder"
+            if data_path.is_dir()
+            else "does not exist"
+            if not data_path.exists()
+            else "is not a .csv or .npz file"
+        )
+        raise MopError(f"data {data_path} {problem}; give a .csv or .npz file of trajectories")
     out = Path(args.out) if args.out else data_path.with_name(data_path.stem + "_pred" + data_path.suffix)
     if out.suffix not in (".csv", ".npz"):
         raise MopError(f"--out {out}: use a .csv or .npz file name")

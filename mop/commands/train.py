@@ -78,7 +78,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "with the record's length, up to what the budget buys at 20 ms a step (mop.train.budget), the same "
         "steps on every machine; a train.steps=N override wins",
     )
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--quiet", "--no-progress", dest="no_progress", action="store_true", help="no progress bar"
+    )
     parser.add_argument(
         "--fresh",
         action="store_true",

@@ -131,7 +131,7 @@ def draw_bank(system: SystemConfig, size: int, seed: int, horizon: int = 0) -> L
     return family_systems(family, params, horizon)
 
 
-@PREDICTORS.register("bayes", skip_presets=("smoke", "small"))
+@PREDICTORS.register("bayes", skip_presets=("smoke", "small"), needs_family=True)
 class BayesPredictor:
     """The Bayes predictor over the test systems' family (bayes_mixture over `bank_size` systems drawn from
     it): the best any predictor that knows the family but not the system can do, up to the bank's size.

@@ -62,8 +62,10 @@ def plan_line(config: RunConfig, model: torch.nn.Module, device: torch.device, s
     seconds = step_seconds(config, model, device) if left else 0.0
     features = describe_features(m)  # what model.features=auto chose, or the keys as given
     shape = f"{m.arch} {m.num_layers} x {m.width}" + ("" if features == "none" else f", features {features}")
+    resumed = f"resuming at step {start_step} of {t.steps} from the run's checkpoint; " if start_step else ""
     return (
-        f"model: {params:,} parameters ({shape}); {left} steps of batch "
-        f"{t.batch_size} x {t.horizon} on {device.type}: about {duration(seconds * left)} "
-        f"({1000 * seconds:.0f} ms per step, timed on {TRIAL_STEPS} trial steps)"
+        f"model: {params:,} parameters ({shape}); {resumed}{left} steps of batch "
+        f"{t.batch_size} x {t.horizon} on {device.type}: roughly {duration(seconds * left)} "
+        f"({1000 * seconds:.0f} ms per step, timed on {TRIAL_STEPS} trial steps under the present load; "
+        "other work on the machine changes it)"
     )
