@@ -196,7 +196,12 @@ def _report(runs: dict, args, budget: float) -> str:
         "Protocol: fitted on the estimation part only; on each test the first n measured outputs initialize "
         "and the rest is simulated from the input alone; RMSE of y[n:] in the output's units."
     )
-    lines.append(f"MOP: the records recipe within a budget of {budget:g} min, seed {args.seed}.")
+    if "mop" in args.predictors.split(","):
+        lines.append(f"MOP: the records recipe within a budget of {budget:g} min, seed {args.seed}.")
+    if "pretrained:" in args.predictors:
+        lines.append(
+            "pretrained:NAME: a shipped class model, the estimation part as its context, no training."
+        )
     lines.append("")
     for bench, run in runs.items():
         units = next(iter(next(iter(run["results"].values())).values()))["units"]
