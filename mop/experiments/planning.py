@@ -19,13 +19,16 @@ from pathlib import Path
 from typing import Any
 
 from mop.config import RunConfig, SystemConfig, to_dict
-from mop.errors import NoPretrainedModel
+from mop.errors import MopError, NoPretrainedModel
 from mop.experiments import run_config
 from mop.experiments.evaluating import test_system
 from mop.experiments.spec import Condition, Experiment
 from mop.experiments.validate import evaluated
+from mop.identify import is_fitted
+from mop.identify import load as load_fitted
 from mop.predictors import PREDICTORS, is_learned, make_predictor
 from mop.pretrained import find_shipped, shipped_names
+from mop.runs import load_predictor
 from mop.train import for_arch, train_model
 
 
@@ -95,12 +98,42 @@ def given_run(session: Session, name: str, condition: Condition, trained: RunCon
 
 
 def resolve_given_runs(session: Session) -> None:
-    """Look up every given or shipped run of the experiment before any work (NoPretrainedModel first)."""
-    for condition in session.exp.conditions_for(session.preset):
+    """Look up every given or shipped run of the experiment before any work (NoPretrainedModel first); a
+    `runs` entry naming a predictor that no condition evaluates is refused (it would be silently unused)."""
+    conditions = session.exp.conditions_for(session.preset)
+    evaluated_anywhere = {name for c in conditions for name in wanted(session, c)}
+    for where, runs in [("[runs]", session.exp.runs), *((f"[{c.name}] runs", c.runs) for c in conditions)]:
+        unused = sorted(set(runs) - evaluated_anywhere)
+        if unused:
+            raise MopError(
+                f"{session.exp.name}: {where} names {', '.join(repr(u) for u in unused)}, which no condition "
+                f"evaluates (predictors: {', '.join(sorted(evaluated_anywhere))}); add it to the predictors "
+                "or remove the entry"
+            )
+    for condition in conditions:
         trained = condition_config(session, condition)
         for name in wanted(session, condition):
             if is_learned(name):
                 given_run(session, name, condition, trained)
+            else:
+                given = {**session.exp.runs, **condition.runs}.get(name, "")
+                if given and given not in session.loaded:
+                    session.loaded[given] = given_classical(name, given)
+                if given:
+                    session.runs[f"{name} [{condition.name}]"] = given  # the report's provenance
+
+
+def given_classical(name: str, path: str):
+    """The predictor a `runs` entry gives for classical name `name`: a fitted model's directory (mop fit),
+    a run directory or pretrained:NAME, loaded as `mop predict` loads it and named `name` in the report."""
+    if is_fitted(path):
+        predictor = load_fitted(path)
+    elif path.startswith("pretrained:") or Path(path, "config.json").is_file():
+        predictor = load_predictor(path)
+    else:
+        raise MopError(f"runs: {name} = {path!r} is neither a fitted model (mop fit) nor a run directory")
+    predictor.name = name
+    return predictor
 
 
 def training_run(session: Session, name: str, trained: RunConfig) -> tuple[RunConfig, str]:
@@ -132,6 +165,8 @@ def condition_predictors(session: Session, condition: Condition, trained: RunCon
     return [
         learned_predictor(session, name, condition, trained)
         if is_learned(name)
+        else session.loaded[given]
+        if (given := {**session.exp.runs, **condition.runs}.get(name, ""))
         else classical_predictor(name, session.preset, session.seed, test_system(trained, condition))
         for name in wanted(session, condition)
     ]
