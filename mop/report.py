@@ -40,18 +40,28 @@ def ratio_table(summary: dict) -> str:
     if not info["ratios"]:
         return ""
     wins = list(next(iter(info["ratios"].values())))
+    spread = any(has_interval(r[w]) for r in info["ratios"].values() for w in wins)
+    interval = "95% CI" if spread else "one record: no interval"
     lines = [
-        f"MSE ratio to `{info['reference']}` ({info['method']}; 95% CI):",
+        f"MSE ratio to `{info['reference']}` ({info['method']}; {interval}):",
         "",
         "| predictor | " + " | ".join(f"t in {w}" for w in wins) + " |",
         "|---" * (len(wins) + 1) + "|",
     ]
     for name, r in info["ratios"].items():
-        lines.append(f"| {name} | " + " | ".join(_fmt_ratio(r[w]) for w in wins) + " |")
+        lines.append(f"| {name} | " + " | ".join(fmt_ratio(r[w]) for w in wins) + " |")
     return "\n".join(lines)
 
 
-def _fmt_ratio(r: dict) -> str:
+def has_interval(r: dict) -> bool:
+    """Whether a ratio entry's bootstrap interval has a width (over one record it is the ratio itself)."""
+    return r["low"] != r["high"]
+
+
+def fmt_ratio(r: dict) -> str:
+    """ratio [low, high], or the ratio alone where the interval has no width (one record)."""
+    if not has_interval(r):
+        return f"{r['ratio']:.3f}"
     return f"{r['ratio']:.3f} [{r['low']:.3f}, {r['high']:.3f}]"
 
 

@@ -60,3 +60,22 @@ def test_a_runs_entry_nothing_evaluates_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "'n4sid', which no condition evaluates" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "out" / "eval.json").exists()
+
+
+def test_the_report_describes_the_model_it_evaluated_not_the_preset(tmp_path, capsys):
+    """`mop reproduce linear --pretrained`: the settings and the closing line give the shipped model's own
+    features and steps (from its config.json), not those the preset would train."""
+    from mop.runs import load_config
+    from mop.train import describe_features
+
+    out = tmp_path / "out"
+    assert cli.main(["reproduce", "linear", "--pretrained", "--preset", "smoke", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    shipped = load_config("pretrained:linear")
+    own = f"{describe_features(shipped.model)}, {shipped.train.steps} steps"
+    data = json.loads((out / "eval.json").read_text())
+    assert data["settings"]["features"] == own
+    assert f"features {own}" in printed
+    (described,) = data["settings"]["evaluated"].values()
+    assert f"{shipped.train.steps}" in described and "pretrained:linear" in described
+    assert "MOP against the yardstick" in (out / "report.md").read_text()

@@ -73,7 +73,7 @@ def test_reproduce_seeds_trains_each_seed_on_the_same_test_systems(tmp_path, tin
     assert summary["test"]["best"]["predictor"] == "kalman"
     assert "across training seeds" in (out / "seeds.md").read_text()
     report = (out / "seed-0" / "report.md").read_text()
-    assert "## Distance to the best predictor" in report and "1.025" in report  # beside the authors'
+    assert "## MOP against the yardstick" in report and "1.025" in report  # beside the authors'
 
 
 def test_reproduce_seeds_must_be_positive(capsys):

@@ -7,6 +7,7 @@ write_outputs(session, results, claims, stage, start)   # into a staging folder 
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -21,8 +22,12 @@ from mop.experiments.measures import describe, measure_value
 from mop.experiments.planning import Session
 from mop.experiments.results import ConditionResult, Results
 from mop.experiments.spec import Claim, Experiment, Measure
+from mop.identify import is_fitted
+from mop.identify import load as load_fitted
 from mop.predictors import first_learned
-from mop.report import build_report, claim_line, summary_section
+from mop.pretrained import resolve_run_dir
+from mop.report import build_report, claim_line, fmt_ratio, has_interval, summary_section
+from mop.runs import load_config
 from mop.train import describe_features
 
 OPS = {
@@ -82,17 +87,19 @@ def claim_text(c: dict) -> str:
 
 
 def best_table(exp: Experiment, results: Results) -> str:
-    """The report's lead: MOP's ratio to the best predictor per condition, beside the authors' number."""
+    """The report's lead: MOP's ratio to the experiment's yardstick (exp.best_predictor: the optimum where one
+    is known, else the predictor it names) per condition, beside the authors' number; the 95% interval only
+    where there is more than one record to draw it from."""
     lines = [
-        "## Distance to the best predictor",
+        "## MOP against the yardstick",
         "",
-        "| condition | best predictor | MOP / best MSE ratio, t in [20,T] (95% CI) | the authors |",
+        "| condition | yardstick | MOP / yardstick MSE ratio, t in [20,T] (95% CI) | the authors |",
         "|---|---|---|---|",
     ]
     for name, r in results.items():
         d = r.summary.get("to_best")
         if d:
-            cell = f"{d['ratio']:.3f} [{d['low']:.3f}, {d['high']:.3f}]"
+            cell = fmt_ratio(d) if has_interval(d) else f"{d['ratio']:.3f} (one record: no interval)"
             lines.append(f"| {name} | {d['predictor']} | {cell} | {exp.authors or '-'} |")
     return "\n".join(lines) + "\n" if len(lines) > 4 else ""
 
@@ -132,12 +139,40 @@ def write_outputs(session: Session, results: Results, claims: list[dict], out: P
     write_text(out / "report.md", text)
 
 
+def evaluated_models(session: Session) -> dict[str, str]:
+    """{predictor [condition]: what was evaluated}, read from each run's own config.json and done.json (a
+    given, shipped or reused run is described as it was trained, not as the preset would train it)."""
+    out = {}
+    for key, run in session.runs.items():
+        if is_fitted(run):
+            fitted = load_fitted(run)
+            out[key] = f"{run}: fitted {fitted.kind.upper()} {dict(fitted.orders)} (mop fit)"
+            continue
+        config = load_config(run)
+        done = Path(resolve_run_dir(run)) / "done.json"
+        steps = json.loads(done.read_text()).get("step", config.train.steps) if done.is_file() else None
+        trained = (
+            f"{steps} of {config.train.steps} steps" if steps is not None else f"{config.train.steps} steps"
+        )
+        m = config.model
+        out[key] = f"{run}: {m.arch} {m.num_layers} x {m.width}, features {describe_features(m)}, {trained}"
+    return out
+
+
 def _settings(session: Session) -> dict:
     exp = session.exp
     trained = run_config(exp, session.preset, session.train_seed, overrides=session.overrides)
+    evaluated = evaluated_models(session)
+    learned = [k for k, run in session.runs.items() if not is_fitted(run)]
+    if learned:  # the closing line's features: the first learned model's own, as it was trained
+        config = load_config(session.runs[learned[0]])
+        features = f"{describe_features(config.model)}, {config.train.steps} steps"
+    else:
+        features = f"{describe_features(trained.model)}, {trained.train.steps} steps"
     return {
+        "evaluated": evaluated,
         "train": to_dict(trained),
-        "features": f"{describe_features(trained.model)}, {trained.train.steps} steps",
+        "features": features,
         "overrides": session.overrides,
         "conditions": [dataclasses.asdict(c) for c in exp.conditions_for(session.preset)],
         "num_test_systems": get_preset(session.preset).num_test_systems,

@@ -87,7 +87,7 @@ def lead_table(rows: list[dict[str, Any]]) -> str:
     rows: {"experiment", "best" (spread of the first condition's MOP / best, or None), "authors"}.
     """
     lines = [
-        "| experiment | best predictor | MOP / best, t in [20,T]: mean [min, max over seeds] | seeds: ratio "
+        "| experiment | yardstick | MOP / yardstick, t in [20,T]: mean [min, max over seeds] | seeds: ratio "
         "[95% CI] | the authors |",
         "|---|---|---|---|---|",
     ]
