@@ -25,7 +25,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 MARKER = re.compile(r"^<!-- docs-test: (run|file) ?(.*?) -->$")
-PAGES = sorted(p for p in (ROOT / "docs").rglob("*.md") if "<!-- docs-test:" in p.read_text())
+PAGES = sorted(
+    p for p in [*(ROOT / "docs").rglob("*.md"), ROOT / "README.md"] if "<!-- docs-test:" in p.read_text()
+)
 TUTORIALS = sorted((ROOT / "docs" / "tutorials").glob("*.md"))
 FENCE = re.compile(r"^```(\w*)")
 
