@@ -130,19 +130,27 @@ def _condition(data: dict, where: str) -> Condition:
 
 
 def experiment_from_dict(data: dict[str, Any], where: str = "experiment") -> Experiment:
+    """The Experiment of a file's table; a problem is a MopError starting with `where` (the file's name),
+    outside any quoted key: "exp.toml: unknown config key 'conditions[0].horizn'; ..."."""
+    try:
+        return _experiment(data)
+    except MopError as err:
+        raise MopError(f"{where}: {err}") from None
+
+
+def _experiment(data: dict[str, Any]) -> Experiment:
     data = dict(data)
     for key in ("predictors", "analyses", "figures", "panel"):
         if key in data:
-            data[key] = tuple(_names(data[key], f"{where}: {key}"))
+            data[key] = tuple(_names(data[key], key))
     if "conditions" in data:
         data["conditions"] = tuple(
-            _condition(c, f"{where}: conditions[{i}]")
-            for i, c in enumerate(_tables(data["conditions"], f"{where}: conditions"))
+            _condition(c, f"conditions[{i}]") for i, c in enumerate(_tables(data["conditions"], "conditions"))
         )
     if "claims" in data:
-        claims = _tables(data["claims"], f"{where}: claims")
-        data["claims"] = tuple(_claim(c, f"{where}: claims[{i}]") for i, c in enumerate(claims))
+        claims = _tables(data["claims"], "claims")
+        data["claims"] = tuple(_claim(c, f"claims[{i}]") for i, c in enumerate(claims))
     for key in ("name", "title", "train", "predictors"):
         if key not in data:
-            raise MopError(f"{where}: missing required field {key!r}")
+            raise MopError(f"missing required field {key!r}")
     return from_dict(Experiment, data, "")

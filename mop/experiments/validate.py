@@ -69,6 +69,7 @@ def _validate(exp: Experiment, preset: str, seed: int, overrides: list[str], cho
         ANALYSES.get(name)
     for name in figure_names(exp):
         FIGURES.get(name)
+    _experiment_train(exp, preset, seed, overrides)
     conditions = exp.conditions_for(preset)
     horizons, names = {}, {}
     for condition in conditions:
@@ -82,6 +83,19 @@ def _validate(exp: Experiment, preset: str, seed: int, overrides: list[str], cho
         if isinstance(claim.threshold, Measure):
             _measure(exp, claim.threshold, horizons, names, f"{where}.threshold")
         _claim_shape(claim, where)
+
+
+def _experiment_train(exp: Experiment, preset: str, seed: int, overrides: list[str]) -> None:
+    """The experiment's own [train] (and per-preset) settings, then the command line's key=value overrides,
+    built before any condition's: a mistake there is blamed on where it was written, not on a condition."""
+    try:
+        run_config(exp, preset, seed)
+    except MopError as err:
+        raise MopError(f"[train]: {err}") from None
+    try:
+        run_config(exp, preset, seed, overrides=overrides)
+    except MopError as err:
+        raise MopError(f"key=value overrides: {err}") from None
 
 
 def _predictor(name: str, where: str) -> None:
