@@ -4,6 +4,8 @@ condition), a command-line override on itself, and the file's name stays outside
 import numpy as np
 
 from mop import cli
+from mop.config import DataConfig, RunConfig, apply_overrides
+from mop.experiments.training import order_line
 
 
 def _one_line_error(capsys) -> str:
@@ -32,3 +34,15 @@ def test_experiment_file_mistakes_are_blamed_where_they_were_written(tmp_path, c
     assert f"{tmp_path / 'exp.toml'}: unknown config key 'conditions[0].horizn'" in err  # file outside quotes
     assert cli.main(["reproduce", _experiment(tmp_path, ""), *argv, "train.foo=1"]) == 2
     assert "key=value overrides: unknown config key 'train.foo'" in _one_line_error(capsys)
+
+
+def test_the_order_line_names_the_rule_that_chose_the_orders():
+    """mop fit arx, the records recipe and a fine-tune choose ARX orders on different parts of a record; the
+    line says which rule chose them (ported with its test from the parallel wt-53b branch)."""
+    config = apply_overrides(RunConfig(), ["model.rls_order=3", "model.arx_order=2", "model.rls_prior=fit"])
+    config = RunConfig(model=config.model, train=config.train, data=DataConfig(path="est.csv"))
+    recipe = order_line(config, [])
+    assert recipe.startswith("orders: ARX(3, 2)") and "training part only" in recipe
+    assert "on the whole record, as `mop fit arx est.csv` does" in order_line(config, [], init="pretrained:x")
+    assert "overrides name them" in order_line(config, ["model.arx_order=2"])
+    assert order_line(RunConfig(), []) is None  # no recorded data: no orders to choose

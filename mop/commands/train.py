@@ -10,7 +10,7 @@ import argparse
 
 from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
-from mop.experiments.training import budget_plan, feature_line, training_config
+from mop.experiments.training import budget_plan, feature_line, order_line, training_config
 from mop.io import reading_once
 from mop.runs import read_run_json
 from mop.train import train
@@ -112,6 +112,10 @@ def _run(args: argparse.Namespace) -> int:
     if config.data is not None:
         print(recorded_data(config.data).summary(config.train.horizon, validates_tails(config)))
         print(feature_line(config) or "feature: none (the network reads the record alone)")
+        chosen = source is not None or args.preset is not None
+        orders = order_line(config, overrides, args.init, chosen)
+        if orders:
+            print(orders)
         if config.model.record_prior_steps:
             print(
                 f"record_norm: each record's running moments start from {config.model.record_prior_steps} "

@@ -364,3 +364,29 @@ def feature_line(config: RunConfig) -> str | None:
     return (
         f"feature: the network reads the {kind}{offset} one-step prediction{start}, and predicts its residual"
     )
+
+
+def order_line(
+    config: RunConfig, overrides: list[str], init: str | None = None, chosen: bool = False
+) -> str | None:
+    """One line saying which rule chose the ARX feature's orders of a run on recorded data (None without an
+    ARX feature): `mop fit arx` scores the orders on the whole record, the records recipe on its training
+    part only (its held-out part must stay unseen), a fine-tune on the whole record; so the three can
+    differ on the same record. chosen: the source or --preset chose the config (no records recipe)."""
+    m = config.model
+    if config.data is None or m.rls_order == 0 or m.arx_order == 0:
+        return None
+    orders = f"ARX({m.rls_order}, {m.arx_order})"
+    if any(k in parse_overrides(list(overrides)) for k in ("model.rls_order", "model.arx_order")):
+        return f"orders: {orders}, as the key=value overrides name them"
+    rule = "the orders `mop fit arx` chooses (free-run simulation of the last 20% of each trajectory)"
+    if init is not None:
+        if m.rls_prior == "fit":
+            return f"orders: {orders}, {rule} on the whole record, as `mop fit arx {config.data.path}` does"
+        return f"orders: {orders}, the source model's (--init {init})"
+    if not chosen and m.rls_prior == "fit":
+        return (
+            f"orders: {orders}, {rule} on the training part only (the held-out part stays unseen), so they "
+            f"can differ from `mop fit arx` on the whole record"
+        )
+    return f"orders: {orders}, as the config sets them"
