@@ -21,6 +21,7 @@ import torch
 from torch import Tensor
 
 from mop.models.predict import ModelPredictor, half_windows
+from mop.models.slide import slide_fast, sliding_rollout
 from mop.systems.base import Trajectories
 
 
@@ -56,6 +57,26 @@ def streamed_rollout(
     return preds
 
 
+def window_path(
+    p: ModelPredictor, hist: Tensor, pred: Tensor, u: Tensor | None, start: int, count: int
+) -> list[Tensor]:
+    """windowed_rollout's predictions, by sliding_rollout (mop.models.slide) where the model has it: the
+    same numbers at the cost of one new input per window and step."""
+    if not slide_fast(p.model):
+        return windowed_rollout(p, hist, pred, u, start, count)
+    norm, like = p.normalization, next(p.model.parameters())
+
+    def to_model(z: Tensor) -> Tensor:
+        return (z if norm is None else norm.inputs(z)).to(device=like.device, dtype=like.dtype)
+
+    def to_data(mu: Tensor) -> Tensor:
+        return (mu if norm is None else norm.outputs(mu, None)[0]).double().cpu()
+
+    p._warn_out_of_range(to_model(hist))  # as the windows' forwards warn, on the measured inputs
+    with p.evaluating():
+        return sliding_rollout(p.model, hist, u, pred, start, start + count, to_model, to_data)
+
+
 def rows(traj: Trajectories, last: int) -> Trajectories:
     """Steps 0..last of traj (outputs y_0..y_last, the inputs alike)."""
     return Trajectories(traj.y[:, : last + 1], None if traj.u is None else traj.u[:, : last + 1])
@@ -86,7 +107,7 @@ def simulate(p: ModelPredictor, traj: Trajectories, context: int) -> Tensor:
             out = [pred, *streamed_rollout(p, cache, pred, u, context, count)]
     else:
         pred = p.predict(rows(traj, context))[:, context].double().cpu()  # (B, m): y_c from z_{<c}
-        out = [pred, *windowed_rollout(p, z[:, :context], pred, u, context, count)]
+        out = [pred, *window_path(p, z[:, :context], pred, u, context, count)]
     return torch.stack(out, dim=1).to(traj.y.dtype)
 
 
