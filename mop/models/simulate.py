@@ -64,17 +64,17 @@ def window_path(
     same numbers at the cost of one new input per window and step."""
     if not slide_fast(p.model):
         return windowed_rollout(p, hist, pred, u, start, count)
-    norm, like = p.normalization, next(p.model.parameters())
-
-    def to_model(z: Tensor) -> Tensor:
-        return (z if norm is None else norm.inputs(z)).to(device=like.device, dtype=like.dtype)
-
-    def to_data(mu: Tensor) -> Tensor:
-        return (mu if norm is None else norm.outputs(mu, None)[0]).double().cpu()
-
-    p._warn_out_of_range(to_model(hist))  # as the windows' forwards warn, on the measured inputs
+    norm = p.normalization
+    z = torch.cat([hist, hist.new_zeros(hist.shape[0], count, hist.shape[-1])], dim=1)  # (B, T, m + k)
+    z[:, start:, : p.cfg.output_dim] = pred[:, None]  # a stand-in in range: the roll-out's own replace it
+    if u is not None:
+        z[:, start:, p.cfg.output_dim :] = u[:, start : start + count]
+    inputs = p.model_inputs(z)  # (B, T, d_in); its outputs after y_{c-1} are the roll-out's
     with p.evaluating():
-        return sliding_rollout(p.model, hist, u, pred, start, start + count, to_model, to_data)
+        cpu = lambda a: None if a is None else a.to(inputs.device)  # noqa: E731
+        ys = (None, None) if norm is None else (cpu(norm.y_mean), cpu(norm.y_std))
+        preds = sliding_rollout(p.model, inputs, pred.to(inputs.device), start, *ys)
+    return [a.cpu() for a in preds]
 
 
 def rows(traj: Trajectories, last: int) -> Trajectories:

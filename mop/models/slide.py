@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from mop.filters.rls import initial_state, rls_update
+from mop.filters.rls import initial_state
 from mop.models.attention import apply_rope, rope_angles
 from mop.models.features import feature_prior, input_count
 from mop.models.horizons import split_horizons
@@ -68,105 +68,116 @@ class _Features:
         self.theta0, self.P0 = theta0, P0
         self.theta = theta0.repeat(C, 1, 1, 1)  # (C, B, d, m)
         self.P = P0.repeat(C, 1, 1, 1)  # (C, B, d, d)
-        self.ys = like.new_zeros(B, self.p, self.m, dtype=torch.float64)  # y_tau..y_{tau-p+1}
-        self.us = like.new_zeros(B, max(self.q, 1), self.k, dtype=torch.float64)  # u_tau..u_{tau-q+1}
-        self.phi: Tensor | None = None  # phi_{tau-1} (B, d)
+        self.ys = like.new_zeros(B, self.p * self.m, dtype=torch.float64)  # [y_tau; ..; y_{tau-p+1}]
+        self.us = like.new_zeros(B, self.q * self.k, dtype=torch.float64)  # [u_tau; ..; u_{tau-q+1}]
+        self.one = like.new_ones(B, int(self.offset), dtype=torch.float64)
+        self.phi: Tensor | None = None  # phi_{tau-1} (B, 1, d)
 
-    def step(self, z: Tensor, slot: int, age: Tensor) -> Tensor:
+    def step(self, z: Tensor, slot: int, fit: Tensor, start_up: Tensor) -> Tensor:
         """Input z_tau (B, d_in) in the model's units -> every window's feature (C, B, m) in z's dtype; the
-        window starting at tau is at `slot`, age (C,) the windows' local positions a."""
-        y = z[:, : self.m].double()
-        self.ys = torch.cat([y[:, None], self.ys[:, :-1]], dim=1)
-        parts = [self.ys.flatten(1)]
-        if self.q > 0:
-            self.us = torch.cat([z[:, None, self.m : self.m + self.k].double(), self.us[:, :-1]], dim=1)
-            parts.append(self.us[:, : self.q].flatten(1))
-        if self.offset:
-            parts.append(y.new_ones(y.shape[0], 1))
-        phi = torch.cat(parts, dim=-1)  # (B, d)
+        window starting at tau is at `slot`; fit (C, 1, 1, 1) float64: 1 where the window's local position
+        a >= r (it takes the pair), else 0; start_up (C, 1, 1) bool: a < r (the feature is y_tau)."""
+        m, k = self.m, self.k
+        y = z[:, :m].double()
+        self.ys = torch.cat([y, self.ys[:, : (self.p - 1) * m]], dim=-1)
+        self.us = torch.cat([z[:, m : m + k].double(), self.us[:, : (self.q - 1) * k]], dim=-1)
+        phi = torch.cat([self.ys, self.us, self.one], dim=-1)[:, None]  # (B, 1, d)
         self.theta[slot], self.P[slot] = self.theta0, self.P0  # the new window starts afresh
-        if self.phi is not None:  # the pair (phi_{tau-1}, y_tau) for the windows with a >= r
-            C, B, d, m = self.theta.shape
-            theta, P = rls_update(
-                self.theta.view(C * B, d, m),
-                self.P.view(C * B, d, d),
-                self.phi.repeat(C, 1),
-                y.repeat(C, 1),
-            )
-            fit = (age >= self.r)[:, None, None, None]
-            self.theta = torch.where(fit, theta.view(C, B, d, m), self.theta)
-            self.P = torch.where(fit, P.view(C, B, d, d), self.P)
+        if self.phi is not None:  # rls_update with the pair (phi_{tau-1}, y_tau), in every fitting window
+            old = self.phi
+            Pphi = self.P @ old.mT  # (C, B, d, 1)
+            gain = fit * Pphi / (1 + old @ Pphi)  # (C, B, d, 1); 0 where the window does not fit yet
+            err = y[:, None] - old @ self.theta  # (C, B, 1, m)
+            self.theta = self.theta + gain * err
+            P = self.P - gain * Pphi.mT
+            self.P = 0.5 * (P + P.mT)
         self.phi = phi
-        pred = (self.theta.mT @ phi[:, :, None])[..., 0]  # (C, B, m)
-        return torch.where((age < self.r)[:, None, None], y, pred).to(z.dtype)
+        pred = (phi @ self.theta)[:, :, 0]  # (C, B, m)
+        return torch.where(start_up, y, pred).to(z.dtype)
 
 
 @torch.no_grad()
 def sliding_rollout(
     model: Transformer,
-    z: Tensor,
-    u: Tensor | None,
+    inputs: Tensor,
     first: Tensor,
     context: int,
-    horizon: int,
-    to_model: Any,
-    to_data: Any,
+    y_mean: Tensor | None = None,
+    y_std: Tensor | None = None,
 ) -> list[Tensor]:
-    """The window path's predictions of y_{c+1}..y_T (c = context, T = horizon), each (B, m) from
-    to_data, for the model in eval mode.
+    """The window path's predictions of y_{c+1}..y_T (c = context), each (B, m) float64 in data units, for
+    the model in eval mode.
 
-    z (B, c, m + k): the measured inputs z_0..z_{c-1} in data units; u (B, T+1, k)|None the given inputs;
-    first (B, m): the prediction of y_c the roll-out starts from (data units); to_model maps data-unit
-    inputs (B, 1, m + k) to the model's (B, 1, d_in), to_data model-unit means (B, m) to data units."""
+    inputs (B, T, d_in): the model's inputs z_0..z_{T-1} in its units and dtype, of which the outputs
+    from y_c on are replaced by the roll-out's own; first (B, m): the prediction of y_c in data units the
+    roll-out starts from; y_mean, y_std (m,) float64: the outputs' normalisation (None: none)."""
     cfg = model.cfg
-    C, L, H = cfg.context, cfg.num_layers, cfg.num_heads
+    C, H, m = cfg.context, cfg.num_heads, cfg.output_dim
     hd = cfg.width // H
-    B = z.shape[0]
-    p = next(model.parameters())
-    features = _Features(cfg, B, p) if cfg.rls_order > 0 else None
-    keys = [p.new_zeros(C, B, H, C, hd) for _ in range(L)]
-    values = [p.new_zeros(C, B, H, C, hd) for _ in range(L)]
-    slots = torch.arange(C, device=p.device)
-    positions = torch.arange(C, device=p.device)
+    B, horizon = inputs.shape[0], inputs.shape[1]
+    like = inputs
+    features = _Features(cfg, B, like) if cfg.rls_order > 0 else None
+    keys = [like.new_zeros(C, B, H, C, hd) for _ in model.blocks]
+    values = [like.new_zeros(C, B, H, C, hd) for _ in model.blocks]
+    slots = torch.arange(C, device=like.device)
+    positions = torch.arange(C, device=like.device)
+    scale = hd**-0.5
     out: list[Tensor] = []
     pred = first
     begin = max(0, context + 1 - C)  # the first window any prediction reads: s(c + 1)
     for tau in range(begin, horizon):
-        if tau < context:
-            x = to_model(z[:, tau : tau + 1])[:, 0]  # (B, d_in) a measured input
-        else:
-            fed = pred if u is None else torch.cat([pred, u[:, tau]], dim=-1)
-            x = to_model(fed[:, None])[:, 0]
+        x = inputs[:, tau]  # (B, d_in)
+        if tau >= context:  # the fed-back output in the model's units
+            y = pred if y_mean is None else (pred - y_mean) / y_std
+            x = torch.cat([y.to(x.dtype), x[:, m:]], dim=-1)
         slot = tau % C
-        age = (tau - slots) % C  # (C,): window in slot j started at tau - age_j
+        age = (tau - slots) % C  # (C,): window in slot j started at tau - age_j, its local position
         net = x.expand(C, B, x.shape[-1])
-        r = None if features is None else features.step(x, slot, age)
-        if r is not None:
+        r = None
+        if features is not None:
+            fit = (age >= features.r).to(torch.float64)[:, None, None, None]
+            r = features.step(x, slot, fit, (age < features.r)[:, None, None])
             net = torch.cat([net, r], dim=-1)  # (C, B, d_in + m)
-        h = model.read_in(net)  # (C, B, d)
+        h = F.linear(net, model.read_in.weight, model.read_in.bias)  # (C, B, d)
         rope = None
         if model.wpe is not None:
             h = h + model.wpe.weight[age][:, None]
         else:
             cos, sin = rope_angles(age, hd)  # (C, hd/2)
-            rope = cos[:, None, None, None], sin[:, None, None, None]
-        mask = (positions[None] <= age[:, None])[:, None, None, None]  # (C, 1, 1, 1, C) positions 0..a
+            rope = cos[:, None, None], sin[:, None, None]
+        hidden = positions[None] > age[:, None]  # (C, C): window slot j reads its positions 0..a_j
+        read = max(0, tau + 1 - C) % C  # the slot of the window of step L = tau + 1
+        last = len(model.blocks) - 1
         for layer, block in enumerate(model.blocks):
-            a = block.ln_1(h)
-            q, k, v = block.attn.qkv(a).view(C, B, 3, H, 1, hd).unbind(2)  # each (C, B, H, 1, hd)
-            if rope is not None:
+            attn = block.attn
+            qkv = F.linear(_layer_norm(h, block.ln_1), attn.qkv.weight, attn.qkv.bias)
+            q, k, v = qkv.view(h.shape[0], B, 3, H, hd).unbind(2)  # each (C, B, H, hd)
+            if rope is not None:  # window slot j at its position a_j
                 q, k = apply_rope(q, *rope), apply_rope(k, *rope)
-            keys[layer][slots, :, :, age] = k[:, :, :, 0]
-            values[layer][slots, :, :, age] = v[:, :, :, 0]
-            att = F.scaled_dot_product_attention(q, keys[layer], values[layer], attn_mask=mask)
-            h = h + block.attn.proj(att.reshape(C, B, H * hd))
-            h = h + block.mlp(block.ln_2(h))
+            keys[layer][slots, :, :, age] = k
+            values[layer][slots, :, :, age] = v
+            rows = slice(None)  # the windows whose outputs are read on
+            if layer == last:  # only the read window's: its keys and values are all the others need
+                if tau < context:
+                    break
+                rows = slice(read, read + 1)
+                h, q = h[rows], q[rows]
+            scores = (q[..., None, :] @ keys[layer][rows].mT) * scale  # (C or 1, B, H, 1, C)
+            w = scores.masked_fill(hidden[rows, None, None, None], float("-inf")).softmax(-1)
+            att = (w @ values[layer][rows])[..., 0, :]  # (C or 1, B, H, hd)
+            h = h + F.linear(att.reshape(h.shape[0], B, H * hd), attn.proj.weight, attn.proj.bias)
+            mlp = block.mlp
+            g = F.gelu(F.linear(_layer_norm(h, block.ln_2), mlp.fc.weight, mlp.fc.bias))
+            h = h + F.linear(g, mlp.proj.weight, mlp.proj.bias)
         if tau < context:
             continue
-        s = max(0, tau + 1 - C)  # the window of step L = tau + 1
-        mu = split_horizons(model.read_out(model.ln_f(h[s % C])), cfg)[0]  # (B, m)
+        mu = split_horizons(model.read_out(_layer_norm(h[0], model.ln_f)), cfg)[0]  # (B, m)
         if r is not None:
-            mu = mu + r[s % C]
-        pred = to_data(mu)
+            mu = mu + r[read]
+        pred = mu.double() if y_mean is None else mu.double() * y_std + y_mean
         out.append(pred)
     return out
+
+
+def _layer_norm(x: Tensor, ln: Any) -> Tensor:
+    return F.layer_norm(x, ln.normalized_shape, ln.weight, ln.bias, ln.eps)
