@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from mop.filters.rls import initial_state
+from mop.filters.rls import initial_state, regressors
 from mop.models.attention import apply_rope, rope_angles
 from mop.models.features import feature_prior, input_count
 from mop.models.horizons import split_horizons
@@ -69,31 +69,35 @@ class _Features:
         self.theta = theta0.repeat(C, 1, 1, 1)  # (C, B, d, m)
         self.P = P0.repeat(C, 1, 1, 1)  # (C, B, d, d)
         self.ys = like.new_zeros(B, self.p * self.m, dtype=torch.float64)  # [y_tau; ..; y_{tau-p+1}]
-        self.us = like.new_zeros(B, self.q * self.k, dtype=torch.float64)  # [u_tau; ..; u_{tau-q+1}]
-        self.one = like.new_ones(B, int(self.offset), dtype=torch.float64)
         self.phi: Tensor | None = None  # phi_{tau-1} (B, 1, d)
 
-    def step(self, z: Tensor, slot: int, fit: Tensor, start_up: Tensor) -> Tensor:
-        """Input z_tau (B, d_in) in the model's units -> every window's feature (C, B, m) in z's dtype; the
-        window starting at tau is at `slot`; fit (C, 1, 1, 1) float64: 1 where the window's local position
-        a >= r (it takes the pair), else 0; start_up (C, 1, 1) bool: a < r (the feature is y_tau)."""
-        m, k = self.m, self.k
-        y = z[:, :m].double()
-        self.ys = torch.cat([y, self.ys[:, : (self.p - 1) * m]], dim=-1)
-        self.us = torch.cat([z[:, m : m + k].double(), self.us[:, : (self.q - 1) * k]], dim=-1)
-        phi = torch.cat([self.ys, self.us, self.one], dim=-1)[:, None]  # (B, 1, d)
+    def known(self, inputs: Tensor) -> Tensor:
+        """The regressors known in advance (B, T, q k [+ 1]) float64 of the model inputs (B, T, d_in): the
+        input lags [u_tau; ..; u_{tau-q+1}] (zero before the first input) and the constant."""
+        u = inputs[..., self.m : self.m + self.k].double()
+        parts = [regressors(u, self.q)] if self.q > 0 else []
+        parts.append(u.new_ones(*u.shape[:2], int(self.offset)))
+        return torch.cat(parts, dim=-1)
+
+    def step(self, y: Tensor, known: Tensor, slot: int, fit: Tensor, start_up: Tensor) -> Tensor:
+        """Output y_tau (B, m) in the model's units and the known regressors of tau (B, e) -> every window's
+        feature (C, B, m) in y's dtype; the window starting at tau is at `slot`; fit (C, 1, 1, 1) float64:
+        1 where the window's local position a >= r (it takes the pair), else 0; start_up (C, 1, 1) bool:
+        a < r (the feature is y_tau)."""
+        dtype, y = y.dtype, y.double()
+        self.ys = torch.cat([y, self.ys[:, : (self.p - 1) * self.m]], dim=-1)
+        phi = torch.cat([self.ys, known], dim=-1)[:, None]  # (B, 1, d)
         self.theta[slot], self.P[slot] = self.theta0, self.P0  # the new window starts afresh
         if self.phi is not None:  # rls_update with the pair (phi_{tau-1}, y_tau), in every fitting window
             old = self.phi
             Pphi = self.P @ old.mT  # (C, B, d, 1)
-            gain = fit * Pphi / (1 + old @ Pphi)  # (C, B, d, 1); 0 where the window does not fit yet
-            err = y[:, None] - old @ self.theta  # (C, B, 1, m)
-            self.theta = self.theta + gain * err
-            P = self.P - gain * Pphi.mT
+            gain = Pphi * (fit / (1 + old @ Pphi))  # (C, B, d, 1); 0 where the window does not fit yet
+            self.theta = torch.addcmul(self.theta, gain, y[:, None] - old @ self.theta)
+            P = torch.addcmul(self.P, gain, Pphi.mT, value=-1)
             self.P = 0.5 * (P + P.mT)
         self.phi = phi
         pred = (phi @ self.theta)[:, :, 0]  # (C, B, m)
-        return torch.where(start_up, y, pred).to(z.dtype)
+        return torch.where(start_up, y, pred).to(dtype)
 
 
 @torch.no_grad()
@@ -121,6 +125,16 @@ def sliding_rollout(
     values = [like.new_zeros(C, B, H, C, hd) for _ in model.blocks]
     slots = torch.arange(C, device=like.device)
     positions = torch.arange(C, device=like.device)
+    ages = [(phase - slots) % C for phase in range(C)]  # at tau = phase mod C: slot j's local position a_j
+    hidden = [(positions[None] > a[:, None])[:, None, None, None] for a in ages]  # (C, 1, 1, 1, C): > a_j
+    known = None if features is None else features.known(inputs)  # (B, T, e)
+    if features is not None:
+        fits = [(a >= features.r).double()[:, None, None, None] for a in ages]
+        start_ups = [(a < features.r)[:, None, None] for a in ages]
+    if model.wpe is not None:
+        embeds = [model.wpe.weight[a][:, None] for a in ages]  # (C, 1, d)
+    else:
+        ropes = [tuple(c[:, None, None] for c in rope_angles(a, hd)) for a in ages]  # (C, 1, 1, hd/2) each
     scale = hd**-0.5
     out: list[Tensor] = []
     pred = first
@@ -131,21 +145,18 @@ def sliding_rollout(
             y = pred if y_mean is None else (pred - y_mean) / y_std
             x = torch.cat([y.to(x.dtype), x[:, m:]], dim=-1)
         slot = tau % C
-        age = (tau - slots) % C  # (C,): window in slot j started at tau - age_j, its local position
+        age = ages[slot]  # (C,): the window in slot j started at tau - a_j
         net = x.expand(C, B, x.shape[-1])
         r = None
         if features is not None:
-            fit = (age >= features.r).to(torch.float64)[:, None, None, None]
-            r = features.step(x, slot, fit, (age < features.r)[:, None, None])
+            r = features.step(x[:, :m], known[:, tau], slot, fits[slot], start_ups[slot])
             net = torch.cat([net, r], dim=-1)  # (C, B, d_in + m)
         h = F.linear(net, model.read_in.weight, model.read_in.bias)  # (C, B, d)
         rope = None
         if model.wpe is not None:
-            h = h + model.wpe.weight[age][:, None]
+            h = h + embeds[slot]
         else:
-            cos, sin = rope_angles(age, hd)  # (C, hd/2)
-            rope = cos[:, None, None], sin[:, None, None]
-        hidden = positions[None] > age[:, None]  # (C, C): window slot j reads its positions 0..a_j
+            rope = ropes[slot]
         read = max(0, tau + 1 - C) % C  # the slot of the window of step L = tau + 1
         last = len(model.blocks) - 1
         for layer, block in enumerate(model.blocks):
@@ -163,7 +174,7 @@ def sliding_rollout(
                 rows = slice(read, read + 1)
                 h, q = h[rows], q[rows]
             scores = (q[..., None, :] @ keys[layer][rows].mT) * scale  # (C or 1, B, H, 1, C)
-            w = scores.masked_fill(hidden[rows, None, None, None], float("-inf")).softmax(-1)
+            w = scores.masked_fill(hidden[slot][rows], float("-inf")).softmax(-1)
             att = (w @ values[layer][rows])[..., 0, :]  # (C or 1, B, H, hd)
             h = h + F.linear(att.reshape(h.shape[0], B, H * hd), attn.proj.weight, attn.proj.bias)
             mlp = block.mlp
