@@ -14,7 +14,7 @@ causally, so each window is a growing sequence whose state is kept from step to 
   window's feature at position a is y_tau for a < r, else theta^T phi_tau. Their regressors phi are the
   record's: the lags of a window past its start-up (a >= r >= p, q) never reach before its first input;
 - the network reads the new input of every window at its own position a (learned embedding or RoPE) and
-  writes its keys and values into the window's key / value buffer at position a; the window's output at a
+  writes its keys and values into the window's key / value buffer (at tau % C); the window's output at a
   attends to its positions 0..a (the causal forward of the window's inputs so far);
 - the output wanted at step L is window s(L)'s at its last position a = L - 1 - s(L).
 So each step costs one batched token per open window (C tokens) and the RLS update of C small fits,
@@ -91,10 +91,10 @@ class _Features:
         if self.phi is not None:  # rls_update with the pair (phi_{tau-1}, y_tau), in every fitting window
             old = self.phi
             Pphi = self.P @ old.mT  # (C, B, d, 1)
-            gain = Pphi * (fit / (1 + old @ Pphi))  # (C, B, d, 1); 0 where the window does not fit yet
-            self.theta = torch.addcmul(self.theta, gain, y[:, None] - old @ self.theta)
-            P = torch.addcmul(self.P, gain, Pphi.mT, value=-1)
-            self.P = 0.5 * (P + P.mT)
+            c = fit / (1 + old @ Pphi)  # (C, B, 1, 1); 0 where the window does not fit yet
+            self.theta = torch.addcmul(self.theta, Pphi * c, y[:, None] - old @ self.theta)
+            v = Pphi * c.sqrt()  # P - c Pphi Pphi^T as P - v v^T: exactly symmetric, as rls_update's P
+            self.P = torch.addcmul(self.P, v, v.mT, value=-1)
         self.phi = phi
         pred = (phi @ self.theta)[:, :, 0]  # (C, B, m)
         return torch.where(start_up, y, pred).to(dtype)
@@ -126,7 +126,12 @@ def sliding_rollout(
     slots = torch.arange(C, device=like.device)
     positions = torch.arange(C, device=like.device)
     ages = [(phase - slots) % C for phase in range(C)]  # at tau = phase mod C: slot j's local position a_j
-    hidden = [(positions[None] > a[:, None])[:, None, None, None] for a in ages]  # (C, 1, 1, 1, C): > a_j
+    # the keys and values of input tau are kept at buffer position tau % C (the phase), so at phase
+    # position b holds input tau - ((phase - b) % C), which window slot j (started at tau - a_j) reads
+    # where (phase - b) % C <= a_j; attention does not depend on the order of the keys
+    hidden = [
+        ((phase - positions[None]) % C > a[:, None])[:, None, None, None] for phase, a in enumerate(ages)
+    ]
     known = None if features is None else features.known(inputs)  # (B, T, e)
     if features is not None:
         fits = [(a >= features.r).double()[:, None, None, None] for a in ages]
@@ -145,7 +150,6 @@ def sliding_rollout(
             y = pred if y_mean is None else (pred - y_mean) / y_std
             x = torch.cat([y.to(x.dtype), x[:, m:]], dim=-1)
         slot = tau % C
-        age = ages[slot]  # (C,): the window in slot j started at tau - a_j
         net = x.expand(C, B, x.shape[-1])
         r = None
         if features is not None:
@@ -165,8 +169,8 @@ def sliding_rollout(
             q, k, v = qkv.view(h.shape[0], B, 3, H, hd).unbind(2)  # each (C, B, H, hd)
             if rope is not None:  # window slot j at its position a_j
                 q, k = apply_rope(q, *rope), apply_rope(k, *rope)
-            keys[layer][slots, :, :, age] = k
-            values[layer][slots, :, :, age] = v
+            keys[layer][:, :, :, slot] = k
+            values[layer][:, :, :, slot] = v
             rows = slice(None)  # the windows whose outputs are read on
             if layer == last:  # only the read window's: its keys and values are all the others need
                 if tau < context:
