@@ -9,7 +9,9 @@ c). The one chooser, simulation_path, takes
 - "stream" where stepping the model's stream cache equals its forward (a recurrent model; a transformer
   with T <= context): the cache steps once per input (streamed_rollout);
 - "window" otherwise: one forward per simulated step on the last C inputs (windowed_rollout), from the
-  one-step prediction of y_c in the predictor's mode (mop.models.predict), as the forecast from origin c.
+  one-step prediction of y_c in the predictor's mode (mop.models.predict), as the forecast from origin c;
+  for the transformer (with no feature or the RLS / ARX feature) the same numbers by mop.models.slide,
+  one new input per open window and step (window_path chooses).
 All in data units; the model's normalisation is applied by the predictor (mop.models.predict).
 """
 
