@@ -44,6 +44,8 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
     ("mop.benchmarks.protocol", "wiener-hammerstein"): "the benchmark whose published baselines these are",
     ("mop.train.selection", "arx"): "the identifier kind mop.identify.fit takes, as `mop fit arx` names it",
     ("mop.commands.benchmark", "arx"): "the fitted identifier `mop benchmark --predictors arx` runs",
+    ("mop.bench.freerun", "arx"): "the `mop fit arx` command line it times",
+    ("mop.bench.freerun", "mop"): "the program it runs as a subprocess",
     ("mop.commands.benchmark", "mop"): "the learned model trained on the estimation part (--predictors mop)",
     ("mop.commands.benchmark", "rmse"): "results.json's RMSE key",
     ("mop.commands.benchmark", "wiener-hammerstein"): "the benchmark whose table reads in mV",

@@ -13,6 +13,7 @@ BENCHMARKS = {
     "recipe": "MOP/KF MSE ratio reached within wall-clock budgets, training recipe vs. recipe",
     "forecast": "k-step forecast time against T and K beside one-step predict, learned model and filters",
     "predict": "one-step predict of long records per mode (window, stream, sliding): seconds and RMSE",
+    "freerun": "mop predict --simulate wall time, records model vs. the fitted ARX, side by side",
     "features": "ms per training step of the small preset's model with the features auto picks vs. without",
 }
 

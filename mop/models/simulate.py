@@ -9,7 +9,9 @@ c). The one chooser, simulation_path, takes
 - "stream" where stepping the model's stream cache equals its forward (a recurrent model; a transformer
   with T <= context): the cache steps once per input (streamed_rollout);
 - "window" otherwise: one forward per simulated step on the last C inputs (windowed_rollout), from the
-  one-step prediction of y_c in the predictor's mode (mop.models.predict), as the forecast from origin c.
+  one-step prediction of y_c in the predictor's mode (mop.models.predict), as the forecast from origin c;
+  for the transformer (with no feature or the RLS / ARX feature) the same numbers by mop.models.slide,
+  one new input per open window and step (window_path chooses).
 All in data units; the model's normalisation is applied by the predictor (mop.models.predict).
 """
 
@@ -21,6 +23,7 @@ import torch
 from torch import Tensor
 
 from mop.models.predict import ModelPredictor, half_windows
+from mop.models.slide import slide_fast, sliding_rollout
 from mop.systems.base import Trajectories
 
 
@@ -56,6 +59,26 @@ def streamed_rollout(
     return preds
 
 
+def window_path(
+    p: ModelPredictor, hist: Tensor, pred: Tensor, u: Tensor | None, start: int, count: int
+) -> list[Tensor]:
+    """windowed_rollout's predictions, by sliding_rollout (mop.models.slide) where the model has it: the
+    same numbers at the cost of one new input per window and step."""
+    if not slide_fast(p.model):
+        return windowed_rollout(p, hist, pred, u, start, count)
+    norm = p.normalization
+    z = torch.cat([hist, hist.new_zeros(hist.shape[0], count, hist.shape[-1])], dim=1)  # (B, T, m + k)
+    z[:, start:, : p.cfg.output_dim] = pred[:, None]  # a stand-in in range: the roll-out's own replace it
+    if u is not None:
+        z[:, start:, p.cfg.output_dim :] = u[:, start : start + count]
+    inputs = p.model_inputs(z)  # (B, T, d_in); its outputs after y_{c-1} are the roll-out's
+    with p.evaluating():
+        cpu = lambda a: None if a is None else a.to(inputs.device)  # noqa: E731
+        ys = (None, None) if norm is None else (cpu(norm.y_mean), cpu(norm.y_std))
+        preds = sliding_rollout(p.model, inputs, pred.to(inputs.device), start, *ys)
+    return [a.cpu() for a in preds]
+
+
 def rows(traj: Trajectories, last: int) -> Trajectories:
     """Steps 0..last of traj (outputs y_0..y_last, the inputs alike)."""
     return Trajectories(traj.y[:, : last + 1], None if traj.u is None else traj.u[:, : last + 1])
@@ -86,7 +109,7 @@ def simulate(p: ModelPredictor, traj: Trajectories, context: int) -> Tensor:
             out = [pred, *streamed_rollout(p, cache, pred, u, context, count)]
     else:
         pred = p.predict(rows(traj, context))[:, context].double().cpu()  # (B, m): y_c from z_{<c}
-        out = [pred, *windowed_rollout(p, z[:, :context], pred, u, context, count)]
+        out = [pred, *window_path(p, z[:, :context], pred, u, context, count)]
     return torch.stack(out, dim=1).to(traj.y.dtype)
 
 
