@@ -108,23 +108,3 @@ def test_predictors_follow_protocol_and_dtype():
         out = pred.predict(traj)
         assert out.shape == y.shape and out.dtype == y.dtype
     torch.testing.assert_close(RLSPredictor().predict(traj)[:, 1:3], y[:, 0:2])  # copies up to t = p
-
-
-@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
-def test_the_numpy_loop_for_few_records_equals_the_torch_loop(monkeypatch, dtype):
-    """rls_loop runs a few records in numpy (a free run's one-record windows); with NUMPY_BATCH = 0 it runs
-    the torch loop: the same predictions and parameters to rounding, with a prior and a late first update."""
-    import mop.filters.rls as rls
-
-    g = torch.Generator().manual_seed(0)
-    y = torch.randn(3, 60, 2, generator=g, dtype=dtype)
-    phi = torch.randn(3, 60, 5, generator=g, dtype=dtype)
-    prior = (torch.randn(5, 2, generator=g, dtype=dtype), 0.5)
-    fast = rls.rls_loop(y, phi, 4, prior, updates_from=7)
-    monkeypatch.setattr(rls, "NUMPY_BATCH", 0)
-    slow = rls.rls_loop(y, phi, 4, prior, updates_from=7)
-    tol = dict(rtol=1e-10, atol=1e-12) if dtype == torch.float64 else dict(rtol=1e-4, atol=1e-5)
-    torch.testing.assert_close(fast[0], slow[0], **tol)
-    assert fast[2].keys() == slow[2].keys()
-    for t in slow[2]:
-        torch.testing.assert_close(fast[2][t], slow[2][t], **tol)

@@ -19,7 +19,6 @@ pairs whose target channel or any regressor was missing are skipped (_rls_run_ga
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch import Tensor
 
@@ -100,8 +99,6 @@ def rls_loop(
     B, T, m = y.shape
     updates_from = start if updates_from is None else updates_from
     theta, P = initial_state(prior, B, phi.shape[-1], m, y)
-    if B <= NUMPY_BATCH and y.device.type == "cpu" and not (y.requires_grad or phi.requires_grad):
-        return _rls_loop_numpy(y, phi, start, theta, P, updates_from)
     preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(start + 1, T))]
     thetas = {}
     for t in range(start + 1, T):
@@ -110,36 +107,6 @@ def rls_loop(
         thetas[t] = theta
         preds.append((theta.mT @ phi[:, t - 1, :, None])[..., 0])
     return torch.stack(preds, dim=1), phi, thetas
-
-
-NUMPY_BATCH = 8  # up to this many records the recursion runs in numpy: a free run's one-record windows
-
-
-def _rls_loop_numpy(
-    y: Tensor, phi: Tensor, start: int, theta: Tensor, P: Tensor, updates_from: int
-) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
-    """rls_loop's recursion for a few records in numpy, the same arithmetic as rls_update: a torch op on
-    arrays this small costs more in dispatch than in arithmetic, and a free run of a model with an ARX
-    feature runs this loop once per simulated step (`mop bench predict` measures the difference; the
-    results equal the torch loop's to rounding, tests/test_rls.py)."""
-    B, T, m = y.shape
-    yn, phin = y.detach().numpy(), phi.detach().numpy()
-    th, Pn = theta.numpy().copy(), P.numpy().copy()
-    preds = np.zeros((B, T, m), dtype=yn.dtype)
-    preds[:, 1 : min(start + 1, T)] = yn[:, : min(start, T - 1)]
-    thetas = {}
-    for t in range(start + 1, T):
-        if t - 1 >= updates_from:
-            f, target = phin[:, t - 2], yn[:, t - 1]  # (B, d), (B, m)
-            Pphi = (Pn @ f[..., None])[..., 0]
-            k = Pphi / (1 + (f * Pphi).sum(-1, keepdims=True))
-            err = target - (th.transpose(0, 2, 1) @ f[..., None])[..., 0]
-            th = th + k[..., None] * err[:, None, :]
-            Pn = Pn - k[..., None] * Pphi[:, None, :]
-            Pn = 0.5 * (Pn + Pn.transpose(0, 2, 1))
-        thetas[t] = torch.from_numpy(th)
-        preds[:, t] = (th.transpose(0, 2, 1) @ phin[:, t - 1, :, None])[..., 0]
-    return torch.from_numpy(preds), phi, thetas
 
 
 def _rls_run_gaps(
