@@ -38,7 +38,7 @@ def test_experiment_file_mistakes_are_blamed_where_they_were_written(tmp_path, c
 
 def test_the_order_line_names_the_rule_that_chose_the_orders():
     """mop fit arx, the records recipe and a fine-tune choose ARX orders on different parts of a record; the
-    line says which rule chose them (ported with its test from the parallel wt-53b branch)."""
+    line says which rule chose them."""
     config = apply_overrides(RunConfig(), ["model.rls_order=3", "model.arx_order=2", "model.rls_prior=fit"])
     config = RunConfig(model=config.model, train=config.train, data=DataConfig(path="est.csv"))
     recipe = order_line(config, [])
