@@ -26,7 +26,7 @@ import numpy as np
 
 from mop.errors import MopError
 from mop.record import Record
-from mop.records import divergence_step, simulate_all
+from mop.records import simulate_all, simulation_rmse
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,9 +78,7 @@ def _simulate(predictor, record: Record, start: int) -> np.ndarray:
 
 
 def _rmse(y: np.ndarray, sim: np.ndarray) -> float:
-    if divergence_step(y, sim) is not None:
-        return float("inf")
-    return float(np.sqrt(np.nanmean((y[-len(sim) :] - sim) ** 2)))
+    return simulation_rmse(y, sim)[0]
 
 
 def simulate_with_context(

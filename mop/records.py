@@ -100,6 +100,15 @@ def divergence_step(y: np.ndarray, sim: np.ndarray) -> int | None:
     return int(rows[0]) if len(rows) else None
 
 
+def simulation_rmse(y: np.ndarray, sim: np.ndarray) -> tuple[float, int | None]:
+    """(RMSE, None) of a free run sim (T', m) against the last T' rows of the record y (T, m), missing
+    outputs left out; (inf, j) where it diverged at its row j (divergence_step against all of y)."""
+    step = divergence_step(y, sim)
+    if step is not None:
+        return float("inf"), step
+    return float(np.sqrt(np.nanmean((y[len(y) - len(sim) :] - sim) ** 2))), None
+
+
 def observed_norms(e: np.ndarray) -> np.ndarray:
     """||e_t|| over the measured channels (e NaN where y was missing) for the steps with any measured:
     e (T, m) -> (T',)."""

@@ -9,14 +9,13 @@ channels' squares. A simulation that diverges (mop.records.divergence_step) scor
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 
 import numpy as np
 
 from mop.plots import plt, save
 from mop.record import Record
-from mop.records import divergence_step, simulate_all
+from mop.records import simulate_all, simulation_rmse
 
 CITATION = (
     'Champneys, Beintema, Toth, Schoukens, Rogers, "Baseline Results for Selected Nonlinear System '
@@ -59,12 +58,14 @@ class TestScore:
 
 def run_test(predictor, test: Record) -> TestScore:
     """The protocol on one test record (see the module docstring)."""
-    n = max(test.init_window, 1)
-    (sim,) = simulate_all(predictor, [test.pair], n)
-    step = divergence_step(test.y, sim)
-    if step is not None:
-        return TestScore(math.inf, n + step, sim)
-    return TestScore(float(np.sqrt(np.nanmean((test.y[n:] - sim) ** 2))), None, sim)
+    (sim,) = simulate_all(predictor, [test.pair], max(test.init_window, 1))
+    return score_test(test, sim)
+
+
+def score_test(test: Record, sim: np.ndarray) -> TestScore:
+    """The protocol's score of a simulation sim (T - n, m) of the test record after its first n outputs."""
+    rmse, step = simulation_rmse(test.y, sim)
+    return TestScore(rmse, None if step is None else max(test.init_window, 1) + step, sim)
 
 
 def test_figure(

@@ -17,19 +17,17 @@ import math
 import time
 from pathlib import Path
 
-import numpy as np
 from tqdm import tqdm
 
 from mop.atomic import atomic_path, write_json
 from mop.benchmarks import BENCHMARKS, Split, load_benchmark, present
-from mop.benchmarks.protocol import CITATION, PUBLISHED, TestScore, run_test, test_figure
+from mop.benchmarks.protocol import CITATION, PUBLISHED, TestScore, run_test, score_test, test_figure
 from mop.errors import MopError
 from mop.estimators import Learned
 from mop.identify import fit
 from mop.identify.select import POLE_RADIUS
 from mop.incontext import simulate_with_context
 from mop.record import as_pairs, read_records
-from mop.records import divergence_step
 from mop.runs import load_predictor
 from mop.train.budget import DEFAULT_BUDGET_MINUTES, check_budget
 
@@ -117,10 +115,7 @@ class InContextModel:
 
     def run(self, test) -> TestScore:
         n = max(test.init_window, 1)
-        sim = simulate_with_context(self.model, test, n, self.estimation).simulation
-        step = divergence_step(test.y, sim)
-        rmse = math.inf if step is not None else float(np.sqrt(np.nanmean((test.y[n:] - sim) ** 2)))
-        return TestScore(rmse, None if step is None else n + step, sim)
+        return score_test(test, simulate_with_context(self.model, test, n, self.estimation).simulation)
 
 
 def _fitted(kind: str, split: Split, warnings: list[str]):
