@@ -16,8 +16,16 @@ from mop.identify import load as load_fitted
 from mop.identify.select import fit
 from mop.io import read_trajectories
 from mop.records import simulate_all
+from mop.runs import load_config
 from mop.train.budget import MAX_EPOCHS, MIN_STEPS, NOMINAL_STEP_SECONDS, plan_steps
-from mop.train.selection import SELECTION_FILE, simulation_rmse
+from mop.train.records import recorded_data
+from mop.train.selection import (
+    SELECTION_FILE,
+    held_out_stretches,
+    select_against_arx,
+    simulation_rmse,
+    stretches_rmse,
+)
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -82,11 +90,13 @@ def test_a_simulation_that_turns_non_finite_scores_inf_not_its_finite_steps(tmp_
 
 
 def test_a_network_that_cannot_beat_the_arx_ends_as_the_arx_exactly(tmp_path, capsys):
-    """A linear ARX plant and a network ruined on purpose (learning rate 3, 40 steps): the run keeps the ARX,
-    and predicts exactly what `mop fit arx` fitted on the same record predicts."""
+    """A linear ARX plant and a network ruined on purpose (learning rate 3, 40 steps) whose correction cannot
+    be scaled (a Gaussian read-out): the run keeps the ARX, and predicts exactly what `mop fit arx` fitted on
+    the same record predicts."""
     rec = arx_plant(tmp_path / "rec.csv")
     run = tmp_path / "run"
     argv = ["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=40", "train.lr=3"]
+    argv.append("model.readout=gaussian")
     assert main(argv) == 0
     printed = capsys.readouterr().out
     chosen = json.loads((run / SELECTION_FILE).read_text())
@@ -116,3 +126,24 @@ def test_a_network_that_beats_the_arx_is_kept(tmp_path, capsys):
     assert chosen["kept"] == "network" and chosen["network_rmse"] < chosen["arx_rmse"]
     assert not (run / "fitted.json").exists()
     assert type(mop.load(run)).__name__ == "LearnedPredictor"
+
+
+def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predicts(tmp_path, capsys):
+    """The same ruined network with the mean read-out: its correction's gains and the ARX are scored on the
+    held-out tail, the best is kept (never worse than the ARX), the scaled weights are on disk, so loading
+    the run simulates the held-out stretches at the recorded RMSE; asking again changes nothing."""
+    rec = arx_plant(tmp_path / "rec.csv")
+    run = tmp_path / "run"
+    argv = ["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=40", "train.lr=3"]
+    assert main(argv) == 0
+    chosen = json.loads((run / SELECTION_FILE).read_text())
+    scores = chosen["network_rmse_by_gain"] + [chosen["arx_rmse"]]
+    assert chosen["network_rmse"] > 2 * min(scores)  # the ruined correction at gain 1 is far off
+    kept = chosen["arx_rmse"] if chosen["kept"] == "arx" else scores[chosen["gains"].index(chosen["gain"])]
+    assert kept == min(scores) and kept <= chosen["arx_rmse"]
+    config = load_config(run)
+    stretches = held_out_stretches(recorded_data(config.data))
+    assert stretches_rmse(mop.load(run), stretches) == pytest.approx(kept, rel=1e-6)
+    weights = (run / "model.safetensors").read_bytes()
+    assert select_against_arx(run, config) == chosen
+    assert (run / "model.safetensors").read_bytes() == weights

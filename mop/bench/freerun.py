@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from mop.errors import MopError
+from mop.identify.store import FILE as FITTED_FILE
 from mop.models import simulate as sim
 from mop.runs import load_predictor
 from mop.systems import Trajectories
@@ -96,9 +97,17 @@ def measure(args: argparse.Namespace, work: Path) -> dict[str, object]:
             mop_command(
                 "train", "--data", str(est), "--out", run, "--no-progress", f"train.steps={args.train_steps}"
             )
+            # the bench times the network: where the run's held-out check kept the ARX
+            # (mop.train.selection), `mop predict RUN` would load that ARX instead
+            (Path(run) / FITTED_FILE).unlink(missing_ok=True)
         if arx is None:
             arx = str(work / "arx")
             mop_command("fit", "arx", str(est), "--out", arx)
+    if (Path(run) / FITTED_FILE).exists():
+        raise MopError(
+            f"{run} keeps the fitted ARX (its held-out check, {FITTED_FILE}), so `mop predict` would time an ARX: "
+            "give a run that keeps its network"
+        )
     times: dict[str, list[float]] = {"arx": [], "mop": []}
     for i in range(args.repeats):
         for name, source in (("arx", arx), ("mop", run)):

@@ -47,6 +47,8 @@ TRAINING_FILES = (
     "done.json",
     "inputs.json",
     SHRINK_FILE,
+    "selection.json",  # mop.train.selection's choice after training, and the ARX it may keep
+    "fitted.json",
 )
 
 

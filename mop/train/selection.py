@@ -14,19 +14,22 @@ mop.records.divergence_step). selection.json in the run directory holds both sco
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from mop.atomic import write_json
+from mop.checkpoint import save_model
 from mop.config import RunConfig
 from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
 from mop.io import read_trajectories
 from mop.records import divergence_step, simulate_all
 from mop.runs import load_predictor
-from mop.train.records import recorded_data
+from mop.train.records import RecordedData, recorded_data
+from mop.train.shrink import GAINS, scale_correction
 
 SELECTION_FILE = "selection.json"
 INIT_WINDOW = 50  # measured outputs a held-out simulation starts from (the benchmarks' usual n)
@@ -35,52 +38,115 @@ INIT_WINDOW = 50  # measured outputs a held-out simulation starts from (the benc
 def simulation_rmse(predictor, data: list[tuple[np.ndarray, np.ndarray]], init: int) -> float:
     """RMSE of y[init:] simulated from y[:init] and the inputs, pooled over the records; inf where the
     simulation turned non-finite (a diverged run is not scored over its finite steps)."""
-    sims = simulate_all(predictor, data, init)
-    if any(divergence_step(y, s) is not None for (y, _), s in zip(data, sims, strict=True)):
-        return math.inf
-    errors = np.concatenate([y[init:] - s for (y, _), s in zip(data, sims, strict=True)])
-    return float(np.sqrt(np.nanmean(errors**2)))
+    return stretches_rmse(predictor, [(y, u, init) for y, u in data])
+
+
+def stretches_rmse(predictor, stretches: list[tuple[np.ndarray, np.ndarray, int]]) -> float:
+    """simulation_rmse of stretches (y, u, init), each simulated after its own first `init` outputs."""
+    errors = []
+    for y, u, init in stretches:
+        sim = simulate_all(predictor, [(y, u)], init)[0]
+        if divergence_step(y, sim) is not None:
+            return math.inf
+        errors.append(y[init:] - sim)
+    return float(np.sqrt(np.nanmean(np.concatenate(errors) ** 2)))
+
+
+def held_out_stretches(record: RecordedData) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """(y, u, init) of each held-out stretch: where one record is split in time, its held-out tail after the
+    INIT_WINDOW measured steps before it (as a test record is simulated after its initialisation window), so
+    every held-out step is scored; held-out records (--val, or whole trajectories) from their own first
+    min(INIT_WINDOW, L/2) outputs."""
+    m = record.output_dim
+    pairs = lambda a: (a[:, :m], a[:, m:])  # noqa: E731
+    if record.split == "time":
+        stretches = []
+        for train, val in zip(record.train_parts, record.val_parts, strict=True):
+            init = min(INIT_WINDOW, len(train))
+            stretches.append((*pairs(np.concatenate([train[len(train) - init :], val])), init))
+        return stretches
+    init = max(1, min(INIT_WINDOW, min(len(a) for a in record.val_parts) // 2))
+    return [(*pairs(a), init) for a in record.val_parts]
+
+
+def _gains_apply(predictor) -> bool:
+    """Whether the network's correction can be scaled (mop.train.shrink): a transformer with the mean
+    read-out reading a feature, whose gain 0 is that feature alone."""
+    cfg = getattr(getattr(predictor, "model", None), "cfg", None)
+    return cfg is not None and getattr(cfg, "rls_order", 0) > 0 and getattr(cfg, "readout", "") == "mean"
 
 
 def select_against_arx(run_dir: str | Path, config: RunConfig) -> dict:
-    """Compare the trained run in `run_dir` with `mop fit arx`'s ARX on the held-out part; write
-    SELECTION_FILE (and, where the ARX wins, the ARX refitted on the whole record as fitted.json)."""
+    """Choose what the finished run in `run_dir` predicts with, by free-run simulation of its held-out data
+    (held_out_stretches): the network with its correction at each gain of mop.train.shrink.GAINS (1: as
+    trained; 0: its in-context ARX feature alone), or `mop fit arx`'s ARX fitted on the training part. On
+    a tie the network at the larger gain is kept. Writes SELECTION_FILE; a gain below 1 is written into
+    the run's model.safetensors, and where the ARX wins the run also holds it refitted on the whole record
+    (fitted.json, as `mop fit arx` writes it). A run that already holds SELECTION_FILE keeps its choice."""
     run_dir = Path(run_dir)
+    done = run_dir / SELECTION_FILE
+    if done.is_file():
+        previous = json.loads(done.read_text())
+        if previous.get("format") == 2:
+            return previous
     record = recorded_data(config.data)
     m = record.output_dim
-    split = lambda parts: [(a[:, :m], a[:, m:]) for a in parts]  # noqa: E731
-    train, held_out = split(record.train_parts), split(record.val_parts)
-    init = max(1, min(INIT_WINDOW, min(len(y) for y, _ in held_out) // 2))
+    train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
+    stretches = held_out_stretches(record)
     arx = fit("arx", train, source=config.data.path)
-    network_rmse = simulation_rmse(load_predictor(run_dir), held_out, init)
-    arx_rmse = simulation_rmse(arx, held_out, init)
-    kept = "network" if network_rmse < arx_rmse else "arx"
+    network = load_predictor(run_dir)
+    gains = GAINS if _gains_apply(network) else (1.0,)
+    trained = {k: v.clone() for k, v in network.model.read_out.state_dict().items()}
+    by_gain = []
+    for gain in gains:
+        network.model.read_out.load_state_dict(trained)
+        scale_correction(network.model, gain)
+        by_gain.append(stretches_rmse(network, stretches))
+    best = min(range(len(gains)), key=lambda i: (by_gain[i], -gains[i]))
+    arx_rmse = stretches_rmse(arx, stretches)
+    kept = "network" if by_gain[best] <= arx_rmse and math.isfinite(by_gain[best]) else "arx"
     fitted = run_dir / FITTED_FILE
     if kept == "arx":
         whole = fit("arx", read_trajectories(config.data.path)[1], source=config.data.path)
         write_json(fitted, {"format": 1, **whole.to_json()})
-    elif fitted.exists():
-        fitted.unlink()
+    else:
+        fitted.unlink(missing_ok=True)
+        if gains[best] != 1.0:  # the scaled read-out becomes the run's weights
+            network.model.read_out.load_state_dict(trained)
+            scale_correction(network.model, gains[best])
+            save_model(run_dir / "model.safetensors", network.model)
     result = {
-        "held_out_steps": int(sum(len(y) - init for y, _ in held_out)),
-        "init": init,
-        "network_rmse": network_rmse,
+        "format": 2,
+        "held_out_steps": int(sum(len(y) - init for y, _, init in stretches)),
+        "init": int(stretches[0][2]),
+        "gains": list(gains),
+        "network_rmse_by_gain": by_gain,
+        "gain": gains[best] if kept == "network" else None,
+        "network_rmse": by_gain[gains.index(1.0)],
         "arx_rmse": arx_rmse,
         "arx_orders": dict(arx.orders),
         "kept": kept,
     }
-    write_json(run_dir / SELECTION_FILE, result)
+    write_json(done, result)
     return result
 
 
 def selection_line(result: dict) -> str:
-    """One line for the user: both held-out simulation RMSEs and what the run keeps."""
+    """One line for the user: the held-out simulation RMSEs and what the run keeps."""
     both = (
         f"held-out simulation ({result['held_out_steps']} steps after {result['init']} measured): "
         f"network RMSE {result['network_rmse']:.4g}, fitted ARX {result['arx_rmse']:.4g}"
     )
     if result["kept"] == "network":
-        return f"{both}: the run keeps the network"
+        gain = result.get("gain", 1.0)
+        if gain == 1.0:
+            return f"{both}: the run keeps the network"
+        rmse = result["network_rmse_by_gain"][result["gains"].index(gain)]
+        alone = " (0: its in-context ARX feature alone)" if gain == 0 else ""
+        return (
+            f"{both}: the run keeps the network with its correction at gain {gain:g}{alone}, which simulates "
+            f"it best: RMSE {rmse:.4g}"
+        )
     return (
         f"{both}: the network does not beat the ARX, so the run keeps the ARX (fitted.json, as `mop fit arx` "
         "writes it): `mop predict` and mop.load use it"
