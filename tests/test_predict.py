@@ -83,3 +83,29 @@ def test_unequal_lengths_in_padded_batches_equal_one_at_a_time(
             np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
         else:
             np.testing.assert_array_equal(a, b)
+
+
+def test_default_outputs_are_named_after_the_predictor_and_hold_the_measured_output(tmp_path, capsys):
+    """Two predictors on one record keep two files (DATA_<predictor>_pred.csv); a simulation's file holds
+    the measured outputs beside the simulated ones, equal to the record's."""
+    import csv
+
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=300)
+    y = np.zeros(300)
+    for t in range(1, 300):
+        y[t] = 0.8 * y[t - 1] + 0.5 * u[t - 1] + 0.01 * rng.normal()
+    rec = tmp_path / "val.csv"
+    rec.write_text("y0,u0\n" + "\n".join(f"{a:.6f},{b:.6f}" for a, b in zip(y, u, strict=True)) + "\n")
+    assert main(["fit", "arx", str(rec), "--out", str(tmp_path / "arx_model")]) == 0
+    assert main(["predict", str(tmp_path / "arx_model"), str(rec), "--simulate", "20"]) == 0
+    assert main(["predict", "rls", str(rec)]) == 0
+    capsys.readouterr()
+    assert sorted(p.name for p in tmp_path.glob("val_*pred.csv")) == [
+        "val_arx_model_pred.csv",
+        "val_rls_pred.csv",
+    ]
+    with open(tmp_path / "val_arx_model_pred.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["t"]) for r in rows] == list(range(20, 300))
+    np.testing.assert_allclose([float(r["y0"]) for r in rows], y[20:], atol=1e-6)

@@ -105,7 +105,8 @@ def measure(args: argparse.Namespace, work: Path) -> dict[str, object]:
             mop_command("fit", "arx", str(est), "--out", arx)
     if (Path(run) / FITTED_FILE).exists():
         raise MopError(
-            f"{run} keeps the fitted ARX (its held-out check, {FITTED_FILE}), so `mop predict` would time an ARX: "
+            f"{run} keeps the fitted ARX (its held-out check, {FITTED_FILE}), "
+            "so `mop predict` would time an ARX: "
             "give a run that keeps its network"
         )
     times: dict[str, list[float]] = {"arx": [], "mop": []}

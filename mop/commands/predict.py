@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "pretrained), or a registered predictor name; these need only the data: " + ", ".join(model_free()),
     )
     parser.add_argument("data", help="trajectories: .csv (trajectory,t,y0..,u0..) or .npz (y, u[, param_*])")
-    parser.add_argument("--out", help="output .csv or .npz (default DATA stem + _pred)")
+    parser.add_argument("--out", help="output .csv or .npz (default DATA_<predictor>_pred beside DATA)")
     parser.add_argument(
         "--stream",
         action="store_true",
@@ -157,19 +158,27 @@ def system_of(name: str, data_path: Path, num: int, has_inputs: bool = False) ->
     return "", model
 
 
-def write_simulation(path: Path, names: list[str], sims: list[np.ndarray], context: int) -> None:
+def write_simulation(
+    path: Path, names: list[str], sims: list[np.ndarray], context: int, measured: list[np.ndarray]
+) -> None:
+    """The simulated outputs y_C.. (ysim, one (T - C, m) array per record) with the measured ones beside
+    them (y; measured: each record's (T, m) outputs), so a plot or a score needs no other file."""
     if path.suffix == ".npz":
         if len({len(p) for p in sims}) != 1:
             raise MopError(f"{path}: trajectories differ in length; write a .csv instead")
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez(f, ysim=np.stack(sims), context=np.array(context))
+            y = np.stack([y[context:] for y in measured])
+            np.savez(f, ysim=np.stack(sims), y=y, context=np.array(context))
         return
+    m = sims[0].shape[-1]
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["trajectory", "t", *[f"ysim{i}" for i in range(sims[0].shape[-1])]])
-        for name, p in zip(names, sims, strict=True):
+        w.writerow(["trajectory", "t", *[f"ysim{i}" for i in range(m)], *[f"y{i}" for i in range(m)]])
+        for name, p, y in zip(names, sims, measured, strict=True):
             for j, row in enumerate(p):
-                w.writerow([name, context + j, *[f"{v:.7g}" for v in row]])
+                w.writerow(
+                    [name, context + j, *[f"{v:.7g}" for v in row], *[f"{v:.7g}" for v in y[context + j]]]
+                )
 
 
 SIMULATION_HEADER = ("trajectory", "steps", "1-step rmse", "fit %", "sim rmse", "sim nrmse", "sim fit %")
@@ -297,6 +306,15 @@ def simulated_in_context(predictor, names, data, init: int, path: str) -> list[n
     return sims
 
 
+def default_output(data_path: Path, predictor: str) -> Path:
+    """DATA_<predictor>_pred.csv beside the data: named after the predictor (a run or fitted directory's
+    name, a shipped model's NAME, a baseline's name), so predicting one record with several predictors keeps
+    every file."""
+    name = predictor.split(":", 1)[1] if predictor.startswith("pretrained:") else Path(predictor).name
+    name = re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-.") or "predictor"
+    return data_path.with_name(f"{data_path.stem}_{name}_pred{data_path.suffix}")
+
+
 def run(args: argparse.Namespace) -> int:
     data_path = Path(args.data)
     if not data_path.is_file() or data_path.suffix not in (".csv", ".npz"):
@@ -308,7 +326,7 @@ def run(args: argparse.Namespace) -> int:
             else "is not a .csv or .npz file"
         )
         raise MopError(f"data {data_path} {problem}; give a .csv or .npz file of trajectories")
-    out = Path(args.out) if args.out else data_path.with_name(data_path.stem + "_pred" + data_path.suffix)
+    out = Path(args.out) if args.out else default_output(data_path, args.predictor)
     if out.suffix not in (".csv", ".npz"):
         raise MopError(f"--out {out}: use a .csv or .npz file name")
     if args.steps is not None and args.steps < 1:
@@ -332,7 +350,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             sims = simulate_all(predictor, data, context, family, params)
         print_simulation_errors(names, data, yhat, sims, context)
-        write_simulation(out, names, sims, context)
+        write_simulation(out, names, sims, context, [y for y, _ in data])
         print(f"wrote {out}")
         return 0
     if args.steps is None:
