@@ -147,3 +147,24 @@ def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predi
     weights = (run / "model.safetensors").read_bytes()
     assert select_against_arx(run, config) == chosen
     assert (run / "model.safetensors").read_bytes() == weights
+
+
+def test_an_interrupted_records_run_resumed_equals_an_uninterrupted_one(tmp_path, monkeypatch, capsys):
+    """`mop train --data` with the records recipe, stopped by Ctrl-C at step 7 and run again with the same
+    command, ends with the same weights and the same held-out choice as the run never stopped."""
+    from mop.checkpoint import load_tensors
+    from tests.reference import sigint_during_step
+
+    rec = arx_plant(tmp_path / "rec.csv", steps=700)
+    argv = ["train", "--data", str(rec), "--no-progress", "train.steps=20", "train.checkpoint_every=5"]
+    assert main([*argv, "--out", str(tmp_path / "a")]) == 0
+    restore = sigint_during_step(monkeypatch, 7)
+    assert main([*argv, "--out", str(tmp_path / "b")]) != 0
+    restore()
+    assert not (tmp_path / "b" / SELECTION_FILE).exists()
+    assert main([*argv, "--out", str(tmp_path / "b")]) == 0
+    assert "resuming at step" in capsys.readouterr().out
+    wa, wb = (load_tensors(tmp_path / run / "model.safetensors")[0] for run in ("a", "b"))
+    assert wa.keys() == wb.keys() and all(np.array_equal(wa[k].numpy(), wb[k].numpy()) for k in wa)
+    sa, sb = (json.loads((tmp_path / run / SELECTION_FILE).read_text()) for run in ("a", "b"))
+    assert sa == sb
