@@ -164,6 +164,9 @@ class ModelConfig:
     rls_order: int = 0  # p > 0: read the RLS-AR(p) one-step prediction, predict the residual (features)
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
+    # c > 0: the feature also regresses on the cubes of its first c output lags, y_t^3..y_{t-c+1}^3 (a
+    # cubic NARX, e.g. a Duffing oscillator's stiffness); complete outputs, no record_norm (features)
+    rls_cubes: int = 0
     # the feature's theta_0: "none" (0), "fit" (the ARX fitted on recorded data, by the trainer), "family"
     # (the family's empirical-Bayes prior, mop.train.auto), "mixture" (its mixture of Gaussians,
     # mop.filters.mixture) or the list of coefficients (d rows of m)
@@ -234,6 +237,7 @@ class ModelConfig:
             check_choice(f"model.{name}", getattr(self, name), choices)
         check_int("model.rls_order", self.rls_order, 0, 20, " (0 = off)")
         check_int("model.arx_order", self.arx_order, 0, 20, " (0 = output-only RLS)")
+        check_int("model.rls_cubes", self.rls_cubes, 0, 20, " (0 = linear regressors)")
         check_int("model.horizons", self.horizons, 1, 100, " (1 = the one-step read-out)")
         for name in ("rls_offset", "observation_mask"):
             check_choice(f"model.{name}", getattr(self, name), (True, False))
@@ -244,6 +248,11 @@ class ModelConfig:
         check(
             self.arx_order == 0 or self.rls_order > 0,
             "model.arx_order adds input lags to the RLS feature: set model.rls_order > 0 too",
+        )
+        check(
+            self.rls_cubes <= self.rls_order and (self.rls_cubes == 0 or self.record_norm == "none"),
+            "model.rls_cubes adds the cubes of the RLS feature's first output lags: keep it <= "
+            "model.rls_order, with model.record_norm='none'",
         )
         check(
             not self.rls_offset or self.rls_order > 0,

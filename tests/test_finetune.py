@@ -108,7 +108,12 @@ def test_the_default_schedule_and_refusals(tmp_path, capsys):
     saved = json.loads((out / "config.json").read_text())["model"]
     assert (saved["rls_order"], saved["arx_order"]) == (p + 1, q + 1)
     # the source's start was fitted at its orders: the fine-tune refits it at the new ones (one output)
-    assert len(saved["rls_prior"]) == p + 1 + q + 1 + int(saved["rls_offset"]) != len(base.model.rls_prior)
+    cubes = saved.get("rls_cubes", 0)  # the source's cubed lags, kept (the records recipe may choose some)
+    assert (
+        len(saved["rls_prior"])
+        == p + 1 + cubes + q + 1 + int(saved["rls_offset"])
+        != len(base.model.rls_prior)
+    )
     capsys.readouterr()
     assert main([*tuned, "--out", str(tmp_path / "ar"), "model.arx_order=0"]) == 2
     err = capsys.readouterr().err

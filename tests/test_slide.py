@@ -89,3 +89,19 @@ def test_sliding_free_run_equals_the_window_path(
 def test_models_it_does_not_serve_take_the_window_path():
     p = random_predictor("learned", 1, 1, {**ARX, "record_norm": "causal"}, False)
     assert not sim.slide_fast(p.model)
+
+
+@pytest.mark.parametrize("context", [1, 5, CONTEXT, 20])
+def test_the_cubic_feature_slides_as_the_window_path(context, monkeypatch):
+    """model.rls_cubes: the cubes of the output lags in every window's recursion. A random model reading
+    an in-context cubic fit blows up in free run sooner or later (its own outputs cubed), so the paths are
+    compared step for step up to there: the same steps finite (at least 10), equal where they are."""
+    p = random_predictor("learned", 1, 1, {**ARX, "rls_cubes": 2}, False)
+    traj = record(40, 1)
+    traj = Trajectories(0.1 * traj.y, 0.1 * traj.u)
+    fast = sim.simulate(p, traj, context)
+    slow = window_path(p, traj, context, monkeypatch)
+    finite = torch.isfinite(slow) & (slow.abs() < 1e6)
+    assert finite[:, :10].all()
+    steps = int(finite.all(-1).all(0).long().cumprod(0).sum())  # the leading steps finite in every record
+    torch.testing.assert_close(fast[:, :steps], slow[:, :steps], rtol=1e-5, atol=1e-6)

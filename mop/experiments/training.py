@@ -33,6 +33,8 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
+
 from mop.config import (
     DataConfig,
     RunConfig,
@@ -47,6 +49,7 @@ from mop.experiments import get_experiment, run_config
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.presets import default_preset, preset_config
 from mop.identify.arx import ARX
+from mop.identify.cubic import choose_cubes
 from mop.identify.select import feasible_order, fit
 from mop.io import Data as RecordData
 from mop.io import read_trajectories
@@ -141,6 +144,22 @@ def fitted_orders(data: DataConfig) -> tuple[int, int]:
     return orders
 
 
+def fitted_cubes(data: DataConfig, p: int, q: int) -> tuple[int, int]:
+    """(p, c): the output lags and cubed lags of the records recipe's feature, by held-out free-run
+    simulation of cubic NARX candidates on the record's training part (mop.identify.cubic.choose_cubes,
+    normalised as the network reads it); (p, 0) keeps the ARX(p, q) `mop fit arx` chose."""
+    record = recorded_data(data)
+    if record.num_missing:
+        return p, 0
+    stats = record.fit()
+    mean = np.array([*stats["y_mean"], *stats["u_mean"]])
+    std = np.array([*stats["y_std"], *stats["u_std"]])
+    m = record.output_dim
+    parts = [((a - mean) / std) for a in record.train_parts]
+    p, c, _ = choose_cubes([(a[:, :m], a[:, m:]) for a in parts], p, q)
+    return p, c
+
+
 def record_orders(path: str) -> tuple[int, int] | None:
     """(p, q): arx_orders on the whole estimation record at `path`, its validation part included: the
     orders of `mop fit arx PATH`."""
@@ -154,16 +173,21 @@ def budget_plan(config: RunConfig, minutes: float = DEFAULT_BUDGET_MINUTES) -> B
     return plan_steps(minutes, windows, config.train.batch_size)
 
 
-def recorded_recipe(config: RunConfig, budget: float = DEFAULT_BUDGET_MINUTES) -> dict[str, object]:
+def recorded_recipe(
+    config: RunConfig, budget: float = DEFAULT_BUDGET_MINUTES, cubes: bool = True
+) -> dict[str, object]:
     """The records recipe's settings for config.data: the ARX orders `mop fit arx` chooses on the training
-    part (fitted_orders), the feature started from their least-squares fit, RECORDED_MODEL, and the steps
-    the budget (minutes) buys on the record (budget_plan: longer records train longer)."""
+    part (fitted_orders), cubed output lags where a cubic NARX simulates the held-out end of the training
+    part better (fitted_cubes), the feature started from their least-squares fit, RECORDED_MODEL, and the
+    steps the budget (minutes) buys on the record (budget_plan: longer records train longer)."""
     p, q = fitted_orders(config.data)
+    p, c = fitted_cubes(config.data, p, q) if cubes else (p, 0)
     return {
         **RECORDED_MODEL,
         "train.steps": budget_plan(config, budget).steps,
         "model.rls_order": p,
         "model.arx_order": q,
+        "model.rls_cubes": c,
         "model.rls_offset": True,
         "model.rls_prior": "fit",
     }
@@ -192,7 +216,7 @@ def with_recorded_features(
     data = recorded_data(config.data)
     if data.input_dim == 0 or data.num_missing:
         return config
-    return apply_settings(config, recorded_recipe(config, budget))
+    return apply_settings(config, recorded_recipe(config, budget, cubes="model.rls_cubes" not in named))
 
 
 # 125: on the tank_records plants 1-6 (pretrained:cascaded-tanks fine-tuned on est.csv, seeds 0 / 1, the
@@ -286,7 +310,12 @@ def with_refitted_orders(config: RunConfig, source: RunConfig) -> RunConfig:
     feature's start on the record (model.rls_prior = "fit") where the source's start is a list of
     coefficients: those are of the source's orders."""
     m, s = config.model, source.model
-    if (m.rls_order, m.arx_order, m.rls_offset) == (s.rls_order, s.arx_order, s.rls_offset):
+    if (m.rls_order, m.arx_order, m.rls_offset, m.rls_cubes) == (
+        s.rls_order,
+        s.arx_order,
+        s.rls_offset,
+        s.rls_cubes,
+    ):
         return config
     if not isinstance(m.rls_prior, list) or config.data is None:
         return config
@@ -359,6 +388,8 @@ def feature_line(config: RunConfig) -> str | None:
     if m.rls_order == 0:
         return None
     kind = f"ARX({m.rls_order}, {m.arx_order})" if m.arx_order else f"RLS-AR({m.rls_order})"
+    if m.rls_cubes:
+        kind = f"cubic NARX ({kind} with the cubes of its first {m.rls_cubes} output lags)"
     start = " started from its least-squares fit on the training part" if m.rls_prior != "none" else ""
     offset = " with an intercept" if m.rls_offset else ""
     return (
@@ -385,8 +416,16 @@ def order_line(
             return f"orders: {orders}, {rule} on the whole record, as `mop fit arx {config.data.path}` does"
         return f"orders: {orders}, the source model's (--init {init})"
     if not chosen and m.rls_prior == "fit":
-        return (
+        line = (
             f"orders: {orders}, {rule} on the training part only (the held-out part stays unseen), so they "
             f"can differ from `mop fit arx` on the whole record"
         )
+        if m.rls_cubes:
+            line += (
+                f"; then {m.rls_order} output lags, {m.rls_cubes} of them cubed: the cubic NARX that "
+                "simulates the last 20% of the training part best "
+                "and stays bounded when driven twice as hard "
+                "(mop.identify.cubic)"
+            )
+        return line
     return f"orders: {orders}, as the config sets them"

@@ -37,10 +37,15 @@ def known_regressors(y: Tensor, u: Tensor | None, q: int, offset: bool = False) 
     return torch.cat(parts, dim=-1) if parts else None
 
 
-def arx_regressors(y: Tensor, u: Tensor | None, p: int, q: int, offset: bool = False) -> Tensor:
-    """phi (B, T, p m + q k [+ 1]): phi[:, t] = [y_t..y_{t-p+1}, u_t..u_{t-q+1}(, 1)], zero before 0."""
+def arx_regressors(
+    y: Tensor, u: Tensor | None, p: int, q: int, offset: bool = False, cubes: int = 0
+) -> Tensor:
+    """phi (B, T, p m + c m + q k [+ 1]): phi[:, t] = [y_t..y_{t-p+1}, y_t^3..y_{t-c+1}^3 (c = cubes),
+    u_t..u_{t-q+1}(, 1)], zero before 0."""
     known = known_regressors(y, u, q, offset)
     phi = regressors(y, p)
+    if cubes:
+        phi = torch.cat([phi, phi[..., : cubes * y.shape[-1]] ** 3], dim=-1)
     return phi if known is None else torch.cat([phi, known], dim=-1)
 
 
@@ -53,6 +58,7 @@ def _arx_run(
     prior: Prior | None = None,
     updates_from: int | None = None,
     bounded: int | None = None,
+    cubes: int = 0,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1}).
 
@@ -61,12 +67,14 @@ def _arx_run(
     regressors are filled with the model's own one-step predictions (phi then holds the filled outputs).
     prior: (theta_0 (d, m), P_0) for the recursion (rls_loop, _rls_run_gaps); updates_from: the first target
     index whose pair updates the fit (rls_loop; default r); bounded: the filled-in outputs held within the
-    range of the measured ones from row `bounded` on, widened by twice its span (_rls_run_gaps)."""
+    range of the measured ones from row `bounded` on, widened by twice its span (_rls_run_gaps); cubes: the
+    cubes of the first `cubes` output lags as regressors too (arx_regressors; of the filled outputs where
+    some are missing)."""
     r = p if u is None else max(p, q)
     if torch.isnan(y).any():
         extra = known_regressors(y, u, q, offset)
-        return _rls_run_gaps(y, p, extra, r, prior, updates_from, bounded)
-    return rls_loop(y, arx_regressors(y, u, p, q, offset), r, prior, updates_from)
+        return _rls_run_gaps(y, p, extra, r, prior, updates_from, bounded, cubes)
+    return rls_loop(y, arx_regressors(y, u, p, q, offset, cubes), r, prior, updates_from)
 
 
 def arx_predict(
@@ -78,14 +86,16 @@ def arx_predict(
     prior: Prior | None = None,
     updates_from: int | None = None,
     bounded: int | None = None,
+    cubes: int = 0,
 ) -> Tensor:
     """One-step ARX(p, q) predictions yhat (B, T, m) for y (B, T, m), u (B, T, k) or None; offset: with a
     constant regressor (an intercept); prior: theta_0 (d, m) and P_0 of the recursion (rls_loop);
     updates_from: the first target index whose pair updates the fit (default max(p, q)); bounded (a row
     index, None: not bounded): where outputs are missing, the predictions that read filled-in ones are held
     within the range of the outputs measured from that row on, widened by twice its span
-    (mop.filters.rls._rls_run_gaps)."""
-    return _arx_run(y, u, p, q, offset, prior, updates_from, bounded)[0]
+    (mop.filters.rls._rls_run_gaps); cubes: with the cubes of the first `cubes` output lags
+    (arx_regressors)."""
+    return _arx_run(y, u, p, q, offset, prior, updates_from, bounded, cubes)[0]
 
 
 def arx_forecast(

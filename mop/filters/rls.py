@@ -117,8 +117,10 @@ def _rls_run_gaps(
     prior: Prior | None = None,
     updates_from: int | None = None,
     bounded: int | None = None,
+    cubes: int = 0,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
-    """_rls_run for y (B, T, m) with NaN where an output is missing.
+    """_rls_run for y (B, T, m) with NaN where an output is missing; cubes: the output regressors followed
+    by the cubes of the first `cubes` lags (mop.filters.arx.arx_regressors), of the filled outputs alike.
 
     The regressors use the filled outputs y~_s = y_s where measured, else the model's own one-step
     prediction yhat_s. The pair (phi_{t-2}, y_{t-1}) updates output channel i only when y_{t-1, i} was
@@ -152,7 +154,8 @@ def _rls_run_gaps(
     ends = torch.cumsum(torch.cat([missing.new_zeros(B, 1), missing], 1), 1)  # ends[:, s + 1] = sum_{<= s}
     idx = torch.arange(T, device=y.device)
     in_phi = ends[:, idx + 1] - ends[:, (idx + 1 - order).clamp(min=0)]  # (B, T)
-    phi_measured = regressors(measured, order)
+    cubed = lambda lags: lags if not cubes else torch.cat([lags, lags[..., : cubes * m] ** 3], -1)  # noqa: E731
+    phi_measured = cubed(regressors(measured, order))
     phi_measured = phi_measured if extra is None else torch.cat([phi_measured, extra], dim=-1)
     # the pair (phi_{s-1}, y_s) updates channel i where y_{s, i} is measured and phi_{s-1} reads no gap
     clean_before = torch.cat([in_phi.new_zeros(B, 1), in_phi[:, :-1]], 1) == 0  # (B, T)
@@ -191,14 +194,14 @@ def _rls_run_gaps(
         if t <= start:
             pred = filled[:, t - 1]
         else:  # phi_{t-1}: rows t-1, t-2, ..., t-p of the filled outputs
-            window = padded[:, t - 1 : t + order - 1].flip(1).reshape(B, order * m)
+            window = cubed(padded[:, t - 1 : t + order - 1].flip(1).reshape(B, order * m))
             phi = window if extra is None else torch.cat([window, extra[:, t - 1]], dim=-1)
             pred = (fits[t - start - 1].mT @ phi[..., None])[..., 0]
         if low is not None:
             pred = torch.minimum(torch.maximum(pred, low[:, t - 1]), high[:, t - 1])
         preds[:, t] = torch.where(redo[:, t, None], pred, preds[:, t])
         filled[:, t] = torch.where(seen[:, t], y[:, t], preds[:, t])
-    phi = regressors(filled, order)
+    phi = cubed(regressors(filled, order))
     phi = phi if extra is None else torch.cat([phi, extra], dim=-1)
     return preds, phi, {t: fits[t - start - 1] for t in range(start + 1, T)}
 

@@ -18,6 +18,9 @@ model.rls_order = p > 0 (the RLS feature):
     the RLS predictor, so training starts from it rather than from zero.
     model.rls_offset = true adds a constant regressor (mop.filters.arx's offset, an intercept), for outputs
     with an offset such as the sysid benchmarks' per-sequence mean removal.
+    model.rls_cubes = c > 0 adds the cubes of the first c output lags y_t^3..y_{t-c+1}^3 to the regressors
+    (a cubic NARX fitted in context: the restoring force of a Duffing oscillator such as Silverbox); the
+    records recipe chooses c by held-out simulation (mop.identify.cubic). Complete outputs, no record_norm.
 
 model.record_norm = "causal" (mop.models.recordnorm): every output and input channel normalised by its
     causal running mean and std, the read-out mapped back: yhat_{t+1} = b_t + std_t(y) out_t, b_t the running
@@ -83,8 +86,13 @@ def input_count(cfg: ModelConfig) -> int:
 
 
 def regressor_count(cfg: ModelConfig) -> int:
-    """d = p m + q k (+ 1 with rls_offset): the RLS / ARX feature's regressors (mop.filters.arx's order)."""
-    return cfg.rls_order * cfg.output_dim + cfg.arx_order * input_count(cfg) + int(cfg.rls_offset)
+    """d = p m + c m + q k (+ 1 with rls_offset): the RLS / ARX feature's regressors (mop.filters.arx's
+    order; c = model.rls_cubes)."""
+    return (
+        (cfg.rls_order + cfg.rls_cubes) * cfg.output_dim
+        + cfg.arx_order * input_count(cfg)
+        + int(cfg.rls_offset)
+    )
 
 
 def check_features(cfg: ModelConfig) -> None:
@@ -203,6 +211,7 @@ def rls_next(
     prior: Prior | MixturePrior | None = None,
     updates_from: int | None = None,
     bounds_from: int = 0,
+    cubes: int = 0,
 ) -> Tensor:
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
     u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
@@ -218,7 +227,7 @@ def rls_next(
     if isinstance(prior, MixturePrior):  # complete outputs, no offset (check_features)
         return mixture_predict(pad(y), u_lags, order, input_order, prior)[:, 1:].to(y.dtype)
     q = max(input_order, 1)
-    r = arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from, bounded=bounds_from)
+    r = arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from, bounded=bounds_from, cubes=cubes)
     return r[:, 1:].to(y.dtype)  # (B, T, m)
 
 
@@ -238,7 +247,9 @@ def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Te
             residual = residual_scale(y, base, seen, std[..., :m], cfg.residual_scale, cfg.residual_decay)
         return _record_assemble(inputs, mean, std, base, seen, m, residual)
     prior = feature_prior(cfg)
-    base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset, prior) if cfg.rls_order > 0 else None
+    base = None
+    if cfg.rls_order > 0:
+        base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset, prior, cubes=cfg.rls_cubes)
     scale = running_scale(inputs[..., :m]) if cfg.input_scale == "running" else None
     return _assemble(inputs, scale, base, m), scale, base
 
@@ -526,6 +537,8 @@ class FeatureState:
         """(B, p m + q k [+ 1]): [y_s; ...; y_{s-p+1}; u_s; ...; u_{s-q+1} (; 1 with rls_offset)] for
         s = t - 1 (last = 0) or t (1)."""
         parts = [regressors(self.recent[:, last : p + last], p)[:, -1]]
+        if self.cfg.rls_cubes:
+            parts.append(parts[0][:, : self.cfg.rls_cubes * self.m] ** 3)
         if q > 0:
             parts.append(regressors(self.recent_u[:, last : q + last], q)[:, -1])
         if self.cfg.rls_offset:

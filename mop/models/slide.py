@@ -60,11 +60,11 @@ class _Features:
     """The RLS / ARX feature of the C open windows (slot s % C), in float64 numpy as mop.models.features."""
 
     def __init__(self, cfg: Any, B: int, like: Tensor) -> None:
-        self.p, self.q, self.offset = cfg.rls_order, cfg.arx_order, cfg.rls_offset
+        self.p, self.q, self.offset, self.cubes = cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes
         self.m, self.k = cfg.output_dim, input_count(cfg)
         self.r = self.p if self.q == 0 else max(self.p, self.q)  # rls_loop's start
         C = cfg.context
-        d = self.p * self.m + self.q * self.k + int(self.offset)
+        d = (self.p + self.cubes) * self.m + self.q * self.k + int(self.offset)
         theta0, P0 = initial_state(feature_prior(cfg), B, d, self.m, like.double())  # (B, d, m), (B, d, d)
         self.theta0, self.P0 = theta0.cpu().numpy(), P0.cpu().numpy()
         self.theta = np.repeat(self.theta0[None], C, axis=0)  # (C, B, d, m)
@@ -89,7 +89,9 @@ class _Features:
         a < r (the feature is y_tau)."""
         dtype, y = y.dtype, y.astype(np.float64)
         self.ys = np.concatenate([y, self.ys[:, : (self.p - 1) * self.m]], axis=-1)
-        phi = np.concatenate([self.ys, known], axis=-1)[:, None]  # (B, 1, d)
+        phi = np.concatenate([self.ys, self.ys[:, : self.cubes * self.m] ** 3, known], axis=-1)[
+            :, None
+        ]  # (B, 1, d)
         self.theta[slot], self.P[slot] = self.theta0, self.P0  # the new window starts afresh
         if self.phi is not None:  # rls_update with the pair (phi_{tau-1}, y_tau), in every fitting window
             old = self.phi

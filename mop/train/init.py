@@ -29,7 +29,7 @@ NORM_KEYS = ("record_prior_steps",)
 # the in-context identifier's orders and intercept: the network reads its one-step prediction (output_dim
 # numbers, mop.models.features.extra_input_dim) whatever its orders, so a fine-tune may identify the record
 # with other orders (those `mop fit arx` picks, say) as long as the feature stays of the source's kind
-ORDER_KEYS = ("rls_order", "arx_order", "rls_offset")
+ORDER_KEYS = ("rls_order", "arx_order", "rls_offset", "rls_cubes")
 
 
 def check_init(config: RunConfig) -> None:

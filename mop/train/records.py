@@ -247,7 +247,7 @@ class RecordedData:
         z = torch.from_numpy(np.stack(windows).astype(np.float32))
         return z, torch.tensor(cuts, dtype=torch.long)
 
-    def fit_prior(self, cfg: DataConfig, p: int, q: int, offset: bool) -> list[float]:
+    def fit_prior(self, cfg: DataConfig, p: int, q: int, offset: bool, cubes: int = 0) -> list[float]:
         """The ARX(p, q) coefficients (d, m) flattened, by least squares on the normalised training parts:
         the pairs (phi_{s-1}, y_s), s >= max(p, q), with phi as mop.filters.arx.arx_regressors (the rows the
         RLS / ARX feature of the model regresses on; a ridge of RIDGE for collinear inputs)."""
@@ -256,7 +256,7 @@ class RecordedData:
         for a in self._normalised(cfg, self.train_parts):
             z = torch.from_numpy(a)[None]  # (1, L, m + k)
             u = z[..., m:] if q > 0 else None
-            phi = arx_regressors(z[..., :m], u, p, max(q, 1), offset)[0]  # (L, d)
+            phi = arx_regressors(z[..., :m], u, p, max(q, 1), offset, cubes)[0]  # (L, d)
             rows.append(phi[r - 1 : -1])
             targets.append(z[0, r:, :m])
         phi, target = torch.cat(rows).numpy(), torch.cat(targets).numpy()

@@ -100,7 +100,9 @@ def _resolve_data(config: RunConfig) -> RunConfig:
     config = dataclasses.replace(config, data=dataclasses.replace(config.data, **stats))
     model = config.model
     if model.rls_prior == "fit":  # the feature starts as the ARX fitted on the training part
-        theta = data.fit_prior(config.data, model.rls_order, model.arx_order, model.rls_offset)
+        theta = data.fit_prior(
+            config.data, model.rls_order, model.arx_order, model.rls_offset, model.rls_cubes
+        )
         config = dataclasses.replace(config, model=dataclasses.replace(model, rls_prior=theta))
     d_in, m = data.output_dim + data.input_dim, data.output_dim
     return _with_dims(config, d_in, m, f"the data file {config.data.path}")
