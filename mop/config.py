@@ -153,7 +153,7 @@ class ModelConfig:
     # and observation_mask). The feature's own frame is the measured steps' either way
     record_moments: str = "measured"
     # record_norm's running moments start from this many pseudo-steps at mean 0 and std 1 in every channel
-    # (0: none). A fine-tune on a record sets it (mop.experiments.training.with_record_prior): its data are
+    # (0: none). A fine-tune on a record sets it (mop.recipe.finetune.with_record_prior): its data are
     # normalised by the estimation record's mean and std, so 0 and 1 are that record's moments, and a record
     # simulated from its start is read at the plant's scale from step 0, where without them its output std
     # is 0 and mutes the network

@@ -16,7 +16,7 @@ y_<c and the inputs alone (NaN for t < c), exactly the numbers `mop predict MODE
 (init=0: from the record's start, y_0 its initial condition, t >= 1).
 
 ARX and N4SID are mop.identify's fits (`mop fit arx|n4sid`); Learned trains through the path `mop train --data
-FILE [--init RUN]` takes (mop.experiments.training.training_config, then mop.train.train): the records are
+FILE [--init RUN]` takes (mop.recipe.training_config, then mop.train.train): the records are
 written to a CSV in the run's directory, which the run's config names.
 """
 
@@ -35,7 +35,6 @@ import numpy as np
 
 from mop.config import RunConfig, parse_overrides
 from mop.errors import MopError
-from mop.experiments.training import training_config
 from mop.identify.arx import ARX as ArxIdentifier
 from mop.identify.n4sid import N4SID as N4sidIdentifier
 from mop.identify.select import SIMULATION, fit, fit_orders
@@ -44,12 +43,13 @@ from mop.identify.store import load as load_fitted
 from mop.io import reading_once
 from mop.models import build_model
 from mop.predictors import Predictor
+from mop.recipe.layers import training_config
+from mop.recipe.selection import select_against_arx
 from mop.record import Record, as_pairs, read_records, write_records
 from mop.records import predict_all, simulate_all
 from mop.runs import load_predictor
 from mop.train import resolve_config, resolve_device, train
 from mop.train.estimate import step_seconds
-from mop.train.selection import select_against_arx
 
 Records = Record | Sequence[Record] | str | os.PathLike | tuple[Any, Any]
 
@@ -207,10 +207,10 @@ class Learned(Estimator):
     """The learned model trained on the records as `mop train --data FILE [--init RUN] key=value ...` trains.
 
     budget_minutes: the records recipe's budget (`mop train --budget`: steps planned from the minutes and the
-    record's length, the same on every machine, mop.train.budget); for a fine-tune (init), train.steps is
+    record's length, the same on every machine, mop.recipe.budget); for a fine-tune (init), train.steps is
     cut to the minutes over a measured step time (mop.train.estimate.step_seconds; machine-dependent).
     After a records-recipe fit, selection_ holds the held-out comparison with the fitted ARX
-    (mop.train.selection): where the ARX wins, predictor_ is that ARX, as mop.load(run_dir_) gives.
+    (mop.recipe.selection): where the ARX wins, predictor_ is that ARX, as mop.load(run_dir_) gives.
     init: fine-tune a run directory or pretrained:NAME (--init).
     overrides: dotted config keys, as keyword arguments with "__" for "." (train__steps=200) or as a dict
     (**{"train.steps": 200}). out_dir: where the run directory and the records' CSV go (default: a new

@@ -11,21 +11,21 @@ import pytest
 import mop
 from mop.cli import main
 from mop.errors import MopError
-from mop.experiments.training import training_config
 from mop.identify import load as load_fitted
 from mop.identify.select import fit
 from mop.io import read_trajectories
-from mop.records import simulate_all
-from mop.runs import load_config
-from mop.train.budget import MAX_EPOCHS, MIN_STEPS, NOMINAL_STEP_SECONDS, plan_steps
-from mop.train.records import recorded_data
-from mop.train.selection import (
+from mop.recipe.budget import MAX_EPOCHS, MIN_STEPS, NOMINAL_STEP_SECONDS, plan_steps
+from mop.recipe.layers import training_config
+from mop.recipe.selection import (
     SELECTION_FILE,
     held_out_stretches,
     select_against_arx,
     simulation_rmse,
     stretches_rmse,
 )
+from mop.records import simulate_all
+from mop.runs import load_config
+from mop.train.records import recorded_data
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

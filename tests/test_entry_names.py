@@ -42,7 +42,7 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
     ): "the benchmark's name (a registry of benchmarks, not the family)",
     ("mop.benchmarks.protocol", "cascaded-tanks"): "the benchmark whose published baselines these are",
     ("mop.benchmarks.protocol", "wiener-hammerstein"): "the benchmark whose published baselines these are",
-    ("mop.train.selection", "arx"): "the identifier kind mop.identify.fit takes, as `mop fit arx` names it",
+    ("mop.recipe.selection", "arx"): "the identifier kind mop.identify.fit takes, as `mop fit arx` names it",
     ("mop.commands.benchmark", "arx"): "the fitted identifier `mop benchmark --predictors arx` runs",
     ("mop.bench.freerun", "arx"): "the `mop fit arx` command line it times",
     ("mop.bench.freerun", "mop"): "the program it runs as a subprocess",

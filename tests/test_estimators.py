@@ -13,9 +13,9 @@ import mop
 from mop.cli import main
 from mop.errors import MopError
 from mop.estimators import ARX, N4SID, Learned, as_records, within_budget
-from mop.experiments.training import training_config
 from mop.identify import fit
 from mop.predictors import simulate
+from mop.recipe.layers import training_config
 from mop.record import Record, read_records, write_records
 from mop.runs import load_config
 from mop.systems.base import Trajectories

@@ -5,7 +5,7 @@ import numpy as np
 
 from mop import cli
 from mop.config import DataConfig, RunConfig, apply_overrides
-from mop.experiments.training import order_line
+from mop.recipe.records import order_line
 
 
 def _one_line_error(capsys) -> str:

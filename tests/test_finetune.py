@@ -12,7 +12,8 @@ import mop
 from mop.cli import main
 from mop.config import ModelConfig, RunConfig, SystemConfig, TrainConfig, from_dict
 from mop.errors import MopError
-from mop.experiments.training import FINE_TUNE_LR_FACTOR, FINE_TUNE_STEPS, training_config
+from mop.recipe.finetune import FINE_TUNE_LR_FACTOR, FINE_TUNE_STEPS
+from mop.recipe.layers import training_config
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
 from mop.train import train
@@ -183,7 +184,7 @@ def test_a_class_model_fine_tuned_on_a_record_starts_its_moments_at_the_records(
     recorded data, so the run normalises by REC's own moments) starts record_norm's moments from
     RECORD_PRIOR_STEPS pseudo-steps at them, beside the feature's least-squares start; an override wins, and
     the key is no architecture key (the source has 0)."""
-    from mop.experiments.training import RECORD_PRIOR_STEPS
+    from mop.recipe.finetune import RECORD_PRIOR_STEPS
 
     path = record(tmp_path / "r.npz", 0)
     config = training_config(None, data=path, init="pretrained:cascaded-tanks")

@@ -35,6 +35,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.evaluate",),
     ("mop.train",),
     ("mop.experiments",),  # mop.experiments.pretrained_build builds and cards the shipped models
+    ("mop.recipe",),  # mop train's config from a user's record: the records and fine-tune recipes
     ("mop.estimators",),  # ARX, N4SID and the learned model with one face (mop train --data path)
     ("mop.bench",),
     ("mop.commands", "mop.cli", "mop.__main__", "mop"),

@@ -13,10 +13,11 @@ import torch
 from mop.cli import main
 from mop.config import DataConfig, RunConfig, to_dict
 from mop.experiments.presets import PRESETS
-from mop.experiments.training import RECORDED_MODEL, training_config
+from mop.recipe.budget import MIN_STEPS
+from mop.recipe.layers import training_config
+from mop.recipe.records import RECORDED_MODEL
 from mop.record import Record
 from mop.train.auto import MIXTURE_SIZE, STEP_COST, steps_for
-from mop.train.budget import MIN_STEPS
 from mop.train.estimate import duration
 from mop.train.records import RecordedData, choose_split
 

@@ -12,10 +12,10 @@ import torch
 from mop.checkpoint import load_model_weights
 from mop.cli import main
 from mop.config import RunConfig, from_dict
-from mop.experiments.training import training_config
 from mop.io import read_trajectories
 from mop.models import build_model
 from mop.models.predictor import LearnedPredictor, Normalization
+from mop.recipe.layers import training_config
 from mop.records import scores, simulate_all
 from mop.train.shrink import GAINS, SHRINK_FILE
 

@@ -12,7 +12,8 @@ import pytest
 import mop.train as mt
 from mop.cli import main
 from mop.config import DataConfig, ModelConfig, RunConfig, SystemConfig, TrainConfig
-from mop.experiments.training import FINE_TUNE_SIMULATE_AFTER, training_config
+from mop.recipe.finetune import FINE_TUNE_SIMULATE_AFTER
+from mop.recipe.layers import training_config
 from mop.train.data import validates_tails
 
 pytestmark = pytest.mark.usefixtures("one_thread")

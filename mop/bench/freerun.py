@@ -98,7 +98,7 @@ def measure(args: argparse.Namespace, work: Path) -> dict[str, object]:
                 "train", "--data", str(est), "--out", run, "--no-progress", f"train.steps={args.train_steps}"
             )
             # the bench times the network: where the run's held-out check kept the ARX
-            # (mop.train.selection), `mop predict RUN` would load that ARX instead
+            # (mop.recipe.selection), `mop predict RUN` would load that ARX instead
             (Path(run) / FITTED_FILE).unlink(missing_ok=True)
         if arx is None:
             arx = str(work / "arx")

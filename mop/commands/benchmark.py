@@ -27,9 +27,9 @@ from mop.estimators import Learned
 from mop.identify import fit
 from mop.identify.select import POLE_RADIUS
 from mop.incontext import simulate_with_context
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.record import as_pairs, read_records
 from mop.runs import load_predictor
-from mop.train.budget import DEFAULT_BUDGET_MINUTES, check_budget
 
 PREDICTORS = ("arx", "n4sid", "mop")  # and pretrained:NAME, a shipped model in context (mop.incontext)
 

@@ -1,5 +1,5 @@
 """`mop train [EXPERIMENT | FILE.toml | CONFIG.json] [--preset P] [--data FILE [--val FILE]] [--out DIR]
-[key=value ...]`: train. The layers of the config are mop.experiments.training's (later wins): a preset (the
+[key=value ...]`: train. The layers of the config are mop.recipe.layers' (later wins): a preset (the
 CPU preset "small" where no GPU is present), an experiment under it or a RunConfig file < --data / --val < on
 recorded data with inputs the ARX feature < dotted key=value overrides (e.g. train.steps=200).
 """
@@ -10,14 +10,15 @@ import argparse
 
 from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
-from mop.experiments.training import budget_plan, feature_line, order_line, training_config
 from mop.io import reading_once
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
+from mop.recipe.layers import training_config
+from mop.recipe.records import budget_plan, feature_line, order_line
+from mop.recipe.selection import select_against_arx, selection_line
 from mop.runs import read_run_json
 from mop.train import train
-from mop.train.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.train.data import validates_tails
 from mop.train.records import recorded_data
-from mop.train.selection import select_against_arx, selection_line
 from mop.train.shrink import SHRINK_FILE, shrink_line
 
 EPILOG = """examples:
@@ -75,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="MINUTES",
         help="with --data and the records recipe: the training time to plan for (default 5); the steps grow "
-        "with the record's length, up to what the budget buys at 20 ms a step (mop.train.budget), the same "
+        "with the record's length, up to what the budget buys at 20 ms a step (mop.recipe.budget), the same "
         "steps on every machine; a train.steps=N override wins",
     )
     parser.add_argument(

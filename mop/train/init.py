@@ -4,7 +4,7 @@ train.init names the source: a run directory or `pretrained:NAME`. The trainer r
 differs from the run's in any architecture key (one line, naming the first), then loads the source's weights
 before step 0 (a resumed run continues from its own checkpoint instead). The run's config.json keeps
 train.init, so the run says where it started. The config layering (the source's model, its normalisation
-and the short schedule) is mop.experiments.training's.
+and the short schedule) is mop.recipe.layers'.
 """
 
 from __future__ import annotations

@@ -47,7 +47,7 @@ TRAINING_FILES = (
     "done.json",
     "inputs.json",
     SHRINK_FILE,
-    "selection.json",  # mop.train.selection's choice after training, and the ARX it may keep
+    "selection.json",  # mop.recipe.selection's choice after training, and the ARX it may keep
     "fitted.json",
 )
 

@@ -11,7 +11,7 @@ gain of GAINS simulates every record of data.path from its start (y_0 its initia
 simulated from the inputs, as `mop predict RUN rec.csv --simulate 0`), and the gain of the lowest RMSE over
 them is written into the run's model.safetensors; shrink.json holds every gain's RMSE.
 
-Why: a fine-tune trains on windows of about a tenth of one record (mop.experiments.training._record_horizon),
+Why: a fine-tune trains on windows of about a tenth of one record (mop.recipe.finetune.record_horizon),
 with simulated tails no longer than they are, and validates on the record's last tenth. On nearly linear
 plants its correction then drifts over a record-long free run where the fitted ARX does not, and nothing in
 training sees it (tank_records plant 2: the fine-tune simulates est.csv at 0.60 against its feature's

@@ -1,0 +1,15 @@
+"""From a user's record to the RunConfig `mop train` trains.
+
+- layers: the config's layers (a preset or experiment, the data, the recipes, the overrides);
+- records: the records recipe before training (orders, the cubic NARX choice, model and budget);
+- selection: the records recipe after training (the network's gain or the fitted ARX, on held-out data);
+- finetune: the fine-tune recipe of `--init SOURCE`;
+- budget: the steps a training budget in minutes buys on a record.
+
+It sits above mop.train (which trains a resolved config) and mop.experiments (whose experiments `mop train
+EXPERIMENT` reads), below mop.commands and mop.estimators.
+"""
+
+from mop.recipe.layers import training_config
+
+__all__ = ["training_config"]

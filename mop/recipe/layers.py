@@ -1,0 +1,157 @@
+"""The RunConfig that `mop train` trains, from what the user gave.
+
+Layers, later wins:
+1. the base: a preset on its own (`--preset P`, else default_preset(): "small" on a CPU, "paper" with a GPU),
+   an experiment's training under the preset (an experiment name or a .toml / .json experiment file, as
+   `mop reproduce` reads them), or a RunConfig .json file (its sizes are its own: no --preset);
+2. `--data FILE` (data.path) and `--val FILE` (data.validation_path): recorded trajectories;
+3. on recorded data with inputs and complete outputs, where no source, no --preset and no override chose
+   the feature, the
+   records recipe (recorded_recipe): a 1 x 32 model for the steps its budget buys on the record
+   (mop.recipe.budget: --budget MINUTES, default 5) whose ARX(p, q) feature with an
+   intercept starts from the least-squares ARX of the training part (model.rls_prior = "fit"), the orders
+   those `mop fit arx` chooses on that part (held-out free-run simulation); the last weights are kept (not
+   train.keep_best: its one-step validation loss on one record's last 10% picked step 500 of seed 1 on
+   tank_records --plant 5, which simulates at 1.009 against 0.49 at step 1000);
+4. the dotted key=value overrides.
+With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.train.init) the base is the
+source's own RunConfig (its model, so the architecture is the source's; its data normalisation kept, where
+it was trained on recorded data), layer 3 is skipped, and FINE_TUNE sets a short schedule before the
+overrides: FINE_TUNE_STEPS steps at a tenth of the source's learning rate, constant, no warm-up (the weights
+are trained already: a warm-up from zero and the source's full rate would first move them away from what
+they learned; 125 steps of batch 16 on a 2-core CPU take seconds to a minute), keeping the weights of the
+lowest validation loss, the source's at step 0 included (train.keep_best: never worse than the source there).
+After the overrides, a feature whose orders they changed is refitted on the record (with_refitted_orders), a
+class model's in-context ARX feature starts from the record's least-squares ARX (with_record_prior), and its
+windows fit the record's split (_record_horizon).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+from mop.config import (
+    DataConfig,
+    RunConfig,
+    apply_overrides,
+    from_dict,
+    parse_overrides,
+)
+from mop.errors import MopError
+from mop.experiments import get_experiment, run_config
+from mop.experiments.files import is_experiment_file, load_experiment
+from mop.experiments.presets import default_preset, preset_config
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
+from mop.recipe.finetune import (
+    record_horizon,
+    with_fine_tuning,
+    with_record_prior,
+    with_refitted_orders,
+)
+from mop.recipe.records import with_recorded_features
+from mop.runs import load_config
+from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
+from mop.train.auto import resolve_features
+
+
+def base_config(source: str | None, preset: str | None) -> RunConfig:
+    """Layer 1: a preset, an experiment's training under a preset, or a RunConfig JSON file."""
+    if source is None:
+        return preset_config(preset or default_preset())
+    path = Path(source)
+    if not (is_experiment_file(source) or path.exists()):
+        return _named_experiment(source, preset)
+    if not path.is_file():
+        raise MopError(f"config file {path} does not exist")
+    if path.suffix == ".toml":
+        return run_config(load_experiment(path), preset or default_preset())
+    data = _read_json(path)
+    if isinstance(data, dict) and "conditions" in data:  # an experiment file in JSON
+        return run_config(load_experiment(path), preset or default_preset())
+    if preset:
+        raise MopError(f"{path} is a RunConfig: it fixes the model and training; drop --preset {preset}")
+    return from_dict(RunConfig, data)
+
+
+def _read_json(path: Path) -> object:
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise MopError(f"{path} is not valid JSON ({err.msg} at line {err.lineno})") from None
+    except UnicodeDecodeError:
+        raise MopError(f"{path} is not valid JSON (not text)") from None
+
+
+def _named_experiment(name: str, preset: str | None) -> RunConfig:
+    try:
+        exp = get_experiment(name)
+    except (ImportError, AttributeError):
+        raise MopError(
+            f"{name!r} is neither a config file (.json, .toml) nor a known experiment (mop reproduce --help)"
+        ) from None
+    return run_config(exp, preset or default_preset())
+
+
+def with_records(config: RunConfig, data: str | None, val: str | None) -> RunConfig:
+    """Layer 2: --data and --val; the normalisation is left to the trainer (a saved config's is refitted)."""
+    if data is None:
+        if val is not None:
+            raise MopError("--val FILE is the validation record of --data FILE: give --data too")
+        return config
+    unfitted = dict.fromkeys(("y_mean", "y_std", "u_mean", "u_std"))
+    base = config.data or DataConfig(path=data)
+    return dataclasses.replace(
+        config,
+        data=dataclasses.replace(base, path=data, validation_path=val or base.validation_path, **unfitted),
+    )
+
+
+def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
+    """config with model.features="given" where an override names a feature key (model.rls_order, ...)
+    and none names model.features: the named keys, not the preset's auto, set the features."""
+    named = parse_overrides(overrides)
+    if "model.features" in named or not any(k.startswith("model.") and k[6:] in AUTO_KEYS for k in named):
+        return config
+    return dataclasses.replace(config, model=dataclasses.replace(config.model, features="given"))
+
+
+def training_config(
+    source: str | None,
+    preset: str | None = None,
+    data: str | None = None,
+    val: str | None = None,
+    overrides: list[str] = (),
+    init: str | None = None,
+    budget: float | None = None,
+) -> RunConfig:
+    """The RunConfig of `mop train [SOURCE] [--preset P] [--data FILE [--val FILE]] [--init RUN]
+    [--budget MINUTES] [key=value ...]`; the budget (DEFAULT_BUDGET_MINUTES where None) plans the records
+    recipe's steps."""
+    if budget is not None:
+        check_budget(budget)
+    if budget is not None and data is None:
+        raise MopError("--budget MINUTES plans training on a record: give --data FILE too (or train.steps=N)")
+    if budget is not None and init is not None:
+        raise MopError(
+            "--budget plans the records recipe; a fine-tune (--init) has its own schedule: drop it"
+        )
+    if init is None:
+        config = with_records(base_config(source, preset), data, val)
+        chosen = source is not None or preset is not None
+        minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
+        config = with_recorded_features(config, list(overrides), chosen, minutes)
+        config = apply_overrides(given_features(config, list(overrides)), list(overrides))
+        return resolve_features(config, scale_steps="train.steps" not in parse_overrides(list(overrides)))
+    if source is not None or preset is not None:
+        given = source if source is not None else f"--preset {preset}"
+        raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
+    base = load_config(init)
+    config = with_fine_tuning(with_records(base, data, val), base, init)
+    config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
+    config = with_record_prior(config, list(overrides), base)
+    if config.data is not None and "train.horizon" not in parse_overrides(list(overrides)):
+        # the windows fit the split the overrides ask for (data.validation_fraction, data.split)
+        config = dataclasses.replace(config, train=record_horizon(config.train, config.data))
+    return config

@@ -1,0 +1,177 @@
+"""The records recipe: what `mop train --data FILE` trains on one user's record when nothing else is named.
+
+Before training (recorded_recipe, layer 3 of mop.recipe.layers): the ARX orders `mop fit arx` chooses on the
+record's training part (fitted_orders), cubed output lags where a cubic NARX simulates the held-out end of
+that part better (fitted_cubes, mop.identify.cubic), the feature started from their least-squares fit, the
+model RECORDED_MODEL and the steps its budget buys on the record (budget_plan, mop.recipe.budget). After
+training: the held-out choice between the network's correction at each gain and the fitted ARX
+(mop.recipe.selection). feature_line and order_line say what was chosen and why.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mop.config import (
+    DataConfig,
+    RunConfig,
+    apply_settings,
+    parse_overrides,
+)
+from mop.errors import MopError
+from mop.identify.arx import ARX
+from mop.identify.cubic import choose_cubes
+from mop.identify.select import feasible_order, fit
+from mop.io import Data as RecordData
+from mop.io import read_trajectories
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_steps
+from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
+from mop.train.records import recorded_data, window_count
+
+# The records recipe (docs/results/families.md: measured on examples/tank_records.py, one record of 1024
+# samples): a small network reading the fitted ARX's prediction and predicting its residual, so it starts as
+# that ARX; the 2 x 64 small-preset model trained 2500 steps overfits one record (one-step RMSE 2.5x ARX's)
+RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2}
+
+
+# the identifier's keys (mop.train.auto's feature keys but the running scale): naming one turns the recipe off
+FEATURE_KEYS = tuple(f"model.{key}" for key in AUTO_KEYS if key != "input_scale")
+
+
+def arx_orders(data: RecordData, source: str) -> tuple[int, int] | None:
+    """(p, q): the ARX orders `mop fit arx` chooses on `data` (mop.identify.select.fit: free-run
+    simulation of its last 20%); on data too short for orders up to 10, those of `--max-order P` with the
+    largest P it allows; None where it allows none."""
+    largest = feasible_order(ARX.kind, data, source=source)
+    if largest == 0:
+        return None
+    orders = fit(ARX.kind, data, max_order=largest, source=source).orders
+    return orders["p"], orders["q"]
+
+
+def fitted_orders(data: DataConfig) -> tuple[int, int]:
+    """(p, q): arx_orders on the record's training part (the records recipe's feature)."""
+    record = recorded_data(data)
+    m = record.output_dim
+    orders = arx_orders([(a[:, :m], a[:, m:]) for a in record.train_parts], data.path)
+    if orders is None:
+        raise MopError(
+            f"{data.path}: its training part is too short to fit the records recipe's ARX feature; give a "
+            "longer record, or name the model's feature (model.rls_order=0 for none)"
+        )
+    return orders
+
+
+def fitted_cubes(data: DataConfig, p: int, q: int) -> tuple[int, int]:
+    """(p, c): the output lags and cubed lags of the records recipe's feature, by held-out free-run
+    simulation of cubic NARX candidates on the record's training part (mop.identify.cubic.choose_cubes,
+    normalised as the network reads it); (p, 0) keeps the ARX(p, q) `mop fit arx` chose."""
+    record = recorded_data(data)
+    if record.num_missing:
+        return p, 0
+    stats = record.fit()
+    mean = np.array([*stats["y_mean"], *stats["u_mean"]])
+    std = np.array([*stats["y_std"], *stats["u_std"]])
+    m = record.output_dim
+    parts = [((a - mean) / std) for a in record.train_parts]
+    p, c, _ = choose_cubes([(a[:, :m], a[:, m:]) for a in parts], p, q)
+    return p, c
+
+
+def record_orders(path: str) -> tuple[int, int] | None:
+    """(p, q): arx_orders on the whole estimation record at `path`, its validation part included: the
+    orders of `mop fit arx PATH`."""
+    return arx_orders(read_trajectories(path)[1], path)
+
+
+def budget_plan(config: RunConfig, minutes: float = DEFAULT_BUDGET_MINUTES) -> BudgetPlan:
+    """The steps `minutes` buy on config.data's training windows (mop.recipe.budget.plan_steps)."""
+    record = recorded_data(config.data)
+    windows = window_count(record.train_parts, config.train.horizon)
+    return plan_steps(minutes, windows, config.train.batch_size)
+
+
+def recorded_recipe(
+    config: RunConfig, budget: float = DEFAULT_BUDGET_MINUTES, cubes: bool = True
+) -> dict[str, object]:
+    """The records recipe's settings for config.data: the ARX orders `mop fit arx` chooses on the training
+    part (fitted_orders), cubed output lags where a cubic NARX simulates the held-out end of the training
+    part better (fitted_cubes), the feature started from their least-squares fit, RECORDED_MODEL, and the
+    steps the budget (minutes) buys on the record (budget_plan: longer records train longer)."""
+    p, q = fitted_orders(config.data)
+    p, c = fitted_cubes(config.data, p, q) if cubes else (p, 0)
+    return {
+        **RECORDED_MODEL,
+        "train.steps": budget_plan(config, budget).steps,
+        "model.rls_order": p,
+        "model.arx_order": q,
+        "model.rls_cubes": c,
+        "model.rls_offset": True,
+        "model.rls_prior": "fit",
+    }
+
+
+def with_recorded_features(
+    config: RunConfig, overrides: list[str], chosen: bool = False, budget: float = DEFAULT_BUDGET_MINUTES
+) -> RunConfig:
+    """Layer 3: the records recipe on recorded data with inputs and complete outputs, unless the source or
+    --preset (`chosen`), the base's feature or an override chose the feature (overrides of sizes and steps
+    apply on top of it, as layer 4)."""
+    named = parse_overrides(overrides)
+    if config.data is None or chosen or config.model.rls_order > 0:
+        return config
+    if any(k in named for k in FEATURE_KEYS):
+        return config
+    data = recorded_data(config.data)
+    if data.input_dim == 0 or data.num_missing:
+        return config
+    return apply_settings(config, recorded_recipe(config, budget, cubes="model.rls_cubes" not in named))
+
+
+def feature_line(config: RunConfig) -> str | None:
+    """One line naming the input feature a records run reads, or None without one."""
+    m = config.model
+    if m.rls_order == 0:
+        return None
+    kind = f"ARX({m.rls_order}, {m.arx_order})" if m.arx_order else f"RLS-AR({m.rls_order})"
+    if m.rls_cubes:
+        kind = f"cubic NARX ({kind} with the cubes of its first {m.rls_cubes} output lags)"
+    start = " started from its least-squares fit on the training part" if m.rls_prior != "none" else ""
+    offset = " with an intercept" if m.rls_offset else ""
+    return (
+        f"feature: the network reads the {kind}{offset} one-step prediction{start}, and predicts its residual"
+    )
+
+
+def order_line(
+    config: RunConfig, overrides: list[str], init: str | None = None, chosen: bool = False
+) -> str | None:
+    """One line saying which rule chose the ARX feature's orders of a run on recorded data (None without an
+    ARX feature): `mop fit arx` scores the orders on the whole record, the records recipe on its training
+    part only (its held-out part must stay unseen), a fine-tune on the whole record; so the three can
+    differ on the same record. chosen: the source or --preset chose the config (no records recipe)."""
+    m = config.model
+    if config.data is None or m.rls_order == 0 or m.arx_order == 0:
+        return None
+    orders = f"ARX({m.rls_order}, {m.arx_order})"
+    if any(k in parse_overrides(list(overrides)) for k in ("model.rls_order", "model.arx_order")):
+        return f"orders: {orders}, as the key=value overrides name them"
+    rule = "the orders `mop fit arx` chooses (free-run simulation of the last 20% of each trajectory)"
+    if init is not None:
+        if m.rls_prior == "fit":
+            return f"orders: {orders}, {rule} on the whole record, as `mop fit arx {config.data.path}` does"
+        return f"orders: {orders}, the source model's (--init {init})"
+    if not chosen and m.rls_prior == "fit":
+        line = (
+            f"orders: {orders}, {rule} on the training part only (the held-out part stays unseen), so they "
+            f"can differ from `mop fit arx` on the whole record"
+        )
+        if m.rls_cubes:
+            line += (
+                f"; then {m.rls_order} output lags, {m.rls_cubes} of them cubed: the cubic NARX that "
+                "simulates the last 20% of the training part best "
+                "and stays bounded when driven twice as hard "
+                "(mop.identify.cubic)"
+            )
+        return line
+    return f"orders: {orders}, as the config sets them"
