@@ -175,3 +175,29 @@ def test_a_diverging_model_is_reported_as_diverged(tmp_path):
     (test,) = read_records(val)
     score = run_test(unstable, dataclasses.replace(test, init_window=20))
     assert math.isinf(score.rmse) and score.diverged_at >= 20
+
+
+def test_mop_on_a_cubic_plant_reads_a_cubic_feature_and_beats_the_fitted_arx(tmp_path, monkeypatch):
+    """`mop benchmark --predictors arx,mop` on a Duffing-like record (a cubic restoring force): the records
+    recipe chooses cubed output lags, the report says what MOP is (its feature and held-out choice), and
+    its free run simulates the unseen test at under half the fitted ARX's RMSE (observed about a tenth)."""
+    import mop.recipe.budget as budget
+
+    monkeypatch.setattr(budget, "MIN_STEPS", 20)  # a short training: the feature carries the result
+    rng = np.random.default_rng(0)
+    steps = 1600
+    u = rng.normal(size=steps)
+    y = np.zeros(steps)
+    for t in range(1, steps - 1):
+        y[t + 1] = 1.6 * y[t] - 0.8 * y[t - 1] - 0.1 * y[t] ** 3 + 0.1 * u[t]
+    y = y + 0.002 * rng.normal(size=steps)
+    for name, part in (("est", slice(0, 1200)), ("val", slice(1200, steps))):
+        rows = "\n".join(f"{a:.10g},{b:.10g}" for a, b in zip(y[part], u[part], strict=True))
+        (tmp_path / f"{name}.csv").write_text("y0,u0\n" + rows + "\n")
+    out = tmp_path / "out"
+    argv = ["benchmark", "--est", str(tmp_path / "est.csv"), "--test", str(tmp_path / "val.csv")]
+    assert main([*argv, "--predictors", "arx,mop", "--out", str(out), "--quiet", "--budget", "0.1"]) == 0
+    scores = json.loads((out / "results.json").read_text())["est"]["val"]
+    assert scores["mop"]["rmse"] < 0.5 * scores["arx"]["rmse"]
+    report = (out / "report.md").read_text()
+    assert "mop: feature: the network reads the cubic NARX" in report and "held-out simulation" in report

@@ -28,8 +28,10 @@ from mop.identify import fit
 from mop.identify.select import POLE_RADIUS
 from mop.incontext import simulate_with_context
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
+from mop.recipe.records import feature_line
+from mop.recipe.selection import selection_line
 from mop.record import as_pairs, read_records
-from mop.runs import load_predictor
+from mop.runs import load_config, load_predictor
 
 PREDICTORS = ("arx", "n4sid", "mop")  # and pretrained:NAME, a shipped model in context (mop.incontext)
 
@@ -144,6 +146,7 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
     folder = out / split.name
     folder.mkdir(parents=True, exist_ok=True)
     warnings: list[str] = []
+    notes: list[str] = []  # what each predictor turned out to be (MOP's feature and held-out choice)
     models, seconds = {}, {}
     for name in predictors:
         bar.set_postfix_str(f"{split.name}: fitting {name}")
@@ -157,6 +160,9 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
                 warnings.append(
                     f"{split.name}: MOP did not beat its fitted ARX on held-out data and is that ARX"
                 )
+            notes.append(f"mop: {feature_line(load_config(learned.run_dir_)) or 'no input feature'}")
+            if getattr(learned, "selection_", None):
+                notes.append(f"mop: {selection_line(learned.selection_)}")
         else:
             models[name] = _fitted(name, split, warnings)
         seconds[name] = time.perf_counter() - start
@@ -178,7 +184,7 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
         results[test.name] = {
             k: {"rmse": s.rmse, "units": split.units, "diverged_at": s.diverged_at} for k, s in scores.items()
         }
-    return {"results": results, "seconds": seconds, "warnings": warnings}
+    return {"results": results, "seconds": seconds, "warnings": warnings, "notes": notes}
 
 
 def _fmt(x: float, scale: float) -> str:
@@ -218,6 +224,8 @@ def _report(runs: dict, args, budget: float) -> str:
         lines.append(
             "Fitting / training time: " + ", ".join(f"{k} {v:.0f} s" for k, v in run["seconds"].items())
         )
+        for note in run.get("notes", []):
+            lines.append(f"- {note}")
         for w in run["warnings"]:
             lines.append(f"- warning: {w}")
         lines.append("")
