@@ -79,7 +79,7 @@ def _gains_apply(predictor) -> bool:
 def select_against_arx(run_dir: str | Path, config: RunConfig) -> dict:
     """Choose what the finished run in `run_dir` predicts with, by free-run simulation of its held-out data
     (held_out_stretches): the network with its correction at each gain of mop.train.shrink.GAINS (1: as
-    trained; 0: its in-context ARX feature alone), or `mop fit arx`'s ARX fitted on the training part. On
+    trained; 0: its in-context feature alone), or `mop fit arx`'s ARX fitted on the training part. On
     a tie the network at the larger gain is kept. Writes SELECTION_FILE; a gain below 1 is written into
     the run's model.safetensors, and where the ARX wins the run also holds it refitted on the whole record
     (fitted.json, as `mop fit arx` writes it). A run that already holds SELECTION_FILE keeps its choice."""
@@ -142,7 +142,7 @@ def selection_line(result: dict) -> str:
         if gain == 1.0:
             return f"{both}: the run keeps the network"
         rmse = result["network_rmse_by_gain"][result["gains"].index(gain)]
-        alone = " (0: its in-context ARX feature alone)" if gain == 0 else ""
+        alone = " (0: its in-context feature alone)" if gain == 0 else ""
         return (
             f"{both}: the run keeps the network with its correction at gain {gain:g}{alone}, which simulates "
             f"it best: RMSE {rmse:.4g}"
