@@ -1,5 +1,7 @@
 """The cubic NARX feature (model.rls_cubes) and the records recipe's choice of it (mop.identify.cubic)."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -70,3 +72,18 @@ def test_the_choice_is_cubic_on_a_cubic_plant_and_linear_on_a_linear_one(seed):
     y, u = duffing(1500, seed, noise=0.01, cubic=0.0)
     p, c, scores = choose_cubes([(y, u)], 2, 1)
     assert (p, c) == (2, 0)
+
+
+def test_a_cubic_candidate_that_blows_up_when_driven_harder_is_not_kept(monkeypatch):
+    """The stress check: the cubic plant's own model escapes when its input is 30 times larger (a discrete
+    cubic map's free run is bounded only on its amplitudes), so with STRESS = 30 no cubic candidate is
+    kept."""
+    import mop.identify.cubic as cubic
+
+    y, u = duffing(1500, 0, noise=0.01)
+    assert choose_cubes([(y, u)], 2, 1)[1] >= 1
+    theta = fit_narx([(y, u)], 2, 1, 1)
+    assert np.isnan(simulate_narx(theta, y, 30 * u, 2, 1, 1, 10)).any()
+    monkeypatch.setattr(cubic, "STRESS", 30.0)
+    p, c, scores = choose_cubes([(y, u)], 2, 1)
+    assert (p, c) == (2, 0) and all(math.isinf(v) for k, v in scores.items() if not k.endswith(",0"))
