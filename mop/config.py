@@ -165,7 +165,7 @@ class ModelConfig:
     arx_order: int = 0  # q > 0 (with rls_order p): that feature is ARX(p, q), with q lags of the inputs u
     rls_offset: bool = False  # the RLS / ARX feature has a constant regressor (an intercept; features)
     # c > 0: the feature also regresses on the cubes of its first c output lags, y_t^3..y_{t-c+1}^3 (a
-    # cubic NARX, e.g. a Duffing oscillator's stiffness); complete outputs, no record_norm (features)
+    # cubic NARX, e.g. a Duffing oscillator's stiffness; with record_norm in the feature's frame: features)
     rls_cubes: int = 0
     # the feature's theta_0: "none" (0), "fit" (the ARX fitted on recorded data, by the trainer), "family"
     # (the family's empirical-Bayes prior, mop.train.auto), "mixture" (its mixture of Gaussians,
@@ -250,9 +250,9 @@ class ModelConfig:
             "model.arx_order adds input lags to the RLS feature: set model.rls_order > 0 too",
         )
         check(
-            self.rls_cubes <= self.rls_order and (self.rls_cubes == 0 or self.record_norm == "none"),
-            "model.rls_cubes adds the cubes of the RLS feature's first output lags: keep it <= "
-            "model.rls_order, with model.record_norm='none'",
+            self.rls_cubes <= self.rls_order,
+            "model.rls_cubes adds the cubes of the RLS feature's first output lags: "
+            "keep it <= model.rls_order",
         )
         check(
             not self.rls_offset or self.rls_order > 0,

@@ -78,6 +78,7 @@ def test_predictions_are_equivariant_to_the_records_units(a, b, c, d):
         {"rls_order": 3, "arx_order": 2, "rls_offset": True},
         {"rls_order": 3, "arx_order": 2, "rls_p0": 1e4},
         {"rls_order": 3, "arx_order": 2, "rls_p0": 1e4, "residual_scale": "running"},
+        {"rls_order": 3, "arx_order": 2, "rls_offset": True, "rls_cubes": 2},  # cubes in the feature's frame
     ],
 )
 def test_equivariant_through_the_predictor_beyond_the_context_window_and_stream(options):
@@ -113,6 +114,8 @@ MASKED = {"rls_order": 2, "arx_order": 2, "rls_offset": True, "observation_mask"
         {**MASKED, "rls_p0": 1e4, "record_moments": "filled", "residual_scale": "measured"},
         {**MASKED, "rls_p0": 1e4, "residual_scale": "measured", "record_prior_steps": 5},
         {"rls_order": 2, "arx_order": 2, "rls_offset": True, "record_prior_steps": 5},
+        {"rls_order": 2, "arx_order": 2, "rls_offset": True, "rls_cubes": 2},  # the cubic NARX feature
+        {**MASKED, "rls_p0": 1e4, "rls_cubes": 1, "residual_scale": "measured"},
     ],
 )
 def test_stream_equals_forward_and_is_causal(options):

@@ -20,7 +20,8 @@ model.rls_order = p > 0 (the RLS feature):
     with an offset such as the sysid benchmarks' per-sequence mean removal.
     model.rls_cubes = c > 0 adds the cubes of the first c output lags y_t^3..y_{t-c+1}^3 to the regressors
     (a cubic NARX fitted in context: the restoring force of a Duffing oscillator such as Silverbox); the
-    records recipe chooses c by held-out simulation (mop.identify.cubic). Complete outputs, no record_norm.
+    records recipe chooses c by held-out simulation (mop.identify.cubic). With record_norm the cubes are of
+    the outputs in the feature's fixed frame (feature_frame), so the feature stays equivariant to units.
 
 model.record_norm = "causal" (mop.models.recordnorm): every output and input channel normalised by its
     causal running mean and std, the read-out mapped back: yhat_{t+1} = b_t + std_t(y) out_t, b_t the running
@@ -295,7 +296,9 @@ def _framed_feature(y: Tensor, u: Tensor | None, mean: Tensor, std: Tensor, cfg:
     if starts_fitted(cfg):
         rs = fitted_start(ys, us, cfg)
     else:
-        rs = rls_next(ys, cfg.rls_order, us, cfg.arx_order, cfg.rls_offset, feature_prior(cfg))
+        rs = rls_next(
+            ys, cfg.rls_order, us, cfg.arx_order, cfg.rls_offset, feature_prior(cfg), cubes=cfg.rls_cubes
+        )
     return (rs * scale[..., :m] + shift[..., :m]).to(y.dtype)
 
 
@@ -329,7 +332,15 @@ def fitted_start(ys: Tensor, us: Tensor | None, cfg: ModelConfig) -> Tensor:
     prior = feature_prior(cfg)
     # bounds_from=r: the r assumed values before the record are not measured, so they set no bounds
     rs = rls_next(
-        yp, cfg.rls_order, up, cfg.arx_order, cfg.rls_offset, prior, updates_from=2 * r, bounds_from=r
+        yp,
+        cfg.rls_order,
+        up,
+        cfg.arx_order,
+        cfg.rls_offset,
+        prior,
+        updates_from=2 * r,
+        bounds_from=r,
+        cubes=cfg.rls_cubes,
     )
     return rs[:, r:]
 
