@@ -1,15 +1,18 @@
-"""Never worse than the fitted linear model: a records run against the ARX `mop fit arx` gives.
+"""Never worse than the fitted linear model: the choice a records run makes after training.
 
-After a records-recipe run has trained, its network and the ARX that `mop fit arx` chooses on the same
-training part simulate the held-out part of the estimation record (data.validation_fraction: the last 10%
-of one record, or the held-out trajectories, or --val), each from its first INIT_WINDOW measured outputs
-and the inputs alone, and are scored by the RMSE of the rest (a simulation that diverges scores inf:
-mop.records.divergence_step). selection.json in the run directory holds both scores and the one kept:
-- the network where it simulates better: the run predicts as trained;
+After a records-recipe run has trained, its network with the correction at each gain of
+mop.train.shrink.GAINS (1: as trained; 0: its in-context feature alone) and the ARX that `mop fit arx`
+chooses on the same training part simulate the held-out data (held_out_stretches: the last 10% of a record
+after the 50 measured steps before it, or the held-out trajectories, or --val) from the inputs alone, and
+are scored by the RMSE of the simulated steps (a simulation that diverges scores inf:
+mop.records.divergence_step).
+selection.json in the run directory holds every score and the one kept:
+- the network at the best gain where it simulates at least as well as the ARX: a gain below 1 is written
+  into the run's weights;
 - the ARX otherwise: the run directory also holds that ARX refitted on the whole estimation record, exactly
   what `mop fit arx FILE` writes (fitted.json), and `mop predict RUN`, `mop.load(RUN)` load it (they read a
-  directory with fitted.json as a fitted model), so a user never gets a run that simulates its held-out
-  data worse than the linear model would have.
+  directory with fitted.json as a fitted model),
+so a user never gets a run that simulates its held-out data worse than the linear model would have.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from mop.io import read_trajectories
 from mop.records import divergence_step, simulate_all
 from mop.runs import load_predictor
 from mop.train.records import RecordedData, recorded_data
-from mop.train.shrink import GAINS, scale_correction
+from mop.train.shrink import GAINS, best_gain, gain_scores, scale_correction
 
 SELECTION_FILE = "selection.json"
 INIT_WINDOW = 50  # measured outputs a held-out simulation starts from (the benchmarks' usual n)
@@ -95,25 +98,21 @@ def select_against_arx(run_dir: str | Path, config: RunConfig) -> dict:
     stretches = held_out_stretches(record)
     arx = fit("arx", train, source=config.data.path)
     network = load_predictor(run_dir)
+    score = lambda: stretches_rmse(network, stretches)  # noqa: E731
     gains = GAINS if _gains_apply(network) else (1.0,)
-    trained = {k: v.clone() for k, v in network.model.read_out.state_dict().items()}
-    by_gain = []
-    for gain in gains:
-        network.model.read_out.load_state_dict(trained)
-        scale_correction(network.model, gain)
-        by_gain.append(stretches_rmse(network, stretches))
-    best = min(range(len(gains)), key=lambda i: (by_gain[i], -gains[i]))
+    by_gain = gain_scores(network.model, score) if len(gains) > 1 else [score()]
+    gain = best_gain(by_gain) if len(gains) > 1 else 1.0
+    best_rmse = by_gain[gains.index(gain)]
     arx_rmse = stretches_rmse(arx, stretches)
-    kept = "network" if by_gain[best] <= arx_rmse and math.isfinite(by_gain[best]) else "arx"
+    kept = "network" if best_rmse <= arx_rmse and math.isfinite(best_rmse) else "arx"
     fitted = run_dir / FITTED_FILE
     if kept == "arx":
         whole = fit("arx", read_trajectories(config.data.path)[1], source=config.data.path)
         write_json(fitted, {"format": 1, **whole.to_json()})
     else:
         fitted.unlink(missing_ok=True)
-        if gains[best] != 1.0:  # the scaled read-out becomes the run's weights
-            network.model.read_out.load_state_dict(trained)
-            scale_correction(network.model, gains[best])
+        if gain != 1.0:  # the scaled read-out becomes the run's weights
+            scale_correction(network.model, gain)
             save_model(run_dir / "model.safetensors", network.model)
     result = {
         "format": 2,
@@ -121,7 +120,7 @@ def select_against_arx(run_dir: str | Path, config: RunConfig) -> dict:
         "init": int(stretches[0][2]),
         "gains": list(gains),
         "network_rmse_by_gain": by_gain,
-        "gain": gains[best] if kept == "network" else None,
+        "gain": gain if kept == "network" else None,
         "network_rmse": by_gain[gains.index(1.0)],
         "arx_rmse": arx_rmse,
         "arx_orders": dict(arx.orders),

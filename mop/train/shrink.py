@@ -22,6 +22,8 @@ on plants where the network's correction is worth its whole size the choice is g
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 from torch import nn
@@ -75,22 +77,34 @@ def simulation_rmse(model: nn.Module, config: RunConfig) -> float:
     return float(np.sqrt(sq / max(n, 1)))
 
 
-def choose_gain(model: nn.Module, config: RunConfig) -> dict[str, object]:
-    """Scale `model`'s correction (in place) by the gain of GAINS that simulates data.path best; returns
-    {"gains": GAINS, "free_run_rmse": [RMSE per gain], "gain": chosen}. On a tie the larger gain is kept."""
+def gain_scores(model: nn.Module, score: Callable[[], float]) -> list[float]:
+    """score() with `model`'s correction scaled by each gain of GAINS in turn; the model is left as it was
+    (its read-out restored, its train/eval mode too)."""
     was_training = model.training
     model.eval()
     kept = {k: v.clone() for k, v in model.read_out.state_dict().items()}
-    rmse = []
+    scores = []
     for gain in GAINS:
         model.read_out.load_state_dict(kept)
         scale_correction(model, gain)
-        rmse.append(simulation_rmse(model, config))
-    best = min(range(len(GAINS)), key=lambda i: (rmse[i], -GAINS[i]))
+        scores.append(score())
     model.read_out.load_state_dict(kept)
-    scale_correction(model, GAINS[best])
     model.train(was_training)
-    return {"gains": list(GAINS), "free_run_rmse": rmse, "gain": GAINS[best]}
+    return scores
+
+
+def best_gain(scores: list[float]) -> float:
+    """The gain of GAINS of the lowest score; on a tie the larger gain."""
+    return GAINS[min(range(len(GAINS)), key=lambda i: (scores[i], -GAINS[i]))]
+
+
+def choose_gain(model: nn.Module, config: RunConfig) -> dict[str, object]:
+    """Scale `model`'s correction (in place) by the gain of GAINS that simulates data.path best; returns
+    {"gains": GAINS, "free_run_rmse": [RMSE per gain], "gain": chosen}. On a tie the larger gain is kept."""
+    rmse = gain_scores(model, lambda: simulation_rmse(model, config))
+    gain = best_gain(rmse)
+    scale_correction(model, gain)
+    return {"gains": list(GAINS), "free_run_rmse": rmse, "gain": gain}
 
 
 def shrink_line(choice: dict, path: str) -> str:
