@@ -10,7 +10,7 @@ training: the held-out choice between the network's correction at each gain and 
 
 from __future__ import annotations
 
-import numpy as np
+import dataclasses
 
 from mop.config import (
     DataConfig,
@@ -69,11 +69,8 @@ def fitted_cubes(data: DataConfig, p: int, q: int) -> tuple[int, int]:
     record = recorded_data(data)
     if record.num_missing:
         return p, 0
-    stats = record.fit()
-    mean = np.array([*stats["y_mean"], *stats["u_mean"]])
-    std = np.array([*stats["y_std"], *stats["u_std"]])
     m = record.output_dim
-    parts = [((a - mean) / std) for a in record.train_parts]
+    parts = record.normalised(dataclasses.replace(data, **record.fit()), record.train_parts)
     p, c, _ = choose_cubes([(a[:, :m], a[:, m:]) for a in parts], p, q)
     return p, c
 

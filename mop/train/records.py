@@ -153,7 +153,7 @@ class RecordedData:
             "u_std": as_list(std[m:]),
         }
 
-    def _normalised(self, cfg: DataConfig, parts: list[np.ndarray]) -> list[np.ndarray]:
+    def normalised(self, cfg: DataConfig, parts: list[np.ndarray]) -> list[np.ndarray]:
         """[(L_i, m + k)] normalised parts, float64."""
         mean = np.array([*cfg.y_mean, *cfg.u_mean])
         std = np.array([*cfg.y_std, *cfg.u_std])
@@ -187,7 +187,7 @@ class RecordedData:
 
     def windows(self, cfg: DataConfig, horizon: int, device: torch.device) -> Windows:
         """Every window of horizon + 1 steps of the training parts at least that long."""
-        z = self._normalised(cfg, self._long_enough(self.train_parts, horizon, "training"))
+        z = self.normalised(cfg, self._long_enough(self.train_parts, horizon, "training"))
         padded = np.zeros((len(z), max(len(a) for a in z), z[0].shape[1]), dtype=np.float32)
         starts = []
         for j, a in enumerate(z):
@@ -220,7 +220,7 @@ class RecordedData:
     def validation_steps(self, cfg: DataConfig, horizon: int) -> Tensor:
         """The validation windows' steps z_0..z_T (N, T+1, m + k), normalised, float32."""
         self._long_enough(self.val_parts, horizon, "validation")
-        parts = self._normalised(cfg, self.val_parts)
+        parts = self.normalised(cfg, self.val_parts)
         windows = [parts[j][s : s + horizon + 1] for j, s in self.validation_windows(horizon)]
         return torch.from_numpy(np.stack(windows).astype(np.float32))
 
@@ -231,7 +231,7 @@ class RecordedData:
         the training part has, at most), and the cut: the index in the window of the first held-out step.
         Returns (windows (N, horizon + 1, m + k) float32, cuts (N,) long)."""
         windows, cuts = [], []
-        parts = self._normalised(cfg, self.train_parts), self._normalised(cfg, self.val_parts)
+        parts = self.normalised(cfg, self.train_parts), self.normalised(cfg, self.val_parts)
         for a, b in zip(*parts, strict=True):
             if len(a) + len(b) < horizon + 1:
                 continue
@@ -253,7 +253,7 @@ class RecordedData:
         RLS / ARX feature of the model regresses on; a ridge of RIDGE for collinear inputs)."""
         m, r = self.output_dim, max(p, q)
         rows, targets = [], []
-        for a in self._normalised(cfg, self.train_parts):
+        for a in self.normalised(cfg, self.train_parts):
             z = torch.from_numpy(a)[None]  # (1, L, m + k)
             u = z[..., m:] if q > 0 else None
             phi = arx_regressors(z[..., :m], u, p, max(q, 1), offset, cubes)[0]  # (L, d)
