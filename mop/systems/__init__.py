@@ -15,6 +15,7 @@ import torch
 from mop.systems import (  # noqa: F401 (built-ins)
     cascaded_tanks,
     colored_noise,
+    duffing,
     linear,
     linear_inputs,
     lti_siso,
