@@ -1,20 +1,33 @@
 """A test record simulated with an estimation record as the model's in-context data (mop predict --context).
 
-simulate_with_context(predictor, test, init, context) -> (T - init, m): ysim_init..ysim_{T-1} of the test
-record, from its first `init` measured outputs and its inputs, after the model has read the context record:
-one trajectory, the context's last part followed by the test, simulated from the test's step `init` (exactly
-the by-hand concatenation of that part and the test, `mop predict --simulate L + init` on it).
+simulate_with_context(predictor, test, init, context) -> InContext: its simulation (T - init, m) holds
+ysim_init..ysim_{T-1} of the test record, from its first `init` measured outputs and its inputs, after the
+model has read the context records. There are three readings:
 
-Which part of the context: a learned model that reads at most C inputs (its trained context) gets the last
-C - init steps of the context, so that its first window holds them and the test's init window; a predictor
-without a limit gets all of it. With several context records the last one is read (the most recent).
+- "none": the test alone, as without --context.
+- "window": one trajectory, the last context record's last part followed by the test, simulated from the
+  test's step `init` (exactly the by-hand concatenation of that part and the test, `mop predict
+  --simulate L + init` on it). A learned model that reads at most C inputs (its trained context) gets the
+  last C - init steps, so that its first window holds them and the test's init window; a predictor without
+  a limit gets all of it.
+- "fit": for a class model whose in-context identifier is its ARX / NARX feature (model.record_norm =
+  "causal" with model.rls_order > 0), the context however long, in a summary: the feature's coefficients
+  fitted by least squares over every context record (the sufficient statistics a window of C steps would
+  accumulate, over all of them), in the units of the context's mean and std. The model then reads the test
+  with its feature starting from those coefficients (model.rls_prior, as a fine-tune of the class model
+  starts at step 0, mop.recipe.finetune.with_record_prior), and its network's correction scaled by a gain
+  g in GAINS (0: the fitted feature alone, 1: the class model as trained; mop.train.shrink). So the model's
+  context is the whole estimation record, not its last C steps, with no training.
 
-The seam: at the join the record jumps from the context's last state to the test's first. Whether reading
-across it helps is measured on the context record itself before the test is touched: its last H steps
-(H = min(len / 4, 2000)) are simulated from their first `init` outputs, once alone and once after the part
-of the context before them (the same seam, one record earlier); the context is used on the test only where
-it simulated that held-out end at least as well (`choose=True`, the default), so it is never worse than no
-context on that evidence. The choice is returned beside the simulation.
+Which reading: each is measured on the context itself before the test is touched. The last context
+record's last H steps (H = min(len / 4, 2000)) are simulated from their first `init` outputs after the
+rest of the context read each way ("fit" fitted without those H steps); the reading with the lowest RMSE
+there simulates the test (`choose=True`, the default; "none" among them and first on ties, so a reading is
+used only where it simulated that held-out end at least as well as the test alone). The scores are
+returned beside the simulation. With `choose=False` the reading is "window" (the concatenation).
+
+The seam: at the join of "window" the record jumps from the context's last state to the test's first; the
+held-out check reads across the same kind of seam, one record earlier.
 """
 
 from __future__ import annotations
@@ -23,19 +36,29 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
+import torch
 
 from mop.errors import MopError
+from mop.filters.arx import least_squares_coefficients
+from mop.models.normalization import Normalization
+from mop.models.predictor import LearnedPredictor
+from mop.models.registry import build_model
+from mop.recipe.finetune import RECORD_PRIOR_STEPS
 from mop.record import Record
 from mop.records import simulate_all, simulation_rmse
+from mop.train.shrink import GAINS, scale_correction
+
+HELD_OUT_MAX = 2000  # the held-out end of the context: at most this many steps, at most a quarter of it
 
 
 @dataclasses.dataclass(frozen=True)
 class InContext:
-    """A simulation of the test record and how the context was used."""
+    """A simulation of the test record and how the context was read."""
 
     simulation: np.ndarray  # (T - init, m)
-    context_steps: int  # steps of the context read before the test (0: none)
-    held_out_rmse: tuple[float, float] | None  # the context's held-out end: (alone, after its context)
+    reading: str  # "none", "window" or "fit gain G"
+    context_steps: int  # steps of the context read before the test (0: none; "fit": all of them)
+    held_out: dict[str, float]  # each reading's RMSE on the context's held-out end ({}: not measured)
 
 
 def context_limit(predictor) -> int | None:
@@ -68,6 +91,62 @@ def check_context(test: Record, context: Sequence[Record]) -> None:
             )
 
 
+def fits_context(predictor) -> bool:
+    """Whether the "fit" reading serves the predictor: a learned class model (record_norm "causal") whose
+    feature is an ARX / NARX identifier without coefficients of its own (model.rls_prior not a list)."""
+    cfg = getattr(predictor, "cfg", None)
+    return (
+        isinstance(predictor, LearnedPredictor)
+        and cfg is not None
+        and cfg.record_norm == "causal"
+        and cfg.rls_order > 0
+        and not isinstance(cfg.rls_prior, list)
+        and hasattr(predictor.model, "read_out")
+    )
+
+
+def context_normalization(context: Sequence[Record]) -> Normalization:
+    """Each channel's mean and std over every context record (std 0 -> 1): the units the fit holds in."""
+    y = np.concatenate([r.y for r in context])
+    u = np.concatenate([r.u for r in context]) if context[0].u is not None else np.zeros((len(y), 0))
+    std = lambda a: np.where(a.std(axis=0) > 0, a.std(axis=0), 1.0)  # noqa: E731
+    t = lambda a: torch.from_numpy(np.asarray(a, dtype=np.float64))  # noqa: E731
+    return Normalization(t(y.mean(axis=0)), t(std(y)), t(u.mean(axis=0)), t(std(u)))
+
+
+def fitted_to_context(predictor: LearnedPredictor, context: Sequence[Record], gain: float = 1.0):
+    """The class model with its feature's coefficients fitted by least squares on every context record
+    (in context_normalization's units) and its correction times `gain` (see the module docstring): a new
+    LearnedPredictor in the data's units; the predictor given is not changed."""
+    cfg, norm = predictor.cfg, context_normalization(context)
+    arrays = [
+        np.concatenate(
+            [
+                (r.y - norm.y_mean.numpy()) / norm.y_std.numpy(),
+                *([] if r.u is None else [(r.u - norm.u_mean.numpy()) / norm.u_std.numpy()]),
+            ],
+            axis=1,
+        )
+        for r in context
+    ]
+    theta = least_squares_coefficients(
+        arrays, cfg.output_dim, cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes
+    )
+    fitted = dataclasses.replace(
+        cfg,
+        rls_prior=[float(v) for v in theta.reshape(-1)],
+        rls_prior_cov=None,
+        rls_p0=1.0,
+        record_prior_steps=RECORD_PRIOR_STEPS,
+    )
+    weights = next(predictor.model.parameters())
+    model = build_model(fitted).to(device=weights.device, dtype=weights.dtype)
+    model.load_state_dict(predictor.model.state_dict())
+    model.eval()
+    scale_correction(model, gain)
+    return LearnedPredictor(model, name=predictor.name, mode=predictor.mode, normalization=norm)
+
+
 def _joined(first: Record, second: Record) -> Record:
     u = None if first.u is None else np.concatenate([first.u, second.u])
     return Record(y=np.concatenate([first.y, second.y]), u=u, name=second.name)
@@ -81,6 +160,34 @@ def _rmse(y: np.ndarray, sim: np.ndarray) -> float:
     return simulation_rmse(y, sim)[0]
 
 
+def _window(predictor, test: Record, init: int, source: Record) -> tuple[np.ndarray, int]:
+    """The "window" reading: (simulation, steps of the context read)."""
+    limit = context_limit(predictor)
+    keep = len(source) if limit is None else max(limit - init, 0)
+    tail = source[len(source) - min(keep, len(source)) :]
+    if len(tail) == 0:
+        return _simulate(predictor, test, init), 0
+    return _simulate(predictor, _joined(tail, test), len(tail) + init), len(tail)
+
+
+def _read(
+    predictor, test: Record, init: int, context: Sequence[Record], reading: str
+) -> tuple[np.ndarray, int]:
+    """(simulation of test from init, context steps read) for one reading."""
+    if reading == "none":
+        return _simulate(predictor, test, init), 0
+    if reading == "window":
+        return _window(predictor, test, init, context[-1])
+    gain = float(reading.rpartition(" ")[2])
+    return _simulate(fitted_to_context(predictor, context, gain), test, init), sum(len(r) for r in context)
+
+
+def readings(predictor) -> list[str]:
+    """The readings a predictor can take, in their order of preference on ties."""
+    fit = [f"fit gain {g:g}" for g in GAINS] if fits_context(predictor) else []
+    return ["none", "window", *fit]
+
+
 def simulate_with_context(
     predictor, test: Record, init: int, context: Sequence[Record], choose: bool = True
 ) -> InContext:
@@ -88,21 +195,32 @@ def simulate_with_context(
     check_context(test, context)
     if not 1 <= init < len(test):
         raise MopError(f"the test's initialization window {init} must be in [1, {len(test) - 1}]")
-    source = context[-1]
-    limit = context_limit(predictor)
-    keep = len(source) if limit is None else max(limit - init, 0)
-    tail = source[len(source) - min(keep, len(source)) :]
-    held = None
-    if choose and len(tail) > 0:
-        h = min(len(source) // 4, 2000)
-        if h > init + 1:
-            end, before = source[len(source) - h :], source[: len(source) - h]
-            before = before[len(before) - min(keep, len(before)) :]
-            alone = _rmse(end.y, _simulate(predictor, end, init))
-            after = _rmse(end.y, _simulate(predictor, _joined(before, end), len(before) + init))
-            held = (alone, after)
-            if after > alone:
-                tail = tail[:0]
-    if len(tail) == 0:
-        return InContext(_simulate(predictor, test, init), 0, held)
-    return InContext(_simulate(predictor, _joined(tail, test), len(tail) + init), len(tail), held)
+    context = list(context)
+    if not choose:
+        sim, steps = _read(predictor, test, init, context, "window")
+        return InContext(sim, "window", steps, {})
+    source, scores = context[-1], {}
+    h = min(len(source) // 4, HELD_OUT_MAX)
+    if h > init + 1:
+        end = source[len(source) - h :]
+        before = [*context[:-1], source[: len(source) - h]]
+        for reading in readings(predictor):
+            scores[reading] = _rmse(end.y, _read(predictor, end, init, before, reading)[0])
+    best = min(scores, key=lambda r: (scores[r], list(scores).index(r))) if scores else "none"
+    sim, steps = _read(predictor, test, init, context, best)
+    return InContext(sim, best, steps, scores)
+
+
+def reading_line(done: InContext) -> str:
+    """How the context was read, and the evidence: one line for mop predict and mop benchmark."""
+    what = {
+        "none": "not read",
+        "window": f"its last {done.context_steps} steps read before the test",
+    }.get(
+        done.reading,
+        f"all {done.context_steps} steps read as the feature's fit, correction {done.reading[4:]}",
+    )
+    if not done.held_out:
+        return what
+    scores = ", ".join(f"{k} {v:.4g}" for k, v in done.held_out.items())
+    return f"{what} (simulation RMSE on its held-out end: {scores})"

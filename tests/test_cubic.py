@@ -8,6 +8,8 @@ import torch
 
 from mop.filters.arx import arx_predict, arx_regressors
 from mop.identify.cubic import choose_cubes, fit_narx, regressor_rows, simulate_narx
+from mop.predictors import make_predictor
+from mop.systems.base import Trajectories
 
 
 def duffing(steps: int, seed: int, noise: float = 0.0, cubic: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
@@ -87,3 +89,18 @@ def test_a_cubic_candidate_that_blows_up_when_driven_harder_is_not_kept(monkeypa
     monkeypatch.setattr(cubic, "STRESS", 30.0)
     p, c, scores = choose_cubes([(y, u)], 2, 1)
     assert (p, c) == (2, 0) and all(math.isinf(v) for k, v in scores.items() if not k.endswith(",0"))
+
+
+def test_the_narx_baseline_identifies_a_cubic_plant_in_context_and_simulates_it():
+    """narx-10-cubes-10-offset-ls (the feature the duffing class model reads, as a predictor): on a
+    noise-free plant of its model class, 400 outputs of context identify it, and its free run of the next
+    599 steps matches the record (measured max error 4e-6 of the output range: P_0 = 1e4 I is a ridge of
+    1e-4); the ARX(10, 10) without
+    the cubes cannot (error above 1% of the range)."""
+    y, u = duffing(1000, 0)
+    traj = Trajectories(torch.from_numpy(y)[None], torch.from_numpy(u)[None])
+    span = float(np.ptp(y))
+    sim = make_predictor("narx-10-cubes-10-offset-ls").simulate(traj, 400)[0].numpy()
+    assert np.abs(sim - y[400:]).max() < 1e-4 * span
+    linear = make_predictor("arx-10-offset-ls").simulate(traj, 400)[0].numpy()
+    assert np.abs(linear - y[400:]).max() > 1e-2 * span

@@ -28,7 +28,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.systems", "mop.config"),
     ("mop.predictors",),
     ("mop.records",),  # a predictor over a user's records and the figures of merit
-    ("mop.benchmarks", "mop.incontext"),  # the benchmarks' splits and protocol; a record as context
+    ("mop.benchmarks",),  # the benchmarks' splits and protocol
     ("mop.filters",),
     ("mop.identify",),  # fitted identifiers: built on the filters' subspace code, loaded by mop predict
     ("mop.models", "mop.runs"),
@@ -36,6 +36,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.train",),
     ("mop.experiments",),  # mop.experiments.pretrained_build builds and cards the shipped models
     ("mop.recipe",),  # mop train's config from a user's record: the records and fine-tune recipes
+    ("mop.incontext",),  # a record as a learned model's context (its feature fitted on it: models, train)
     ("mop.estimators",),  # ARX, N4SID and the learned model with one face (mop train --data path)
     ("mop.bench",),
     ("mop.commands", "mop.cli", "mop.__main__", "mop"),

@@ -33,7 +33,7 @@ from mop.atomic import atomic_path
 from mop.errors import MopError
 from mop.identify import is_fitted
 from mop.identify import load as load_fitted
-from mop.incontext import check_context, simulate_with_context
+from mop.incontext import check_context, reading_line, simulate_with_context
 from mop.io import read_system, read_trajectories
 from mop.memory import check_allocation
 from mop.predictors import (
@@ -296,12 +296,7 @@ def simulated_in_context(predictor, names, data, init: int, path: str) -> list[n
     sims = []
     for test in tests:
         done = simulate_with_context(predictor, test, init, context)
-        held = done.held_out_rmse
-        evidence = (
-            "" if held is None else f" (its held-out end: RMSE {held[0]:.4g} alone, {held[1]:.4g} after it)"
-        )
-        used = f"the last {done.context_steps} steps" if done.context_steps else "none"
-        print(f"context {path} for {test.name}: read {used}{evidence}")
+        print(f"context {path} for {test.name}: {reading_line(done)}")
         sims.append(done.simulation)
     return sims
 

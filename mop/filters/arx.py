@@ -21,6 +21,7 @@ equation with the constant mean (1 - sum alpha); "arx-10-offset" fits it (lti-si
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -47,6 +48,27 @@ def arx_regressors(
     if cubes:
         phi = torch.cat([phi, phi[..., : cubes * y.shape[-1]] ** 3], dim=-1)
     return phi if known is None else torch.cat([phi, known], dim=-1)
+
+
+def least_squares_coefficients(
+    records: list[np.ndarray], m: int, p: int, q: int, offset: bool, cubes: int = 0, ridge: float = 1e-6
+) -> np.ndarray:
+    """theta (d, m) of the ARX(p, q) [with c = cubes cubed output lags, an intercept] by least squares over
+    every record (L_i, m + k) (outputs then inputs): the pairs (phi_{s-1}, y_s), s >= max(p, q), phi as
+    arx_regressors, the rows the RLS / ARX feature of a model regresses on; a ridge of ridge * (pairs) for
+    collinear regressors. MopError where an output is missing."""
+    r, rows, targets = max(p, q), [], []
+    for a in records:
+        z = torch.from_numpy(np.asarray(a, dtype=np.float64))[None]  # (1, L, m + k)
+        u = z[..., m:] if q > 0 else None
+        phi = arx_regressors(z[..., :m], u, p, max(q, 1), offset, cubes)[0]  # (L, d)
+        rows.append(phi[r - 1 : -1])
+        targets.append(z[0, r:, :m])
+    phi, target = torch.cat(rows).numpy(), torch.cat(targets).numpy()
+    if np.isnan(target).any():
+        raise MopError("a least-squares ARX fit needs complete outputs; fill the gaps")
+    gram = phi.T @ phi + ridge * len(phi) * np.eye(phi.shape[1])
+    return np.linalg.solve(gram, phi.T @ target)
 
 
 def _arx_run(
@@ -239,3 +261,37 @@ PREDICTORS.add("arx-15-offset", lambda: ARXPredictor(15, offset=True, name="arx-
 # one-step RMSE over t >= 50 0.0127 -> 0.00011, simulation of y_400..y_499 0.0100 -> 0.0006)
 PREDICTORS.add("arx-15-offset-ls", lambda: ARXPredictor(15, offset=True, name="arx-15-offset-ls", p0=1e4))
 PREDICTORS.add("arx-10-offset-ls", lambda: ARXPredictor(10, offset=True, name="arx-10-offset-ls", p0=1e4))
+
+
+class NARXPredictor(ARXPredictor):
+    """The ARX(p, q) with an intercept and the cubes of its first c output lags (the cubic NARX the class
+    model of the duffing family reads, mop.filters.arx.arx_regressors), by RLS from P_0 = p0 I in the
+    record's own units. It simulates by reading the outputs after the context as missing (the recursion's
+    gap path, mop.filters.rls._rls_run_gaps: its own predictions fed back, held within twice the measured
+    range); it has no k-step forecast."""
+
+    def __init__(self, order: int, cubes: int, name: str, p0: float = 1e4) -> None:
+        super().__init__(order, offset=True, name=name, p0=p0)
+        if not 0 < cubes <= order:
+            raise MopError(f"narx: cubes must be in [1, p = {order}], got {cubes}")
+        self.cubes = cubes
+
+    def predict(self, traj: Trajectories) -> Tensor:
+        p, q = self.order, self.input_order
+        return arx_predict(traj.y.double(), _u(traj), p, q, True, self._prior, cubes=self.cubes).to(
+            traj.y.dtype
+        )
+
+    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
+        raise MopError(f"{self.name} simulates (mop predict --simulate) but has no k-step forecast")
+
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, m): y_c..y_T read as missing, the recursion's predictions fed back."""
+        y = traj.y.double().clone()
+        y[:, context:] = float("nan")
+        p, q = self.order, self.input_order
+        out = arx_predict(y, _u(traj), p, q, True, self._prior, bounded=0, cubes=self.cubes)
+        return out[:, context:].to(traj.y.dtype)
+
+
+PREDICTORS.add("narx-10-cubes-10-offset-ls", lambda: NARXPredictor(10, 10, "narx-10-cubes-10-offset-ls"))

@@ -32,7 +32,7 @@ from torch import Tensor
 
 from mop.config import DataConfig
 from mop.errors import MopError
-from mop.filters.arx import arx_regressors
+from mop.filters.arx import least_squares_coefficients
 from mop.io import Data, read_trajectories
 
 MAX_VALIDATION_WINDOWS = 256
@@ -251,19 +251,13 @@ class RecordedData:
         """The ARX(p, q) coefficients (d, m) flattened, by least squares on the normalised training parts:
         the pairs (phi_{s-1}, y_s), s >= max(p, q), with phi as mop.filters.arx.arx_regressors (the rows the
         RLS / ARX feature of the model regresses on; a ridge of RIDGE for collinear inputs)."""
-        m, r = self.output_dim, max(p, q)
-        rows, targets = [], []
-        for a in self.normalised(cfg, self.train_parts):
-            z = torch.from_numpy(a)[None]  # (1, L, m + k)
-            u = z[..., m:] if q > 0 else None
-            phi = arx_regressors(z[..., :m], u, p, max(q, 1), offset, cubes)[0]  # (L, d)
-            rows.append(phi[r - 1 : -1])
-            targets.append(z[0, r:, :m])
-        phi, target = torch.cat(rows).numpy(), torch.cat(targets).numpy()
-        if np.isnan(target).any():
-            raise MopError(f"{self.path}: model.rls_prior=fit needs complete outputs; fill the gaps")
-        gram = phi.T @ phi + RIDGE * len(phi) * np.eye(phi.shape[1])
-        theta = np.linalg.solve(gram, phi.T @ target)  # (d, m)
+        try:
+            theta = least_squares_coefficients(
+                self.normalised(cfg, self.train_parts), self.output_dim, p, q, offset, cubes, RIDGE
+            )
+        except MopError:
+            gaps = f"{self.path}: model.rls_prior=fit needs complete outputs; fill the gaps"
+            raise MopError(gaps) from None
         return [float(v) for v in theta.reshape(-1)]
 
     def summary(self, horizon: int, tails: bool = False) -> str:
