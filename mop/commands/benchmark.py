@@ -26,7 +26,7 @@ from mop.errors import MopError
 from mop.estimators import Learned
 from mop.identify import fit
 from mop.identify.select import POLE_RADIUS
-from mop.incontext import simulate_with_context
+from mop.incontext import reading_line, simulate_with_context
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
 from mop.recipe.selection import selection_line
@@ -114,10 +114,13 @@ class InContextModel:
 
     def __init__(self, model, estimation) -> None:
         self.model, self.estimation, self.name = model, estimation, model.name
+        self.reading = ""  # how the last test read the context (mop.incontext.reading_line)
 
     def run(self, test) -> TestScore:
         n = max(test.init_window, 1)
-        return score_test(test, simulate_with_context(self.model, test, n, self.estimation).simulation)
+        done = simulate_with_context(self.model, test, n, self.estimation)
+        self.reading = reading_line(done)
+        return score_test(test, done.simulation)
 
 
 def _fitted(kind: str, split: Split, warnings: list[str]):
@@ -173,6 +176,8 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
         for name, model in models.items():
             bar.set_postfix_str(f"{split.name}: simulating {test.name} with {name}")
             score = model.run(test) if isinstance(model, InContextModel) else run_test(model, test)
+            if isinstance(model, InContextModel):
+                notes.append(f"{name} on {test.name}: the estimation part {model.reading}")
             scores[name] = score
             _write_simulation(folder / f"{test.name}_{name.replace(':', '-')}.csv", test, score)
             if score.diverged_at is not None:

@@ -115,6 +115,18 @@ CLASS_MODELS: tuple[ShippedModel, ...] = (
         "it on your estimation record (mop train --data FILE --init pretrained:cascaded-tanks) where it is "
         "not within the card's numbers; a real plant's pump and sensor characteristics are not modelled",
     ),
+    ShippedModel(
+        "duffing",
+        "class-duffing",
+        "class model of lightly damped oscillators with polynomial stiffness (mop.systems.duffing, the "
+        "Silverbox's class), reading the cubic NARX feature, any units, trained for free-run simulation: "
+        "zero-shot in context; given an estimation record (mop predict --context) its feature is fitted on "
+        "all of it",
+        "records of another class (no friction, hysteresis or several modes), multi-output data (m = 1, "
+        "k = 1 only), and short contexts: its feature has 31 regressors, so a window of a few hundred steps "
+        "identifies it poorly; give the estimation record with --context, or fine-tune it on your estimation "
+        "record (mop train --data FILE --init pretrained:duffing)",
+    ),
 )
 CATALOG = CATALOG + CLASS_MODELS
 
