@@ -238,3 +238,15 @@ def test_a_short_record_fine_tunes_with_the_orders_it_allows(tmp_path, capsys):
     # from scratch the records recipe needs its feature: a record too short for any order is refused
     with pytest.raises(MopError, match="too short to fit the records recipe's ARX feature"):
         training_config(None, data=str(tmp_path / "tiny.npz"))
+
+
+def test_a_cubic_class_model_fine_tunes_with_its_own_lags(tmp_path):
+    """pretrained:duffing reads the cubic NARX with 10 output lags, all cubed: its fine-tune keeps the
+    source's lags (the ARX orders `mop fit arx` picks may be fewer than the cubed lags, which
+    model.rls_cubes refuses) and starts the feature from its least-squares fit."""
+    est = record(tmp_path / "est.npz", 0)
+    config = training_config(None, data=est, init="pretrained:duffing")
+    m = config.model
+    assert (m.rls_order, m.arx_order, m.rls_cubes) == (10, 10, 10) and m.rls_prior == "fit"
+    linear = training_config(None, data=est, init="pretrained:cascaded-tanks").model
+    assert (linear.rls_order, linear.arx_order) != (10, 10)  # the linear class takes mop fit arx's orders

@@ -98,7 +98,15 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
         return config
     model = dataclasses.replace(m, rls_prior="fit", rls_p0=1.0, rls_prior_cov=None)
     keys = ("model.rls_order", "model.arx_order")
-    if m.arx_order > 0 and recorded_data(config.data).input_dim and not any(k in named for k in keys):
+    # a cubic feature (model.rls_cubes) keeps the class's lags: the ARX orders `mop fit arx` chooses are
+    # those of a linear model, and may be fewer than the cubed lags
+    linear = m.rls_cubes == 0
+    if (
+        linear
+        and m.arx_order > 0
+        and recorded_data(config.data).input_dim
+        and not any(k in named for k in keys)
+    ):
         orders = record_orders(config.data.path)
         if orders is not None:
             model = dataclasses.replace(model, rls_order=orders[0], arx_order=orders[1])

@@ -155,6 +155,9 @@ def order_line(
         return f"orders: {orders}, as the key=value overrides name them"
     rule = "the orders `mop fit arx` chooses (free-run simulation of the last 20% of each trajectory)"
     if init is not None:
+        if m.rls_prior == "fit" and m.rls_cubes:
+            cubed = f"{m.rls_cubes} cubed output lags"
+            return f"orders: {orders} with {cubed}, the source model's (--init {init})"
         if m.rls_prior == "fit":
             return f"orders: {orders}, {rule} on the whole record, as `mop fit arx {config.data.path}` does"
         return f"orders: {orders}, the source model's (--init {init})"
