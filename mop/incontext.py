@@ -23,8 +23,11 @@ Which reading: each is measured on the context itself before the test is touched
 record's last H steps (H = min(len / 4, 2000)) are simulated from their first `init` outputs after the
 rest of the context read each way ("fit" fitted without those H steps); the reading with the lowest RMSE
 there simulates the test (`choose=True`, the default; "none" among them and first on ties, so a reading is
-used only where it simulated that held-out end at least as well as the test alone). The scores are
-returned beside the simulation. With `choose=False` the reading is "window" (the concatenation).
+used only where it simulated that held-out end at least as well as the test alone). A reading whose
+simulation of the test diverges (mop.records.divergence_step against the outputs measured before it: the
+context's and the test's first `init`) gives way to the next best (a cubic feature fitted on one F-16
+record left every range on another: 5.6e5 m/s^2). The scores are returned beside the simulation. With
+`choose=False` the reading is "window" (the concatenation).
 
 The seam: at the join of "window" the record jumps from the context's last state to the test's first; the
 held-out check reads across the same kind of seam, one record earlier.
@@ -45,7 +48,7 @@ from mop.models.predictor import LearnedPredictor
 from mop.models.registry import build_model
 from mop.recipe.finetune import RECORD_PRIOR_STEPS
 from mop.record import Record
-from mop.records import simulate_all, simulation_rmse
+from mop.records import divergence_step, simulate_all, simulation_rmse
 from mop.train.shrink import GAINS, scale_correction
 
 HELD_OUT_MAX = 2000  # the held-out end of the context: at most this many steps, at most a quarter of it
@@ -59,6 +62,7 @@ class InContext:
     reading: str  # "none", "window" or "fit gain G"
     context_steps: int  # steps of the context read before the test (0: none; "fit": all of them)
     held_out: dict[str, float]  # each reading's RMSE on the context's held-out end ({}: not measured)
+    diverged: tuple[str, ...] = ()  # better-scored readings whose simulation of the test diverged
 
 
 def context_limit(predictor) -> int | None:
@@ -206,9 +210,14 @@ def simulate_with_context(
         before = [*context[:-1], source[: len(source) - h]]
         for reading in readings(predictor):
             scores[reading] = _rmse(end.y, _read(predictor, end, init, before, reading)[0])
-    best = min(scores, key=lambda r: (scores[r], list(scores).index(r))) if scores else "none"
-    sim, steps = _read(predictor, test, init, context, best)
-    return InContext(sim, best, steps, scores)
+    ranked = sorted(scores, key=lambda r: (scores[r], list(scores).index(r))) or ["none"]
+    seen = np.concatenate([*(r.y for r in context), test.y[:init]])  # the outputs measured before the run
+    dropped = []
+    for reading in ranked:
+        sim, steps = _read(predictor, test, init, context, reading)
+        if divergence_step(seen, sim) is None or reading == ranked[-1]:
+            return InContext(sim, reading, steps, scores, tuple(dropped))
+        dropped.append(reading)
 
 
 def reading_line(done: InContext) -> str:
@@ -220,6 +229,8 @@ def reading_line(done: InContext) -> str:
         done.reading,
         f"all {done.context_steps} steps read as the feature's fit, correction {done.reading[4:]}",
     )
+    if done.diverged:
+        what += f" ({', '.join(done.diverged)} diverged on the test)"
     if not done.held_out:
         return what
     scores = ", ".join(f"{k} {v:.4g}" for k, v in done.held_out.items())

@@ -10,7 +10,7 @@ import pytest
 from mop.cli import main
 from mop.errors import MopError
 from mop.identify.cubic import fit_narx, simulate_narx
-from mop.incontext import context_limit, fitted_to_context, readings, simulate_with_context
+from mop.incontext import context_limit, fitted_to_context, reading_line, readings, simulate_with_context
 from mop.predictors import make_predictor
 from mop.record import Record
 from mop.records import simulate_all
@@ -157,3 +157,26 @@ def test_the_fit_reading_serves_class_models_only(lti):
     model, _ = lti
     assert "fit gain 0" in readings(model) and "fit gain 1" in readings(model)
     assert readings(make_predictor("arx")) == ["none", "window"]
+
+
+def test_a_reading_that_diverges_on_the_test_gives_way_to_the_next_best(lti, monkeypatch):
+    """The held-out end chooses a reading before the test is simulated; where that reading's simulation of
+    the test leaves every measured range (here made to, by scaling it 1e6), the next best by held-out
+    score simulates the test, and the line says which diverged."""
+    import mop.incontext as incontext
+
+    model, records = lti
+    context, test = records[2][:800], records[2][800:]
+    plain = simulate_with_context(model, test, 50, [context])
+    real = incontext._read
+
+    def wild(predictor, record, init, ctx, reading):
+        sim, steps = real(predictor, record, init, ctx, reading)
+        return (sim * 1e6 if record is test and reading == plain.reading else sim), steps
+
+    monkeypatch.setattr(incontext, "_read", wild)
+    done = simulate_with_context(model, test, 50, [context])
+    ranked = sorted(done.held_out, key=done.held_out.get)
+    assert done.diverged == (plain.reading,) and done.reading == ranked[1]
+    assert plain.reading in reading_line(done) and "diverged" in reading_line(done)
+    np.testing.assert_array_equal(done.simulation, real(model, test, 50, [context], ranked[1])[0])
