@@ -16,7 +16,7 @@ y_<c and the inputs alone (NaN for t < c), exactly the numbers `mop predict MODE
 (init=0: from the record's start, y_0 its initial condition, t >= 1).
 
 ARX and N4SID are mop.identify's fits (`mop fit arx|n4sid`); Learned trains through the path `mop train --data
-FILE [--init RUN]` takes (mop.recipe.training_config, then mop.train.train): the records are
+FILE [--init RUN]` takes (mop.recipe.training_config, then mop.recipe.training.train): the records are
 written to a CSV in the run's directory, which the run's config names.
 """
 
@@ -45,10 +45,11 @@ from mop.models import build_model
 from mop.predictors import Predictor
 from mop.recipe.layers import training_config
 from mop.recipe.selection import select_against_arx
+from mop.recipe.training import train
 from mop.record import Record, as_pairs, read_records, write_records
 from mop.records import predict_all, simulate_all
 from mop.runs import load_predictor
-from mop.train import resolve_config, resolve_device, train
+from mop.train import resolve_config, resolve_device
 from mop.train.estimate import step_seconds
 
 Records = Record | Sequence[Record] | str | os.PathLike | tuple[Any, Any]
