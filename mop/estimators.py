@@ -164,11 +164,11 @@ class _Identified(Estimator):
     def fit(self, data: Records) -> Estimator:
         records, _ = as_records(data)
         self._fitted_on(records)
-        pairs, source = as_pairs(records), records[0].name or "record"
+        source = records[0].name or "record"
         if self.orders is None:
-            self.predictor_ = fit(self.kind, pairs, self.select, self.max_order, source=source)
+            self.predictor_ = fit(self.kind, records, self.select, self.max_order, source=source)
         else:
-            self.predictor_ = fit_orders(self.kind, pairs, self.orders, self.max_order, source=source)
+            self.predictor_ = fit_orders(self.kind, records, self.orders, self.max_order, source=source)
         return self
 
     @property

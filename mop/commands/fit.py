@@ -12,7 +12,7 @@ from pathlib import Path
 from mop.errors import MopWarning
 from mop.identify import IDENTIFIERS, fit, save
 from mop.identify.select import CRITERIA, HOLDOUT, POLE_RADIUS, SCORE, SIMULATION, TOLERANCE
-from mop.io import read_trajectories
+from mop.record import read_records
 
 EXAMPLES = """
 grids: arx p = 1..P, q = 1..P (q = 0 without inputs); n4sid n = 1..P; P = --max-order.
@@ -39,11 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    names, data = read_trajectories(args.data)
-    fitted = fit(args.kind, data, args.select, args.max_order, source=args.data)
-    steps = sum(len(y) for y, _ in data)
+    records = read_records(args.data)
+    fitted = fit(args.kind, records, args.select, args.max_order, source=args.data)
+    steps = sum(len(r) for r in records)
     print(
-        f"{args.kind}: {len(data)} trajectory(ies), {steps} steps; orders scored by {args.select} RMSE "
+        f"{args.kind}: {len(records)} trajectory(ies), {steps} steps; orders scored by {args.select} RMSE "
         f"on the last {HOLDOUT:.0%} of each trajectory (the smallest within {TOLERANCE:.0%} of the best wins)"
     )
     for row in fitted.info["grid"]:

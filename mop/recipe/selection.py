@@ -28,8 +28,8 @@ from mop.checkpoint import save_model
 from mop.config import RunConfig
 from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
-from mop.io import read_trajectories
 from mop.recipe.shrink import GAINS, best_gain, gain_scores, scale_correction
+from mop.record import read_records
 from mop.records import divergence_step, simulate_all
 from mop.runs import load_predictor
 from mop.train.records import RecordedData, recorded_data
@@ -107,7 +107,7 @@ def select_against_arx(run_dir: str | Path, config: RunConfig) -> dict:
     kept = "network" if best_rmse <= arx_rmse and math.isfinite(best_rmse) else "arx"
     fitted = run_dir / FITTED_FILE
     if kept == "arx":
-        whole = fit("arx", read_trajectories(config.data.path)[1], source=config.data.path)
+        whole = fit("arx", read_records(config.data.path), source=config.data.path)
         write_json(fitted, {"format": 1, **whole.to_json()})
     else:
         fitted.unlink(missing_ok=True)

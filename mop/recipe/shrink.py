@@ -34,9 +34,9 @@ from mop.atomic import write_json
 from mop.checkpoint import save_model
 from mop.config import RunConfig
 from mop.errors import MopError
-from mop.io import read_trajectories
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.predictors import simulate
+from mop.record import read_records
 from mop.systems.base import Trajectories
 
 GAINS = (0.0, 0.25, 0.5, 0.75, 1.0)
@@ -69,7 +69,8 @@ def simulation_rmse(model: nn.Module, config: RunConfig) -> float:
     norm = Normalization.from_lists(d.y_mean, d.y_std, d.u_mean, d.u_std)
     predictor = LearnedPredictor(model, normalization=norm, source=str(config.train.init))
     sq, n = 0.0, 0
-    for y, u in read_trajectories(d.path)[1]:
+    for record in read_records(d.path):
+        y, u = record.y, record.u
         traj = Trajectories(
             y=torch.tensor(y[None], dtype=torch.float32),
             u=None if u is None else torch.tensor(u[None], dtype=torch.float32),
