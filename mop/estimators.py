@@ -162,9 +162,11 @@ class _Identified(Estimator):
         self.name = self.kind.upper()
 
     def fit(self, data: Records) -> Estimator:
+        """Fit on `data`; the fit's info names its estimation record (fitted.json's "estimation"): the file
+        for a path, else the first record's name."""
         records, _ = as_records(data)
         self._fitted_on(records)
-        source = records[0].name or "record"
+        source = str(data) if isinstance(data, (str, os.PathLike)) else records[0].name or "record"
         if self.orders is None:
             self.predictor_ = fit(self.kind, records, self.select, self.max_order, source=source)
         else:
@@ -202,6 +204,10 @@ class N4SID(_Identified):
 
     def __init__(self, order: int | None = None, select: str = SIMULATION, max_order: int = 10) -> None:
         super().__init__(None if order is None else {"n": order}, select, max_order)
+
+
+# the identifiers' estimators by mop.identify's kind (`mop fit KIND`)
+IDENTIFIED: dict[str, type[_Identified]] = {ARX.kind: ARX, N4SID.kind: N4SID}
 
 
 class Learned(Estimator):

@@ -1,7 +1,7 @@
 """`mop fit arx|n4sid EST --out MODEL`: fit the system-identification field's baselines once on an estimation
 record (.csv `trajectory,t,y0..,u0..` or .npz), their orders chosen on the last 20% of each trajectory
 (mop.identify.select), and save them as MODEL/fitted.json; `mop predict MODEL VAL.csv [--simulate C]` then
-predicts or simulates with the fitted model, fixed."""
+predicts or simulates with the fitted model, fixed. The fit is mop.estimators' ARX / N4SID."""
 
 from __future__ import annotations
 
@@ -10,8 +10,10 @@ import warnings
 from pathlib import Path
 
 from mop.errors import MopWarning
-from mop.identify import IDENTIFIERS, fit, save
+from mop.estimators import IDENTIFIED
+from mop.identify import IDENTIFIERS, save
 from mop.identify.select import CRITERIA, HOLDOUT, POLE_RADIUS, SCORE, SIMULATION, TOLERANCE
+from mop.io import reading_once
 from mop.record import read_records
 
 EXAMPLES = """
@@ -39,8 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    records = read_records(args.data)
-    fitted = fit(args.kind, records, args.select, args.max_order, source=args.data)
+    estimator = IDENTIFIED[args.kind](select=args.select, max_order=args.max_order)
+    with reading_once():  # the estimator and the summary read the record once
+        fitted = estimator.fit(args.data).predictor_
+        records = read_records(args.data)
     steps = sum(len(r) for r in records)
     print(
         f"{args.kind}: {len(records)} trajectory(ies), {steps} steps; orders scored by {args.select} RMSE "
