@@ -340,12 +340,12 @@ class TrainConfig:
     missing_burst_length: int = 5  # steps of each burst (every channel missing)
     score_dropped: bool = False
     simulate_after: int = 0  # c > 0: y_s.. dropped and scored, s ~ U{c..T}: a simulation loss (data.py)
-    init: str = ""  # a run directory or pretrained:NAME whose weights step 0 starts from (mop.train.init)
+    init: str = ""  # a run directory or pretrained:NAME whose weights step 0 starts from (mop.recipe.source)
     # True: model.safetensors holds the weights of the lowest validation loss, step 0's included (so a model
     # that starts as its feature ends no worse than it on the validation systems), not the last (loop.py)
     keep_best: bool = False
     # True: after training, the network's correction (the read-out) is scaled by the gain that simulates the
-    # records of data.path best from their start; a fine-tuned class model's default (mop.train.shrink)
+    # records of data.path best from their start; a fine-tuned class model's default (mop.recipe.shrink)
     shrink_correction: bool = False
     # what the one-step loss compares the prediction of y_t with: "outputs", y_t itself (the paper's), or
     # "optimal", the prediction of y_t by the Kalman filter that knows the training system (data.py)

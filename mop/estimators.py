@@ -16,7 +16,7 @@ y_<c and the inputs alone (NaN for t < c), exactly the numbers `mop predict MODE
 (init=0: from the record's start, y_0 its initial condition, t >= 1).
 
 ARX and N4SID are mop.identify's fits (`mop fit arx|n4sid`); Learned trains through the path `mop train --data
-FILE [--init RUN]` takes (mop.recipe.training_config, then mop.train.train): the records are
+FILE [--init RUN]` takes (mop.recipe.training_config, then mop.recipe.training.train): the records are
 written to a CSV in the run's directory, which the run's config names.
 """
 
@@ -45,10 +45,11 @@ from mop.models import build_model
 from mop.predictors import Predictor
 from mop.recipe.layers import training_config
 from mop.recipe.selection import select_against_arx
+from mop.recipe.training import train
 from mop.record import Record, as_pairs, read_records, write_records
 from mop.records import predict_all, simulate_all
 from mop.runs import load_predictor
-from mop.train import resolve_config, resolve_device, train
+from mop.train import resolve_config, resolve_device
 from mop.train.estimate import step_seconds
 
 Records = Record | Sequence[Record] | str | os.PathLike | tuple[Any, Any]
@@ -161,13 +162,15 @@ class _Identified(Estimator):
         self.name = self.kind.upper()
 
     def fit(self, data: Records) -> Estimator:
+        """Fit on `data`; the fit's info names its estimation record (fitted.json's "estimation"): the file
+        for a path, else the first record's name."""
         records, _ = as_records(data)
         self._fitted_on(records)
-        pairs, source = as_pairs(records), records[0].name or "record"
+        source = str(data) if isinstance(data, (str, os.PathLike)) else records[0].name or "record"
         if self.orders is None:
-            self.predictor_ = fit(self.kind, pairs, self.select, self.max_order, source=source)
+            self.predictor_ = fit(self.kind, records, self.select, self.max_order, source=source)
         else:
-            self.predictor_ = fit_orders(self.kind, pairs, self.orders, self.max_order, source=source)
+            self.predictor_ = fit_orders(self.kind, records, self.orders, self.max_order, source=source)
         return self
 
     @property
@@ -201,6 +204,10 @@ class N4SID(_Identified):
 
     def __init__(self, order: int | None = None, select: str = SIMULATION, max_order: int = 10) -> None:
         super().__init__(None if order is None else {"n": order}, select, max_order)
+
+
+# the identifiers' estimators by mop.identify's kind (`mop fit KIND`)
+IDENTIFIED: dict[str, type[_Identified]] = {ARX.kind: ARX, N4SID.kind: N4SID}
 
 
 class Learned(Estimator):

@@ -16,7 +16,7 @@ model has read the context records. There are three readings:
   accumulate, over all of them), in the units of the context's mean and std. The model then reads the test
   with its feature starting from those coefficients (model.rls_prior, as a fine-tune of the class model
   starts at step 0, mop.recipe.finetune.with_record_prior), and its network's correction scaled by a gain
-  g in GAINS (0: the fitted feature alone, 1: the class model as trained; mop.train.shrink). So the model's
+  g in GAINS (0: the fitted feature alone, 1: the class model as trained; mop.recipe.shrink). So the model's
   context is the whole estimation record, not its last C steps, with no training.
 
 Which reading: each is measured on the context itself before the test is touched. The last context
@@ -47,9 +47,9 @@ from mop.models.normalization import Normalization
 from mop.models.predictor import LearnedPredictor
 from mop.models.registry import build_model
 from mop.recipe.finetune import RECORD_PRIOR_STEPS
+from mop.recipe.shrink import GAINS, scale_correction
 from mop.record import Record
 from mop.records import divergence_step, simulate_all, simulation_rmse
-from mop.train.shrink import GAINS, scale_correction
 
 HELD_OUT_MAX = 2000  # the held-out end of the context: at most this many steps, at most a quarter of it
 

@@ -117,6 +117,20 @@ class Record:
         return self[: len(self) - tail], self[len(self) - tail :]
 
 
+# what a function taking records accepts: one Record, a sequence of them, or (y, u) pairs (the older form)
+RecordsLike = Record | Sequence[Record] | Sequence[Pair]
+
+
+def to_records(data: RecordsLike) -> list[Record]:
+    """The records of `data` (RecordsLike); pairs become records named by their position, as read_records
+    names a .npz's. The one place pairs turn into records for the functions that take records."""
+    if isinstance(data, Record):
+        return [data]
+    if all(isinstance(r, Record) for r in data):
+        return list(data)
+    return from_pairs(data)
+
+
 def as_pairs(records: Sequence[Record]) -> list[Pair]:
     """The records as the list of (y, u) pairs the older functions take."""
     return [r.pair for r in records]

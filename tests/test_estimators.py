@@ -14,6 +14,8 @@ from mop.cli import main
 from mop.errors import MopError
 from mop.estimators import ARX, N4SID, Learned, as_records, within_budget
 from mop.identify import fit
+from mop.identify import load as load_fitted
+from mop.io import read_trajectories
 from mop.predictors import simulate
 from mop.recipe.layers import training_config
 from mop.record import Record, read_records, write_records
@@ -185,3 +187,15 @@ def test_compare_estimators_example_runs():
         torch.set_num_threads(threads)
     assert set(rmse) == {"ARX", "N4SID", "Learned"} and all(np.isfinite(v) for v in rmse.values())
     assert rmse["ARX"] < 1.0  # the tanh output's scale: a fitted linear model is not off the chart
+
+
+@pytest.mark.parametrize("kind, Estimator", [("arx", ARX), ("n4sid", N4SID)])
+def test_mop_fit_saves_what_the_estimator_fits_on_the_file(tmp_path, kind, Estimator, capsys):
+    """`mop fit KIND FILE` is the estimator fitted on FILE (the file names the estimation record), which is
+    mop.identify's fit of the file's (y, u) pairs."""
+    path = write_records([plant(200, 0, "a"), plant(150, 1, "b")], tmp_path / "est.csv")
+    assert main(["fit", kind, str(path), "--out", str(tmp_path / "m"), "--max-order", "4"]) == 0
+    saved = load_fitted(tmp_path / "m").to_json()
+    ours = Estimator(max_order=4).fit(str(path)).predictor_.to_json()
+    ref = fit(kind, read_trajectories(path)[1], max_order=4, source=str(path)).to_json()
+    assert saved == ours == ref and saved["estimation"] == "est.csv"

@@ -1,4 +1,4 @@
-"""Fine-tuning (`mop train --data FILE --init RUN`, mop.train.init): step 0 is the source's weights and
+"""Fine-tuning (`mop train --data FILE --init RUN`, mop.recipe.source): step 0 is the source's weights and
 normalisation, a mismatched architecture is refused in one line, and on records of held-out systems a
 fine-tuned class model beats the zero-shot one and one trained from scratch for as many steps."""
 
@@ -95,7 +95,7 @@ def test_the_default_schedule_and_refusals(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "model.width=16" in err and "32" in err and "--init" in err
     assert not (out / "model.safetensors").exists()
-    # how the loss weighs positions is the fine-tune's own choice, not the architecture (init.LOSS_KEYS)
+    # how the loss weighs positions is the fine-tune's own choice, not the architecture (source.LOSS_KEYS)
     loss = [*argv[:-1], "model.horizon_loss=balanced", "train.steps=1"]
     assert main(loss) == 0
     assert json.loads((out / "config.json").read_text())["model"]["horizon_loss"] == "balanced"

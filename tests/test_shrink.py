@@ -1,4 +1,4 @@
-"""train.shrink_correction (mop.train.shrink): a fine-tuned class model's correction scaled by the gain whose
+"""train.shrink_correction (mop.recipe.shrink): a fine-tuned class model's correction scaled by the gain whose
 free-run simulation of the estimation record is best. Checked against the same fine-tune without it (the
 training is deterministic, so the weights differ only by the gain), against `mop predict --simulate 0`'s own
 path (mop.records) for every gain's RMSE, and the choice against the minimum."""
@@ -16,8 +16,8 @@ from mop.io import read_trajectories
 from mop.models import build_model
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.recipe.layers import training_config
+from mop.recipe.shrink import GAINS, SHRINK_FILE
 from mop.records import scores, simulate_all
-from mop.train.shrink import GAINS, SHRINK_FILE
 
 SOURCE = "pretrained:lti-siso"  # a class model trained for simulation (train.simulate_after > 0)
 

@@ -1,7 +1,7 @@
 """`mop fit arx|n4sid EST --out MODEL`: fit the system-identification field's baselines once on an estimation
 record (.csv `trajectory,t,y0..,u0..` or .npz), their orders chosen on the last 20% of each trajectory
 (mop.identify.select), and save them as MODEL/fitted.json; `mop predict MODEL VAL.csv [--simulate C]` then
-predicts or simulates with the fitted model, fixed."""
+predicts or simulates with the fitted model, fixed. The fit is mop.estimators' ARX / N4SID."""
 
 from __future__ import annotations
 
@@ -10,9 +10,11 @@ import warnings
 from pathlib import Path
 
 from mop.errors import MopWarning
-from mop.identify import IDENTIFIERS, fit, save
+from mop.estimators import IDENTIFIED
+from mop.identify import IDENTIFIERS, save
 from mop.identify.select import CRITERIA, HOLDOUT, POLE_RADIUS, SCORE, SIMULATION, TOLERANCE
-from mop.io import read_trajectories
+from mop.io import reading_once
+from mop.record import read_records
 
 EXAMPLES = """
 grids: arx p = 1..P, q = 1..P (q = 0 without inputs); n4sid n = 1..P; P = --max-order.
@@ -39,11 +41,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    names, data = read_trajectories(args.data)
-    fitted = fit(args.kind, data, args.select, args.max_order, source=args.data)
-    steps = sum(len(y) for y, _ in data)
+    estimator = IDENTIFIED[args.kind](select=args.select, max_order=args.max_order)
+    with reading_once():  # the estimator and the summary read the record once
+        fitted = estimator.fit(args.data).predictor_
+        records = read_records(args.data)
+    steps = sum(len(r) for r in records)
     print(
-        f"{args.kind}: {len(data)} trajectory(ies), {steps} steps; orders scored by {args.select} RMSE "
+        f"{args.kind}: {len(records)} trajectory(ies), {steps} steps; orders scored by {args.select} RMSE "
         f"on the last {HOLDOUT:.0%} of each trajectory (the smallest within {TOLERANCE:.0%} of the best wins)"
     )
     for row in fitted.info["grid"]:

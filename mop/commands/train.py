@@ -15,11 +15,11 @@ from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.layers import training_config
 from mop.recipe.records import budget_plan, feature_line, order_line
 from mop.recipe.selection import select_against_arx, selection_line
+from mop.recipe.shrink import SHRINK_FILE, shrink_line
+from mop.recipe.training import train
 from mop.runs import read_run_json
-from mop.train import train
 from mop.train.data import validates_tails
 from mop.train.records import recorded_data
-from mop.train.shrink import SHRINK_FILE, shrink_line
 
 EPILOG = """examples:
   mop train --out runs/linear                        # the linear family: CPU preset small, GPU paper

@@ -22,9 +22,7 @@ from typing import Any
 import numpy as np
 
 from mop.errors import MopError
-from mop.identify.linear import IDENTIFIERS, FittedPredictor, LinearModel
-
-Data = list[tuple[np.ndarray, np.ndarray]]  # [(y (T_i+1, m), u (T_i+1, k))], k may be 0
+from mop.identify.linear import IDENTIFIERS, Arrays, FittedPredictor, LinearModel
 
 
 def arx_rows(y: np.ndarray, u: np.ndarray, p: int, q: int) -> tuple[np.ndarray, np.ndarray]:
@@ -36,11 +34,11 @@ def arx_rows(y: np.ndarray, u: np.ndarray, p: int, q: int) -> tuple[np.ndarray, 
     return Phi, y[r:]
 
 
-def num_equations(data: Data, p: int, q: int) -> int:
+def num_equations(data: Arrays, p: int, q: int) -> int:
     return sum(max(len(y) - max(p, q), 0) for y, _ in data)
 
 
-def fit_theta(data: Data, p: int, q: int) -> np.ndarray:
+def fit_theta(data: Arrays, p: int, q: int) -> np.ndarray:
     """theta (p m + q k + 1, m) minimizing sum over trajectories and t of ||y_t - theta^T phi_t||^2."""
     rows = [arx_rows(y, u, p, q) for y, u in data]
     Phi, Y = np.concatenate([r[0] for r in rows]), np.concatenate([r[1] for r in rows])
@@ -70,7 +68,7 @@ def arx_model(theta: np.ndarray, p: int, q: int, y_mean: np.ndarray, u_mean: np.
     return LinearModel(A=A, B=B, C=C, K=K, b=b, d=d, x0=x0)
 
 
-def means(data: Data) -> tuple[np.ndarray, np.ndarray]:
+def means(data: Arrays) -> tuple[np.ndarray, np.ndarray]:
     """(y mean (m,), u mean (k,)) over every sample of the record."""
     return np.concatenate([y for y, _ in data]).mean(0), np.concatenate([u for _, u in data]).mean(0)
 
@@ -92,7 +90,7 @@ class ARX:
         return orders["p"] * output_dim + orders["q"] * input_dim
 
     @staticmethod
-    def feasible(data: Data, orders: dict[str, int], max_order: int) -> bool:
+    def feasible(data: Arrays, orders: dict[str, int], max_order: int) -> bool:
         """Whether the record has at least as many equations as ARX(p, q) has coefficients per output."""
         p, q = orders["p"], orders["q"]
         y, u = data[0]
@@ -100,7 +98,7 @@ class ARX:
 
     @staticmethod
     def fit_grid(
-        data: Data, candidates: list[dict[str, int]], info: dict[str, Any], max_order: int
+        data: Arrays, candidates: list[dict[str, int]], info: dict[str, Any], max_order: int
     ) -> list[FittedPredictor]:
         y_mean, u_mean = means(data)
         m, k = len(y_mean), len(u_mean)

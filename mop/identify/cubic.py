@@ -22,6 +22,8 @@ import math
 
 import numpy as np
 
+from mop.identify.linear import Arrays
+
 SELECTION_SHARE = 0.2  # the last share of each training record on which candidates are scored
 EXTRA_LAGS = 3  # candidates p = p_arx .. p_arx + EXTRA_LAGS output lags (c = 1..p of them cubed)
 RIDGE = 1e-8  # relative ridge of the least squares (collinear lags of smooth records)
@@ -42,7 +44,7 @@ def regressor_rows(y: np.ndarray, u: np.ndarray, p: int, q: int, c: int) -> np.n
     return np.concatenate([*ys, *[a**3 for a in ys[:c]], *lags(u, q), np.ones((L, 1))], axis=1)
 
 
-def fit_narx(parts: list[tuple[np.ndarray, np.ndarray]], p: int, q: int, c: int) -> np.ndarray:
+def fit_narx(parts: Arrays, p: int, q: int, c: int) -> np.ndarray:
     """theta (d, m): least squares of y_{t+1} on regressor_rows' row t over the pairs t + 1 >= max(p, q)."""
     r = max(p, q)
     rows = [regressor_rows(y, u, p, q, c)[r - 1 : -1] for y, u in parts]
@@ -81,9 +83,7 @@ def _padded(y: np.ndarray, t: int, p: int) -> np.ndarray:
     return np.concatenate(rows)
 
 
-def choose_cubes(
-    parts: list[tuple[np.ndarray, np.ndarray]], p: int, q: int
-) -> tuple[int, int, dict[str, float]]:
+def choose_cubes(parts: Arrays, p: int, q: int) -> tuple[int, int, dict[str, float]]:
     """(p, c) of the lowest held-out simulation RMSE among the candidates of p..p + EXTRA_LAGS output
     lags with c = 0..p' of them cubed, each fitted on the first 80% of every
     record of `parts` ((y (L, m), u (L, k)) normalised) and simulating its last SELECTION_SHARE after the

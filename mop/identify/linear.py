@@ -34,6 +34,10 @@ from mop.systems.base import Trajectories
 # name -> the identifier's class: candidates, size, feasible, fit_grid (mop.identify.arx, mop.identify.n4sid)
 IDENTIFIERS: Registry = Registry("fitted identifier")
 
+# the identifiers' arrays: [(y (T_i, m), u (T_i, k))] of complete records, u (T_i, 0) without inputs
+# (mop.identify.select.complete_record makes them from records)
+Arrays = list[tuple[np.ndarray, np.ndarray]]
+
 RCOND = 1e-8  # least-squares state estimates ignore directions the outputs see this weakly (unobservable)
 
 

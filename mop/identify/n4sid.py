@@ -24,8 +24,8 @@ import scipy.linalg
 import torch
 
 from mop.filters.subspace import _lstsq_right, block_hankel
-from mop.identify.arx import Data, means
-from mop.identify.linear import IDENTIFIERS, FittedPredictor, LinearModel
+from mop.identify.arx import means
+from mop.identify.linear import IDENTIFIERS, Arrays, FittedPredictor, LinearModel
 
 RIDGE = 1e-8  # relative, as mop.filters.subspace: times the number of Hankel columns
 
@@ -34,12 +34,12 @@ def block_rows(max_order: int, output_dim: int) -> int:
     return math.ceil(max_order / output_dim) + 1
 
 
-def columns(data: Data, i: int) -> int:
+def columns(data: Arrays, i: int) -> int:
     """Block Hankel columns of the record: sum over trajectories of T_i + 1 - 2 i + 1 (those long enough)."""
     return sum(max(len(y) - 2 * i + 1, 0) for y, _ in data)
 
 
-def _hankels(data: Data, i: int) -> tuple[torch.Tensor, torch.Tensor, list[int]]:
+def _hankels(data: Arrays, i: int) -> tuple[torch.Tensor, torch.Tensor, list[int]]:
     """(Hy (2 i m, J), Hu (2 i k, J), columns per trajectory) over the trajectories with >= 2 i outputs."""
     hy, hu, cols = [], [], []
     for y, u in data:
@@ -50,7 +50,7 @@ def _hankels(data: Data, i: int) -> tuple[torch.Tensor, torch.Tensor, list[int]]
     return torch.cat(hy, -1), torch.cat(hu, -1), cols
 
 
-def project(data: Data, i: int) -> tuple[torch.Tensor, torch.Tensor, list[int]]:
+def project(data: Arrays, i: int) -> tuple[torch.Tensor, torch.Tensor, list[int]]:
     """(S (i m,), Vh (i m, J), columns per trajectory): the SVD of the oblique projection O = L_w W_p."""
     Hy, Hu, cols = _hankels(data, i)
     m, k = data[0][0].shape[1], data[0][1].shape[1]
@@ -78,7 +78,7 @@ def kalman_gain(A: np.ndarray, C: np.ndarray, W: np.ndarray, E: np.ndarray) -> n
 
 
 def realize(
-    data: Data, S: torch.Tensor, Vh: torch.Tensor, cols: list[int], order: int, i: int
+    data: Arrays, S: torch.Tensor, Vh: torch.Tensor, cols: list[int], order: int, i: int
 ) -> tuple[np.ndarray, ...]:
     """(A (n, n), B (n, k), C (m, n), K (n, m)) of order n = `order` from the shared SVD."""
     X = S[:order, None].sqrt() * Vh[:order]  # (n, J)
@@ -97,7 +97,7 @@ def realize(
     return A, B, C, kalman_gain(A, C, W, E)
 
 
-def output_offset(model: LinearModel, data: Data) -> np.ndarray:
+def output_offset(model: LinearModel, data: Arrays) -> np.ndarray:
     """delta (m,): the constant that, added to d, best explains the record by least squares together with an
     initial state per trajectory (projected out): y_t - free_t = C A^t x0 + delta, free the deterministic
     response from x = 0. The estimation means are not the model's equilibrium (they differ from it by the
@@ -119,7 +119,7 @@ def output_offset(model: LinearModel, data: Data) -> np.ndarray:
     return np.linalg.lstsq(G, h, rcond=None)[0]
 
 
-def n4sid_model(A, B, C, K, y_mean: np.ndarray, u_mean: np.ndarray, data: Data) -> LinearModel:  # noqa: ANN001
+def n4sid_model(A, B, C, K, y_mean: np.ndarray, u_mean: np.ndarray, data: Arrays) -> LinearModel:  # noqa: ANN001
     """The innovation model in the data's units: b = -B u_mean, d = y_mean + output_offset, x0 = 0."""
     model = LinearModel(A=A, B=B, C=C, K=K, b=-B @ u_mean, d=y_mean.copy(), x0=np.zeros(A.shape[0]))
     return replace(model, d=y_mean + output_offset(model, data))
@@ -140,7 +140,7 @@ class N4SID:
         return orders["n"]
 
     @staticmethod
-    def feasible(data: Data, orders: dict[str, int], max_order: int) -> bool:
+    def feasible(data: Arrays, orders: dict[str, int], max_order: int) -> bool:
         """Whether the Hankel matrices have at least twice as many columns as the projection has regressors
         (2 i k + i m), with the block rows of the grid up to max_order."""
         m, k = data[0][0].shape[1], data[0][1].shape[1]
@@ -149,7 +149,7 @@ class N4SID:
 
     @staticmethod
     def fit_grid(
-        data: Data, candidates: list[dict[str, int]], info: dict[str, Any], max_order: int
+        data: Arrays, candidates: list[dict[str, int]], info: dict[str, Any], max_order: int
     ) -> list[FittedPredictor]:
         y_mean, u_mean = means(data)
         m, k = len(y_mean), len(u_mean)

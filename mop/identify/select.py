@@ -19,8 +19,8 @@ import numpy as np
 import torch
 
 from mop.errors import MopError
-from mop.identify.linear import IDENTIFIERS, FittedPredictor
-from mop.io import Data as RecordData
+from mop.identify.linear import IDENTIFIERS, Arrays, FittedPredictor
+from mop.record import Record, RecordsLike, to_records
 from mop.systems.base import Trajectories
 
 HOLDOUT = 0.2
@@ -29,18 +29,17 @@ SIMULATION, ONE_STEP = "simulation", "one-step"  # the --select criteria
 CRITERIA = (SIMULATION, ONE_STEP)
 SCORE = "rmse"  # the held-out score's key in fitted.json's grid
 POLE_RADIUS = "pole_radius"  # fitted.json: the chosen model's largest pole modulus
-Data = list[tuple[np.ndarray, np.ndarray]]
 
 
-def complete_record(data: RecordData, source: str) -> Data:
-    """[(y, u)] with u (T+1, 0) where there are no inputs; MopError for missing outputs or mixed columns."""
-    missing = sum(int(np.isnan(y).sum()) for y, _ in data)
+def complete_record(records: list[Record], source: str) -> Arrays:
+    """[(y, u)] with u (T, 0) where there are no inputs; MopError for missing outputs."""
+    missing = sum(int(np.isnan(r.y).sum()) for r in records)
     if missing:
         raise MopError(
             f"{source}: {missing} output(s) missing (NaN / empty cells); fitted identifiers need every "
             "output of the estimation record: fill the gaps or cut the record at them"
         )
-    return [(y, np.zeros((len(y), 0)) if u is None else u) for y, u in data]
+    return [(r.y, np.zeros((len(r), 0)) if r.u is None else r.u) for r in records]
 
 
 def holdout_cut(length: int) -> int:
@@ -48,14 +47,14 @@ def holdout_cut(length: int) -> int:
     return length - max(1, math.ceil(HOLDOUT * length))
 
 
-def score(predictor: FittedPredictor, data: Data, select: str) -> float:
+def score(predictor: FittedPredictor, data: Arrays, select: str) -> float:
     """RMSE over the held-out outputs y_cut..y_T of every trajectory (inf where a prediction is not
     finite)."""
     with np.errstate(over="ignore", invalid="ignore"):  # an unstable candidate overflows: it scores inf
         return _score(predictor, data, select)
 
 
-def _score(predictor: FittedPredictor, data: Data, select: str) -> float:
+def _score(predictor: FittedPredictor, data: Arrays, select: str) -> float:
     errors = []
     for y, u in data:
         cut = holdout_cut(len(y))
@@ -77,7 +76,7 @@ def choose(candidates: list[dict[str, int]], scores: list[float], size: Any, spr
     return candidates[min(good, key=lambda i: (size(candidates[i]), i))]
 
 
-def largest_feasible(identifier: Any, data: Data, max_order: int) -> int:
+def largest_feasible(identifier: Any, data: Arrays, max_order: int) -> int:
     """The largest P <= max_order whose whole grid the record can fit (0 if none)."""
     k = data[0][1].shape[1]
     for P in range(max_order, 0, -1):
@@ -86,7 +85,7 @@ def largest_feasible(identifier: Any, data: Data, max_order: int) -> int:
     return 0
 
 
-def check_length(kind: str, identifier: Any, data: Data, est: Data, max_order: int, source: str) -> None:
+def check_length(kind: str, identifier: Any, data: Arrays, est: Arrays, max_order: int, source: str) -> None:
     """MopError before any fit when the estimation part is too short for the grid up to max_order."""
     P = largest_feasible(identifier, est, max_order)
     if P == max_order:
@@ -99,25 +98,25 @@ def check_length(kind: str, identifier: Any, data: Data, est: Data, max_order: i
     )
 
 
-def feasible_order(kind: str, data: RecordData, max_order: int = 10, source: str = "record") -> int:
+def feasible_order(kind: str, data: RecordsLike, max_order: int = 10, source: str = "record") -> int:
     """The largest P <= max_order for which `fit(kind, data, max_order=P)` has enough steps (0: none)."""
-    record = complete_record(data, source)
+    record = complete_record(to_records(data), source)
     est = [(y[: holdout_cut(len(y))], u[: holdout_cut(len(y))]) for y, u in record]
     return largest_feasible(IDENTIFIERS.get(kind), est, max_order)
 
 
 def fit(
-    kind: str, data: RecordData, select: str = SIMULATION, max_order: int = 10, source: str = "record"
+    kind: str, data: RecordsLike, select: str = SIMULATION, max_order: int = 10, source: str = "record"
 ) -> FittedPredictor:
     """The fitted `kind` ("arx" or "n4sid") with the orders that scored best on the held-out steps, refitted
-    on the whole record. data: [(y (T_i+1, m), u (T_i+1, k) or None)] as mop.io.read_trajectories gives.
+    on the whole record. data: a mop.Record or a sequence of them (or (y, u) pairs, mop.record.to_records).
     The predictor's info records the estimation source, the criterion and every order's held-out score."""
     identifier = IDENTIFIERS.get(kind)
     if select not in CRITERIA:
         raise MopError(f"--select must be one of {', '.join(CRITERIA)}, got {select!r}")
     if not isinstance(max_order, int) or max_order < 1:
         raise MopError(f"--max-order must be an integer >= 1, got {max_order!r}")
-    record = complete_record(data, source)
+    record = complete_record(to_records(data), source)
     est = [(y[: holdout_cut(len(y))], u[: holdout_cut(len(y))]) for y, u in record]
     check_length(kind, identifier, record, est, max_order, source)
     info = {"estimation": Path(source).name, "select": select, "max_order": max_order, "holdout": HOLDOUT}
@@ -140,13 +139,13 @@ def fit(
 
 
 def fit_orders(
-    kind: str, data: RecordData, orders: dict[str, int], max_order: int = 10, source: str = "record"
+    kind: str, data: RecordsLike, orders: dict[str, int], max_order: int = 10, source: str = "record"
 ) -> FittedPredictor:
     """The `kind` model of the given orders (e.g. {"p": 2, "q": 2}, {"n": 3}) fitted on the whole record, no
     order chosen; max_order sets what the grid would (N4SID's block rows, at least those of the order).
     MopError, before any fit, where the record is too short for those orders."""
     identifier = IDENTIFIERS.get(kind)
-    record = complete_record(data, source)
+    record = complete_record(to_records(data), source)
     k = record[0][1].shape[1]
     ints = bool(orders) and all(isinstance(v, int) and v >= 0 for v in orders.values())
     largest = max(max_order, *orders.values()) if ints else max_order

@@ -3,7 +3,10 @@
 - layers: the config's layers (a preset or experiment, the data, the recipes, the overrides);
 - records: the records recipe before training (orders, the cubic NARX choice, model and budget);
 - selection: the records recipe after training (the network's gain or the fitted ARX, on held-out data);
-- finetune: the fine-tune recipe of `--init SOURCE`;
+- finetune: the fine-tune recipe of `--init SOURCE`: its config;
+- source: the fine-tune's source (its architecture check, its weights at step 0);
+- shrink: the correction's gain chosen after a fine-tune (train.shrink_correction);
+- training: mop.train's loop with those steps around it (what `mop train` trains with);
 - budget: the steps a training budget in minutes buys on a record.
 
 It sits above mop.train (which trains a resolved config) and mop.experiments (whose experiments `mop train

@@ -3,8 +3,9 @@
 FINE_TUNE sets a short schedule before the overrides (with_fine_tuning); after them a feature whose orders
 they changed is refitted on the record (with_refitted_orders), a class model's in-context ARX feature starts
 from the record's least-squares ARX (with_record_prior), and its windows fit the record's split
-(record_horizon). The steps after training (keeping the best validation weights, the correction's gain)
-are mop.train's (train.keep_best, train.shrink_correction).
+(record_horizon). The steps around training are mop.recipe.training's: the source's weights at step 0
+(mop.recipe.source) and the correction's gain after the last step (train.shrink_correction,
+mop.recipe.shrink); keeping the best validation weights is the loop's option train.keep_best.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from mop.config import (
     parse_overrides,
 )
 from mop.recipe.records import record_orders
-from mop.train.init import PRIOR_KEYS
+from mop.recipe.source import PRIOR_KEYS
 from mop.train.records import recorded_data
 
 # 125: on the tank_records plants 1-6 (pretrained:cascaded-tanks fine-tuned on est.csv, seeds 0 / 1, the
@@ -76,7 +77,7 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     does, so from its first steps the model reads the record's ARX rather than one identified from those
     steps alone, unless an override names the prior (PRIOR_KEYS). The feature's orders are those `mop fit arx
     REC` chooses on the whole record (record_orders), unless an override names model.rls_order or
-    model.arx_order: simulated with the correction's gain 0 (mop.train.shrink) the model is then the linear
+    model.arx_order: simulated with the correction's gain 0 (mop.recipe.shrink) the model is then the linear
     model the user fits on REC (refitted on the training part; a simulation reads no outputs to update it).
     Measured with scripts/carry_over.py, seeds 0 / 1, simulations from steps 0, 50, 200 (README.md at
     07be122), against the source's ARX(10, 10): tank plants 1-6 below their fitted ARX in 32 of 36 (mean
@@ -90,7 +91,7 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     record simulated from its start is not read with an output std of 0, which would leave the first window
     (model.context steps) to the feature alone. A source trained for simulation (train.simulate_after) with
     the mean read-out also scales its correction by the gain that simulates the record best
-    (train.shrink_correction, mop.train.shrink), unless an override names it."""
+    (train.shrink_correction, mop.recipe.shrink), unless an override names it."""
     m, named = config.model, parse_overrides(overrides)
     if config.data is None or m.record_norm == "none" or m.rls_order == 0 or m.rls_prior != "none":
         return config
@@ -120,7 +121,7 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
 
 
 def with_refitted_orders(config: RunConfig, source: RunConfig) -> RunConfig:
-    """A fine-tune whose override changed the feature's orders (mop.train.init.ORDER_KEYS) refits the
+    """A fine-tune whose override changed the feature's orders (mop.recipe.source.ORDER_KEYS) refits the
     feature's start on the record (model.rls_prior = "fit") where the source's start is a list of
     coefficients: those are of the source's orders."""
     m, s = config.model, source.model

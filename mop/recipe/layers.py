@@ -14,7 +14,7 @@ Layers, later wins:
    train.keep_best: its one-step validation loss on one record's last 10% picked step 500 of seed 1 on
    tank_records --plant 5, which simulates at 1.009 against 0.49 at step 1000);
 4. the dotted key=value overrides.
-With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.train.init) the base is the
+With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.recipe.source) the base is the
 source's own RunConfig (its model, so the architecture is the source's; its data normalisation kept, where
 it was trained on recorded data), layer 3 is skipped, and FINE_TUNE sets a short schedule before the
 overrides: FINE_TUNE_STEPS steps at a tenth of the source's learning rate, constant, no warm-up (the weights

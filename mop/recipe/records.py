@@ -22,9 +22,8 @@ from mop.errors import MopError
 from mop.identify.arx import ARX
 from mop.identify.cubic import EXTRA_LAGS, choose_cubes
 from mop.identify.select import feasible_order, fit
-from mop.io import Data as RecordData
-from mop.io import read_trajectories
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_steps
+from mop.record import RecordsLike, read_records
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.records import recorded_data, window_count
 
@@ -38,7 +37,7 @@ RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2
 FEATURE_KEYS = tuple(f"model.{key}" for key in AUTO_KEYS if key != "input_scale")
 
 
-def arx_orders(data: RecordData, source: str) -> tuple[int, int] | None:
+def arx_orders(data: RecordsLike, source: str) -> tuple[int, int] | None:
     """(p, q): the ARX orders `mop fit arx` chooses on `data` (mop.identify.select.fit: free-run
     simulation of its last 20%); on data too short for orders up to 10, those of `--max-order P` with the
     largest P it allows; None where it allows none."""
@@ -52,8 +51,7 @@ def arx_orders(data: RecordData, source: str) -> tuple[int, int] | None:
 def fitted_orders(data: DataConfig) -> tuple[int, int]:
     """(p, q): arx_orders on the record's training part (the records recipe's feature)."""
     record = recorded_data(data)
-    m = record.output_dim
-    orders = arx_orders([(a[:, :m], a[:, m:]) for a in record.train_parts], data.path)
+    orders = arx_orders(record.records(record.train_parts), data.path)
     if orders is None:
         raise MopError(
             f"{data.path}: its training part is too short to fit the records recipe's ARX feature; give a "
@@ -78,7 +76,7 @@ def fitted_cubes(data: DataConfig, p: int, q: int) -> tuple[int, int]:
 def record_orders(path: str) -> tuple[int, int] | None:
     """(p, q): arx_orders on the whole estimation record at `path`, its validation part included: the
     orders of `mop fit arx PATH`."""
-    return arx_orders(read_trajectories(path)[1], path)
+    return arx_orders(read_records(path), path)
 
 
 def budget_plan(config: RunConfig, minutes: float = DEFAULT_BUDGET_MINUTES) -> BudgetPlan:

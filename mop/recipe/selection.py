@@ -1,7 +1,7 @@
 """Never worse than the fitted linear model: the choice a records run makes after training.
 
 After a records-recipe run has trained, its network with the correction at each gain of
-mop.train.shrink.GAINS (1: as trained; 0: its in-context feature alone) and the ARX that `mop fit arx`
+mop.recipe.shrink.GAINS (1: as trained; 0: its in-context feature alone) and the ARX that `mop fit arx`
 chooses on the same training part simulate the held-out data (held_out_stretches: the last 10% of a record
 after the 50 measured steps before it, or the held-out trajectories, or --val) from the inputs alone, and
 are scored by the RMSE of the simulated steps (a simulation that diverges scores inf:
@@ -28,11 +28,11 @@ from mop.checkpoint import save_model
 from mop.config import RunConfig
 from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
-from mop.io import read_trajectories
+from mop.recipe.shrink import GAINS, best_gain, gain_scores, scale_correction
+from mop.record import read_records
 from mop.records import divergence_step, simulate_all
 from mop.runs import load_predictor
 from mop.train.records import RecordedData, recorded_data
-from mop.train.shrink import GAINS, best_gain, gain_scores, scale_correction
 
 SELECTION_FILE = "selection.json"
 INIT_WINDOW = 50  # measured outputs a held-out simulation starts from (the benchmarks' usual n)
@@ -73,7 +73,7 @@ def held_out_stretches(record: RecordedData) -> list[tuple[np.ndarray, np.ndarra
 
 
 def _gains_apply(predictor) -> bool:
-    """Whether the network's correction can be scaled (mop.train.shrink): a transformer with the mean
+    """Whether the network's correction can be scaled (mop.recipe.shrink): a transformer with the mean
     read-out reading a feature, whose gain 0 is that feature alone."""
     cfg = getattr(getattr(predictor, "model", None), "cfg", None)
     return cfg is not None and getattr(cfg, "rls_order", 0) > 0 and getattr(cfg, "readout", "") == "mean"
@@ -81,7 +81,7 @@ def _gains_apply(predictor) -> bool:
 
 def select_against_arx(run_dir: str | Path, config: RunConfig) -> dict:
     """Choose what the finished run in `run_dir` predicts with, by free-run simulation of its held-out data
-    (held_out_stretches): the network with its correction at each gain of mop.train.shrink.GAINS (1: as
+    (held_out_stretches): the network with its correction at each gain of mop.recipe.shrink.GAINS (1: as
     trained; 0: its in-context feature alone), or `mop fit arx`'s ARX fitted on the training part. On
     a tie the network at the larger gain is kept. Writes SELECTION_FILE; a gain below 1 is written into
     the run's model.safetensors, and where the ARX wins the run also holds it refitted on the whole record
@@ -107,7 +107,7 @@ def select_against_arx(run_dir: str | Path, config: RunConfig) -> dict:
     kept = "network" if best_rmse <= arx_rmse and math.isfinite(best_rmse) else "arx"
     fitted = run_dir / FITTED_FILE
     if kept == "arx":
-        whole = fit("arx", read_trajectories(config.data.path)[1], source=config.data.path)
+        whole = fit("arx", read_records(config.data.path), source=config.data.path)
         write_json(fitted, {"format": 1, **whole.to_json()})
     else:
         fitted.unlink(missing_ok=True)

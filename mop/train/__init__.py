@@ -6,8 +6,8 @@
     device.py    the device and the DDP process group
     auto.py      model.features=auto: the input feature and step budget from the family's shapes and data
     rundir.py    the run directory: config check and reuse, metrics log, checkpoint of the training state
-    shrink.py    train.shrink_correction: the correction's gain that simulates the record best
-    loop.py      train(), train_model(): the loop (signals, NaN stop, DDP slices)
+    loop.py      train(), train_model(): the loop (signals, NaN stop, DDP slices); TrainHooks, a recipe's
+                 steps around it (the fine-tune's are mop.recipe.training's)
     progress.py  the progress display
 
 Loading a trained run (config, model, predictor) is mop.runs, which does not import the trainer.
@@ -16,12 +16,13 @@ Loading a trained run (config, model, predictor) is mop.runs, which does not imp
 from mop.train.auto import describe_features, for_arch, resolve_features
 from mop.train.data import TrainingData, validation_batch
 from mop.train.device import resolve_device
-from mop.train.loop import TrainState, train, train_model
+from mop.train.loop import TrainHooks, TrainState, train, train_model
 from mop.train.optim import LossModule, autocast, learning_rate, make_optimizer, maybe_compile, train_step
 from mop.train.rundir import resolve_config
 
 __all__ = [
     "LossModule",
+    "TrainHooks",
     "TrainState",
     "TrainingData",
     "autocast",

@@ -8,6 +8,9 @@ good checkpoint kept.
 DDP: under `torchrun --nproc_per_node N` every rank draws the same global batch and trains on its slice
 (rank r takes rows [r b, (r+1) b), b = batch_size / N); gradients are averaged by DistributedDataParallel,
 so one step equals a single-process step on the global batch. Rank 0 writes the run directory.
+
+The loop is a plain trainer: a recipe that adds steps around it (the fine-tune's source weights at step 0,
+the correction's gain after the last step: mop.recipe.training) hands them in as TrainHooks.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ import torch
 import torch.distributed as dist
 from torch import Tensor, nn
 
-from mop.atomic import clean_orphans, write_json
+from mop.atomic import clean_orphans
 from mop.checkpoint import load_model_weights, save_model
 from mop.config import RunConfig
 from mop.errors import MopError
@@ -36,7 +39,6 @@ from mop.runs import load_model
 from mop.train.data import TrainingData, validation_batch
 from mop.train.device import init_distributed, setup_device
 from mop.train.estimate import plan_line
-from mop.train.init import check_init, load_init
 from mop.train.lock import run_lock
 from mop.train.optim import (
     LossModule,
@@ -57,7 +59,27 @@ from mop.train.rundir import (
     write_done,
     write_input_stats,
 )
-from mop.train.shrink import SHRINK_FILE, check_shrink, choose_gain
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainHooks:
+    """Steps a recipe runs around the loop, each handed the resolved config (mop.train.rundir.resolve_config).
+
+    check(config): before the run directory is read or written (one-line MopErrors);
+    initial_weights(config, model): at step 0 of a run that starts (not a resumed one), in place, before
+        the optimizer's first step;
+    after(config, model, out_dir): rank 0, after the last step (and after train.keep_best has loaded the
+        kept weights), before done.json; also on a resumed run stopped between the two, so it must be safe
+        to run twice.
+    """
+
+    check: Callable[[RunConfig], None] | None = None
+    initial_weights: Callable[[RunConfig, nn.Module], None] | None = None
+    after: Callable[[RunConfig, nn.Module, Path], None] | None = None
+
+
+# config keys whose meaning is a recipe's step: a config naming one trains with that recipe's TrainHooks
+RECIPE_KEYS = ("init", "shrink_correction")
 
 
 @dataclasses.dataclass
@@ -77,6 +99,7 @@ class TrainState:
     val: tuple[Tensor, Tensor] | None = None  # (N, T, d_in), (N, T, m)
     log: MetricsLog | None = None
     best: tuple[int, float] | None = None  # train.keep_best: (step, val_loss) of model.safetensors' weights
+    hooks: TrainHooks = TrainHooks()
 
 
 def train(
@@ -87,6 +110,7 @@ def train(
     wait: bool = True,
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
+    hooks: TrainHooks | None = None,
 ) -> Path:
     """Train `config` into `out_dir` (resuming from its checkpoint if any); returns the run directory.
 
@@ -95,18 +119,25 @@ def train(
     fresh: start over, removing what the directory holds besides config.json (a damaged run).
     announce: given, rank 0 hands it one line before the first step: the model's size, the steps left and an
     estimated time (mop.train.estimate.plan_line; a few trial steps on a copy of the model).
+    hooks: a recipe's steps around the loop (TrainHooks); a config naming train.init or
+    train.shrink_correction is refused without them (mop.recipe.training.train hands them in).
     Temporaries of writes killed in an earlier run are removed first.
     """
-    _train(config, Path(out_dir), progress, wait, fresh, announce)
+    _train(config, Path(out_dir), progress, wait, fresh, announce, hooks)
     return Path(out_dir)
 
 
 def train_model(
-    config: RunConfig, out_dir: str | os.PathLike, *, progress: bool = True, wait: bool = True
+    config: RunConfig,
+    out_dir: str | os.PathLike,
+    *,
+    progress: bool = True,
+    wait: bool = True,
+    hooks: TrainHooks | None = None,
 ) -> nn.Module:
     """Train like train() and hand back the trained model, in eval mode on the CPU, so a caller predicts
     with it without reloading it; a run `out_dir` already finished is loaded from there (mop.runs)."""
-    model = _train(config, Path(out_dir), progress, wait, False)
+    model = _train(config, Path(out_dir), progress, wait, False, None, hooks)
     return load_model(out_dir)[0] if model is None else model.to("cpu").eval()
 
 
@@ -117,11 +148,15 @@ def _train(
     wait: bool,
     fresh: bool,
     announce: Callable[[str], None] | None = None,
+    hooks: TrainHooks | None = None,
 ) -> nn.Module | None:
     """The trained model, or None when `out_dir` holds a finished run of `config` (nothing is trained)."""
     config = resolve_config(config)
-    check_init(config)
-    check_shrink(config)
+    if hooks is None:
+        _check_no_recipe_keys(config)
+        hooks = TrainHooks()
+    if hooks.check is not None:
+        hooks.check(config)
     cfg = config.train
     rank, world = init_distributed()
     if cfg.batch_size % world:
@@ -137,7 +172,17 @@ def _train(
             clean_orphans(out_dir)
             if fresh:
                 fresh_start(out_dir)
-        return _train_locked(config, out_dir, rank, world, progress, announce)
+        return _train_locked(config, out_dir, rank, world, progress, announce, hooks)
+
+
+def _check_no_recipe_keys(config: RunConfig) -> None:
+    """One-line MopError for a config naming a recipe's key (RECIPE_KEYS) trained without its steps."""
+    for key in RECIPE_KEYS:
+        if getattr(config.train, key):
+            raise MopError(
+                f"train.{key} is a step of the fine-tune recipe, which this trainer was not given: train "
+                "the config with mop.recipe.training.train (as `mop train` does)"
+            )
 
 
 def _train_locked(
@@ -146,12 +191,13 @@ def _train_locked(
     rank: int,
     world: int,
     progress: bool,
-    announce: Callable[[str], None] | None = None,
+    announce: Callable[[str], None] | None,
+    hooks: TrainHooks,
 ) -> nn.Module:
     device = setup_device(config.train, world)
     if rank == 0:
         write_config(out_dir, config)
-    state = _start(config, out_dir, device, rank, world)
+    state = _start(config, out_dir, device, rank, world, hooks)
     if announce is not None and rank == 0:
         announce(plan_line(config, state.model, device, state.step))
     try:
@@ -162,21 +208,26 @@ def _train_locked(
     return state.model
 
 
-def _start(config: RunConfig, out_dir: Path, device: torch.device, rank: int, world: int) -> TrainState:
-    """Seeded model, AdamW and data, restored from the checkpoint when there is one."""
+def _start(
+    config: RunConfig, out_dir: Path, device: torch.device, rank: int, world: int, hooks: TrainHooks
+) -> TrainState:
+    """Seeded model, AdamW and data, restored from the checkpoint when there is one (else the recipe's
+    initial weights, where it has them)."""
     torch.manual_seed(config.train.seed)
     model = build_model(config.model).to(device)
     optimizer = make_optimizer(model, config.train, device)
     data = TrainingData(config, device)
     step = restore_training_state(out_dir, model, optimizer, data.generator, device)
-    if step == 0 and config.train.init:  # fine-tuning: the source's weights at step 0
-        load_init(config, model)
+    if step == 0 and hooks.initial_weights is not None:
+        hooks.initial_weights(config, model)
     if world > 1:
         dist.barrier()
     loss_fn = maybe_compile(LossModule(model), config.train, device)
     if world > 1:
         loss_fn = nn.parallel.DistributedDataParallel(loss_fn)
-    state = TrainState(config, out_dir, device, model, loss_fn, optimizer, data, step, rank, world)
+    state = TrainState(
+        config, out_dir, device, model, loss_fn, optimizer, data, step, rank, world, hooks=hooks
+    )
     if rank == 0:
         state.val = validation_batch(config, device)
         write_input_stats(out_dir, state.val[0])
@@ -224,11 +275,8 @@ def _loop(state: TrainState, progress: bool) -> None:
     bar.close()
     if state.best is not None:  # the caller gets the kept weights
         load_model_weights(state.out_dir / "model.safetensors", state.model)
-    shrunk = state.out_dir / SHRINK_FILE  # written after the scaled weights: a resumed run has them already
-    if state.rank == 0 and state.config.train.shrink_correction and not shrunk.exists():
-        choice = choose_gain(state.model, state.config)
-        save_model(state.out_dir / "model.safetensors", state.model)
-        write_json(shrunk, choice)
+    if state.rank == 0 and state.hooks.after is not None:
+        state.hooks.after(state.config, state.model, state.out_dir)
     if state.rank == 0:
         write_done(state.out_dir, state.step, None if state.best is None else state.best[0])
 

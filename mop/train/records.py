@@ -33,7 +33,7 @@ from torch import Tensor
 from mop.config import DataConfig
 from mop.errors import MopError
 from mop.filters.arx import least_squares_coefficients
-from mop.io import Data, read_trajectories
+from mop.record import Record, read_records
 
 MAX_VALIDATION_WINDOWS = 256
 RIDGE = 1e-6  # relative ridge of fit_prior's least squares
@@ -59,17 +59,17 @@ class Windows:
         return z[:, :-1].contiguous(), z[:, 1:, : self.output_dim].contiguous()
 
 
-def _widths(path: str, data: Data) -> tuple[int, int]:
-    """(m, k) shared by every trajectory of `data`, or a one-line MopError."""
-    widths = {(y.shape[1], 0 if u is None else u.shape[1]) for y, u in data}
+def _widths(path: str, records: list[Record]) -> tuple[int, int]:
+    """(m, k) shared by every record, or a one-line MopError."""
+    widths = {(r.num_outputs, r.num_inputs) for r in records}
     if len(widths) != 1:
         raise MopError(f"{path}: trajectories differ in output/input widths {sorted(widths)}")
     return widths.pop()
 
 
-def _joined(data: Data) -> list[np.ndarray]:
-    """[(L_i, m + k)] [y, u] of each trajectory (k = 0 without inputs), float64."""
-    return [y if u is None else np.concatenate([y, u], axis=1) for y, u in data]
+def _joined(records: list[Record]) -> list[np.ndarray]:
+    """[(L_i, m + k)] [y, u] of each record (k = 0 without inputs), float64."""
+    return [r.y if r.u is None else np.concatenate([r.y, r.u], axis=1) for r in records]
 
 
 def choose_split(split: str, num_trajectories: int, fraction: float) -> str:
@@ -94,12 +94,12 @@ class RecordedData:
 
     def __init__(self, cfg: DataConfig) -> None:
         self.path = cfg.path
-        _, data = read_trajectories(cfg.path)
-        self.output_dim, self.input_dim = _widths(cfg.path, data)
-        self.num_trajectories = len(data)
-        self.num_missing = int(sum(np.isnan(y).sum() for y, _ in data))  # outputs missing in the file
+        records = read_records(cfg.path)
+        self.output_dim, self.input_dim = _widths(cfg.path, records)
+        self.num_trajectories = len(records)
+        self.num_missing = int(sum(np.isnan(r.y).sum() for r in records))  # outputs missing in the file
         self.train_index = self.val_index = None
-        parts = _joined(data)
+        parts = _joined(records)
         if cfg.validation_path:
             self.split = "file"
             self.train_parts, self.val_parts = parts, self._validation_file(cfg.validation_path)
@@ -109,15 +109,15 @@ class RecordedData:
             self.train_parts, self.val_parts = cut(parts, cfg)
 
     def _validation_file(self, path: str) -> list[np.ndarray]:
-        _, data = read_trajectories(path)
-        widths = _widths(path, data)
+        records = read_records(path)
+        widths = _widths(path, records)
         if widths != (self.output_dim, self.input_dim):
             raise MopError(
                 f"--val {path} has m={widths[0]} outputs and k={widths[1]} inputs, but {self.path} has "
                 f"m={self.output_dim}, k={self.input_dim}; give a validation record of the same plant"
             )
-        self.num_missing += int(sum(np.isnan(y).sum() for y, _ in data))
-        return _joined(data)
+        self.num_missing += int(sum(np.isnan(r.y).sum() for r in records))
+        return _joined(records)
 
     def _by_trajectory(self, parts: list[np.ndarray], cfg: DataConfig) -> tuple[list, list]:
         n, n_val = len(parts), int(round(cfg.validation_fraction * len(parts)))
@@ -259,6 +259,12 @@ class RecordedData:
             gaps = f"{self.path}: model.rls_prior=fit needs complete outputs; fill the gaps"
             raise MopError(gaps) from None
         return [float(v) for v in theta.reshape(-1)]
+
+    def records(self, parts: list[np.ndarray]) -> list[Record]:
+        """`parts` (train_parts, val_parts, or normalised ones) as records: y their first m columns, u the
+        rest (None without inputs)."""
+        m = self.output_dim
+        return [Record(y=a[:, :m], u=a[:, m:] if self.input_dim else None) for a in parts]
 
     def summary(self, horizon: int, tails: bool = False) -> str:
         """One line: the file, its shape, the split and the windows of horizon + 1 steps on each side (tails,

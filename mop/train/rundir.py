@@ -38,7 +38,6 @@ from mop.systems import FAMILIES, make_family
 from mop.train.auto import resolve_features
 from mop.train.data import validates_tails
 from mop.train.records import recorded_data
-from mop.train.shrink import SHRINK_FILE
 
 TRAINING_FILES = (
     "model.safetensors",
@@ -46,7 +45,7 @@ TRAINING_FILES = (
     "metrics.jsonl",
     "done.json",
     "inputs.json",
-    SHRINK_FILE,
+    "shrink.json",  # mop.recipe.shrink's gain of the correction after training
     "selection.json",  # mop.recipe.selection's choice after training, and the ARX it may keep
     "fitted.json",
 )

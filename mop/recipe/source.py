@@ -1,10 +1,12 @@
-"""Fine-tuning: a run that starts from another model's weights (`mop train --data FILE --init SOURCE`).
+"""The fine-tune's source: a run that starts from another model's weights (`mop train --data FILE --init
+SOURCE`).
 
-train.init names the source: a run directory or `pretrained:NAME`. The trainer refuses a source whose model
-differs from the run's in any architecture key (one line, naming the first), then loads the source's weights
-before step 0 (a resumed run continues from its own checkpoint instead). The run's config.json keeps
-train.init, so the run says where it started. The config layering (the source's model, its normalisation
-and the short schedule) is mop.recipe.layers'.
+train.init names the source: a run directory or `pretrained:NAME`. Before any training, a source whose model
+differs from the run's in any architecture key is refused (check_init: one line, naming the first); at step 0
+the source's weights are loaded (load_init; a resumed run continues from its own checkpoint instead).
+mop.recipe.training hands both to the training loop. The run's config.json keeps train.init, so the run says
+where it started. The config layering (the source's model, its normalisation and the short schedule) is
+mop.recipe.finetune's.
 """
 
 from __future__ import annotations

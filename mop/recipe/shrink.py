@@ -6,10 +6,11 @@ feature's prediction r plus the network's correction, s the correction's scale. 
 feature alone (in a fine-tune, the ARX fitted by least squares on the estimation record), g = 1 the
 fine-tuned model as trained.
 
-With train.shrink_correction, after training (and after train.keep_best has loaded the kept weights) each
-gain of GAINS simulates every record of data.path from its start (y_0 its initial condition, y_1..y_T
-simulated from the inputs, as `mop predict RUN rec.csv --simulate 0`), and the gain of the lowest RMSE over
-them is written into the run's model.safetensors; shrink.json holds every gain's RMSE.
+With train.shrink_correction, after training (and after train.keep_best has loaded the kept weights;
+mop.recipe.training hands apply_chosen_gain to the training loop as its step after the last) each gain of
+GAINS simulates every record of data.path from its start (y_0 its initial condition, y_1..y_T simulated from
+the inputs, as `mop predict RUN rec.csv --simulate 0`), and the gain of the lowest RMSE over them is written
+into the run's model.safetensors; shrink.json holds every gain's RMSE.
 
 Why: a fine-tune trains on windows of about a tenth of one record (mop.recipe.finetune.record_horizon),
 with simulated tails no longer than they are, and validates on the record's last tenth. On nearly linear
@@ -23,16 +24,19 @@ on plants where the network's correction is worth its whole size the choice is g
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from mop.atomic import write_json
+from mop.checkpoint import save_model
 from mop.config import RunConfig
 from mop.errors import MopError
-from mop.io import read_trajectories
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.predictors import simulate
+from mop.record import read_records
 from mop.systems.base import Trajectories
 
 GAINS = (0.0, 0.25, 0.5, 0.75, 1.0)
@@ -65,7 +69,8 @@ def simulation_rmse(model: nn.Module, config: RunConfig) -> float:
     norm = Normalization.from_lists(d.y_mean, d.y_std, d.u_mean, d.u_std)
     predictor = LearnedPredictor(model, normalization=norm, source=str(config.train.init))
     sq, n = 0.0, 0
-    for y, u in read_trajectories(d.path)[1]:
+    for record in read_records(d.path):
+        y, u = record.y, record.u
         traj = Trajectories(
             y=torch.tensor(y[None], dtype=torch.float32),
             u=None if u is None else torch.tensor(u[None], dtype=torch.float32),
@@ -105,6 +110,18 @@ def choose_gain(model: nn.Module, config: RunConfig) -> dict[str, object]:
     gain = best_gain(rmse)
     scale_correction(model, gain)
     return {"gains": list(GAINS), "free_run_rmse": rmse, "gain": gain}
+
+
+def apply_chosen_gain(config: RunConfig, model: nn.Module, out_dir: Path) -> None:
+    """With train.shrink_correction, once a run has trained: scale `model`'s correction by choose_gain's
+    gain and write it to out_dir's model.safetensors, then shrink.json (after the weights, so a resumed run
+    that finds shrink.json has the scaled weights already and leaves them)."""
+    shrunk = out_dir / SHRINK_FILE
+    if not config.train.shrink_correction or shrunk.exists():
+        return
+    choice = choose_gain(model, config)
+    save_model(out_dir / "model.safetensors", model)
+    write_json(shrunk, choice)
 
 
 def shrink_line(choice: dict, path: str) -> str:
