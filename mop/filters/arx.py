@@ -268,7 +268,7 @@ class NARXPredictor(ARXPredictor):
     model of the duffing family reads, mop.filters.arx.arx_regressors), by RLS from P_0 = p0 I in the
     record's own units. It simulates by reading the outputs after the context as missing (the recursion's
     gap path, mop.filters.rls._rls_run_gaps: its own predictions fed back, held within twice the measured
-    range); it has no k-step forecast."""
+    range), and forecasts the same way from every origin."""
 
     def __init__(self, order: int, cubes: int, name: str, p0: float = 1e4) -> None:
         super().__init__(order, offset=True, name=name, p0=p0)
@@ -282,8 +282,20 @@ class NARXPredictor(ARXPredictor):
             traj.y.dtype
         )
 
-    def forecast(self, traj: Trajectories, steps: int) -> Tensor:
-        raise MopError(f"{self.name} simulates (mop predict --simulate) but has no k-step forecast")
+    def forecast(self, traj: Trajectories, steps: int, start: int = 0) -> Tensor:
+        """(B, T+1, K, m): from each origin t >= start, y_t..y_{t+K-1} read as missing (as simulate), one
+        recursion per origin; NaN for origins before start."""
+        y, u, p, q = traj.y.double(), _u(traj), self.order, self.input_order
+        B, T1, m = y.shape
+        out = y.new_full((B, T1, steps, m), float("nan"))
+        for t in range(start, T1):
+            end = min(t + steps, T1)
+            cut = y[:, :end].clone()
+            cut[:, t:] = float("nan")
+            part = None if u is None else u[:, :end]
+            pred = arx_predict(cut, part, p, q, True, self._prior, bounded=0, cubes=self.cubes)
+            out[:, t, : end - t] = pred[:, t:end]
+        return out.to(traj.y.dtype)
 
     def simulate(self, traj: Trajectories, context: int) -> Tensor:
         """(B, T+1-c, m): y_c..y_T read as missing, the recursion's predictions fed back."""
