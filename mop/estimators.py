@@ -269,7 +269,7 @@ class Learned(Estimator):
             ):
                 config = within_budget(config, self.budget_minutes)
             self.run_dir_ = train(config, base / "run", progress=self.progress)
-            if self.init is None and config.model.rls_prior == "fit":  # the records recipe, as mop train
+            if config.model.rls_prior == "fit" and not config.train.shrink_correction:  # as mop train
                 self.selection_ = select_against_arx(self.run_dir_, config)
         fitted = self.run_dir_ / FITTED_FILE
         self.predictor_ = load_fitted(fitted.parent) if fitted.is_file() else load_predictor(self.run_dir_)

@@ -17,6 +17,7 @@ from mop.models import build_model
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.recipe.layers import training_config
 from mop.recipe.shrink import GAINS, SHRINK_FILE
+from mop.recipe.training import train
 from mop.records import scores, simulate_all
 
 SOURCE = "pretrained:lti-siso"  # a class model trained for simulation (train.simulate_after > 0)
@@ -40,10 +41,16 @@ def nearly_linear_record(path, T: int = 400, seed: int = 0) -> str:
     return str(path)
 
 
-def fine_tune(tmp_path, data: str, name: str, *overrides: str) -> tuple[dict, RunConfig]:
+def fine_tune(tmp_path, data: str, name: str, *overrides: str, cli: bool = True) -> tuple[dict, RunConfig]:
+    """The fine-tune of SOURCE on data: by `mop train` (cli), or by the recipe's training alone (the weights
+    as trained: no held-out choice after it)."""
     out = tmp_path / name
-    argv = ["train", "--data", data, "--init", SOURCE, "--out", str(out), "--no-progress"]
-    assert main([*argv, "train.steps=6", "train.checkpoint_every=3", *overrides]) == 0
+    keys = ["train.steps=6", "train.checkpoint_every=3", *overrides]
+    if cli:
+        argv = ["train", "--data", data, "--init", SOURCE, "--out", str(out), "--no-progress"]
+        assert main([*argv, *keys]) == 0
+    else:
+        train(training_config(None, data=data, init=SOURCE, overrides=keys), out, progress=False)
     config = from_dict(RunConfig, json.loads((out / "config.json").read_text()))
     model = build_model(config.model)
     load_model_weights(out / "model.safetensors", model)
@@ -66,8 +73,8 @@ def records_rmse(weights: dict, config: RunConfig, gain: float) -> float:
 
 def test_a_fine_tune_keeps_the_gain_that_simulates_its_record_best(tmp_path, capsys):
     data = nearly_linear_record(tmp_path / "est.npz")
-    plain, config = fine_tune(tmp_path, data, "plain", "train.shrink_correction=false")
-    shrunk, shrunk_config = fine_tune(tmp_path, data, "shrunk")
+    plain, config = fine_tune(tmp_path, data, "plain", cli=False)
+    shrunk, shrunk_config = fine_tune(tmp_path, data, "shrunk", "train.shrink_correction=true")
     assert shrunk_config.train.shrink_correction and not config.train.shrink_correction
     assert "correction: kept at gain" in capsys.readouterr().out
     choice = json.loads((tmp_path / "shrunk" / SHRINK_FILE).read_text())
@@ -84,17 +91,24 @@ def test_a_fine_tune_keeps_the_gain_that_simulates_its_record_best(tmp_path, cap
     assert records_rmse(shrunk, shrunk_config, 1.0) <= min(expected[0], expected[-1]) + 1e-9
 
 
-def test_fine_tunes_of_simulation_models_shrink_by_default_and_an_override_wins(tmp_path):
+def test_fine_tunes_choose_their_gain_on_held_out_data_unless_shrink_is_asked_for(tmp_path, capsys):
+    """A fine-tune keeps the records recipe's held-out choice (selection.json: the gain whose simulation of
+    the held-out tail is best, or the fitted ARX); train.shrink_correction=true chooses on the whole record
+    instead, and then no held-out choice is made."""
     data = nearly_linear_record(tmp_path / "est.npz")
-    assert training_config(None, data=data, init=SOURCE).train.shrink_correction
-    off = training_config(None, data=data, init=SOURCE, overrides=["train.shrink_correction=false"])
-    assert not off.train.shrink_correction
-    # a source trained without simulated tails is not: its correction was never trained to simulate
-    src = tmp_path / "src"
-    own = ["model.record_norm=causal", "model.features=given", "model.rls_order=2", "model.arx_order=2"]
-    argv = ["train", "--data", data, "--out", str(src), "--no-progress", "train.steps=1", "train.horizon=20"]
-    assert main([*argv, "model.num_layers=1", "model.width=16", "model.num_heads=2", *own]) == 0
-    assert not training_config(None, data=data, init=str(src)).train.shrink_correction
+    assert not training_config(None, data=data, init=SOURCE).train.shrink_correction
+    fine_tune(tmp_path, data, "held")
+    choice = json.loads((tmp_path / "held" / "selection.json").read_text())
+    scored = choice["network_rmse_by_gain"]
+    if choice["kept"] == "network":
+        assert choice["gain"] == choice["gains"][int(np.argmin(scored))] and min(scored) <= choice["arx_rmse"]
+    else:
+        assert choice["arx_rmse"] < min(scored)
+    assert "held-out simulation" in capsys.readouterr().out
+    fine_tune(tmp_path, data, "whole", "train.shrink_correction=true")
+    assert (tmp_path / "whole" / SHRINK_FILE).is_file() and not (
+        tmp_path / "whole" / "selection.json"
+    ).exists()
 
 
 def test_shrinking_a_model_without_a_feature_is_refused_in_one_line(tmp_path, capsys):

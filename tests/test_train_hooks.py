@@ -130,12 +130,25 @@ def nearly_linear_record(path, T: int = 300) -> str:
 
 
 def test_a_stopped_fine_tune_resumed_equals_one_never_stopped(tmp_path, monkeypatch, capsys):
-    """`mop train --data REC --init pretrained:lti-siso` (keep_best and the correction's gain, both the
-    recipe's defaults) stopped by Ctrl-C at step 5 and run again: the same weights, the same shrink.json and
-    done.json as the fine-tune never stopped."""
+    """`mop train --data REC --init pretrained:lti-siso` (keep_best and the correction's gain chosen on
+    the whole record, train.shrink_correction) stopped by Ctrl-C at step 5 and run again: the same weights,
+    the same shrink.json and done.json as the fine-tune never stopped; and so with the default held-out
+    choice (selection.json)."""
     data = nearly_linear_record(tmp_path / "est.npz")
     argv = ["train", "--data", data, "--init", "pretrained:lti-siso", "--no-progress"]
     argv += ["train.steps=8", "train.checkpoint_every=3"]
+    held = [*argv, "--out", str(tmp_path / "held")]
+    assert main(held) == 0
+    restore = sigint_during_step(monkeypatch, 5)
+    assert main([*argv, "--out", str(tmp_path / "held-b")]) != 0
+    restore()
+    assert main([*argv, "--out", str(tmp_path / "held-b")]) == 0
+    for name in ("selection.json", "done.json"):
+        a, b = (json.loads((tmp_path / run / name).read_text()) for run in ("held", "held-b"))
+        assert a == b, name
+    wa, wb = weights(tmp_path / "held"), weights(tmp_path / "held-b")
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    argv.append("train.shrink_correction=true")
     assert main([*argv, "--out", str(tmp_path / "a")]) == 0
     restore = sigint_during_step(monkeypatch, 5)
     assert main([*argv, "--out", str(tmp_path / "b")]) != 0

@@ -67,8 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="fine-tune: start from this run directory's or pretrained:NAME's weights, with its model and "
         "normalisation, 125 steps at a tenth of its learning rate (key=value overrides win); a class "
         "model's ARX feature starts from the record's least-squares fit, its moments from the record's "
-        "(model.record_prior_steps=100), and a simulation model trains tails from step 1 and keeps its "
-        "correction at the gain in 0..1 that simulates the record best (train.shrink_correction)",
+        "(model.record_prior_steps=100), a simulation model trains tails from step 1, and the run keeps "
+        "its correction at the gain in 0..1 (or the fitted ARX) that simulates the record's held-out tail "
+        "best",
     )
     parser.add_argument(
         "--budget",
@@ -105,7 +106,12 @@ def _run(args: argparse.Namespace) -> int:
         source, overrides = None, [source, *overrides]
     budget = None if args.budget is None else check_budget(args.budget)
     config = training_config(source, args.preset, args.data, args.val, overrides, args.init, budget)
-    recipe = config.data is not None and args.init is None and config.model.rls_prior == "fit"
+    # the records recipe's held-out choice after training, for a fine-tune on the record too (unless it
+    # chose its gain by train.shrink_correction)
+    selects = (
+        config.data is not None and config.model.rls_prior == "fit" and not config.train.shrink_correction
+    )
+    recipe = selects and args.init is None
     if recipe:
         plan = budget_plan(config, DEFAULT_BUDGET_MINUTES if budget is None else budget)
         if plan.steps == config.train.steps:
@@ -131,7 +137,7 @@ def _run(args: argparse.Namespace) -> int:
         fresh=args.fresh,
         announce=print,
     )
-    if recipe:
+    if selects:
         print(selection_line(select_against_arx(out, config)))
     shrunk = out / SHRINK_FILE
     if config.train.shrink_correction and shrunk.is_file():
