@@ -26,7 +26,11 @@ linear part (an ARX(2, 2) fit of its estimation record: omega = 0.71 rad / sampl
 Input u (unit RMS before b): "multisine" (random phases, equal amplitudes on the lines up to U(0.5, 1)
 bandwidth cycles per sample: the Silverbox's records are odd multisines up to 200 Hz at 610 Hz, 0.33),
 "white" (N(0, 1) i.i.d.), "arrow" (white noise whose amplitude grows linearly from 0 to sqrt(3), the
-Silverbox's test "arrow" shape) or "mixed" (each system draws one of the three).
+Silverbox's test "arrow" shape) or "mixed" (each system draws "multisine" or "white"). "mixed" leaves the
+arrow out: a record that starts at rest with no excitation fixes a record-normalised model's feature frame
+(mop.models.features.feature_frame, from its first steps) at a tiny scale, and the cubed regressors then
+blow up as the amplitude grows (the class model's one-step RMSE over t >= 50 was 5844 on 500 test systems
+with arrows among them).
 
 Where this differs from the real Silverbox: there the stiffness polynomial, the damping and the input's
 path through an amplifier are one fixed plant and the noise is not white; the class holds no friction or
@@ -58,7 +62,8 @@ from mop.systems.cascaded_tanks import unit_rms_signal
 
 SUBSTEPS, JITTER = 8, 1e-8
 INPUTS = ("multisine", "white", "arrow", "mixed")
-KINDS = INPUTS[:3]  # what "mixed" draws from, per system
+KINDS = INPUTS[:3]  # the signals by index (DuffingParams.kind)
+MIXED = 2  # "mixed" draws KINDS[0] or KINDS[1] per system
 
 
 @dataclass(frozen=True)
@@ -174,7 +179,7 @@ class DuffingFamily(SystemFamily):
         kind = (
             torch.full((B,), KINDS.index(cfg.input), dtype=torch.float64, device=log_zeta.device)
             if cfg.input != "mixed"
-            else uniform((B,), 0, len(KINDS), generator).floor().clamp(max=len(KINDS) - 1)
+            else uniform((B,), 0, MIXED, generator).floor().clamp(max=MIXED - 1)
         )
         p = {
             "omega": uniform((B,), cfg.omega_low, cfg.omega_high, generator),
