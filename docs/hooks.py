@@ -126,16 +126,15 @@ def _class_rows(path: Path) -> dict[str, list[tuple[str, str, str, str]]]:
 
 def knobs_reference() -> str:
     """The knobs page: a table per config class, ModelConfig's in its three groups."""
-    from mop.feature_config import FEATURE_CONFIG_KEYS
-
+    front_end = [row[0] for row in _class_rows(ROOT / "mop" / "feature_config.py")["FeatureConfig"]]
     out = []
     for name, rows in config_knobs().items():
         prefix = KNOB_CLASSES[name]
         out += [f"## `{prefix}.*` ({name})", ""]
         groups = [("", rows)]
         if name == "ModelConfig":
-            first = next(i for i, row in enumerate(rows) if row[0] in FEATURE_CONFIG_KEYS)
-            last = first + len(FEATURE_CONFIG_KEYS)
+            first = next(i for i, row in enumerate(rows) if row[0] in front_end)
+            last = first + len(front_end)
             groups = [
                 ("The network", rows[:first]),
                 ("The feature front end (`mop.feature_config.FeatureConfig`)", rows[first:last]),
