@@ -3,7 +3,8 @@
 A page holds a marker comment; the hook replaces it with text built from the package at build time:
 
     <!-- mop:cli -->        `mop COMMAND --help` of every command in mop.cli.COMMANDS (and their subcommands)
-    <!-- mop:knobs -->      one table per config dataclass of mop/config.py: key, type, default, meaning
+    <!-- mop:knobs -->      one table per config dataclass of mop/config.py: key, type, default, meaning (the
+                            feature front end's model.* keys from mop/feature_config.py, a table of their own)
     <!-- mop:cards -->      the shipped models' cards, mop/pretrained/*/CARD.md
     <!-- mop:changelog -->  CHANGELOG.md
 
@@ -82,13 +83,24 @@ def config_knobs(path: Path = ROOT / "mop" / "config.py") -> dict[str, list[tupl
     """{class name: [(key, type, default, meaning)]} of the config dataclasses, read from the source: a
     field's meaning is the comment block right above it and its trailing comment, else its 'name: ...' entry
     in the class docstring, else the block of the field right before it (no blank line between: a group
-    such as output_units / input_units shares one comment)."""
+    such as output_units / input_units shares one comment). A field whose default is FeatureConfig's
+    (ModelConfig's feature front end) takes its row from FeatureConfig in mop/feature_config.py."""
+    front_end = {row[0]: row for row in _class_rows(path.parent / "feature_config.py")["FeatureConfig"]}
+    tables = {}
+    for name, rows in _class_rows(path).items():
+        if name in KNOB_CLASSES:
+            tables[name] = [front_end[r[0]] if r[2].startswith("FeatureConfig.") else r for r in rows]
+    return tables
+
+
+def _class_rows(path: Path) -> dict[str, list[tuple[str, str, str, str]]]:
+    """{class name: [(key, type, default, meaning)]} of every class with annotated fields in `path`."""
     source = path.read_text()
     comments = _comments(source)
     lines = source.splitlines()
     tables = {}
     for node in ast.parse(source).body:
-        if not (isinstance(node, ast.ClassDef) and node.name in KNOB_CLASSES):
+        if not isinstance(node, ast.ClassDef):
             continue
         fields = [s for s in node.body if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)]
         from_doc = _docstring_entries(ast.get_docstring(node) or "", [f.target.id for f in fields])
@@ -113,14 +125,28 @@ def config_knobs(path: Path = ROOT / "mop" / "config.py") -> dict[str, list[tupl
 
 
 def knobs_reference() -> str:
+    """The knobs page: a table per config class, ModelConfig's in its three groups."""
+    front_end = [row[0] for row in _class_rows(ROOT / "mop" / "feature_config.py")["FeatureConfig"]]
     out = []
     for name, rows in config_knobs().items():
         prefix = KNOB_CLASSES[name]
-        out += [f"## `{prefix}.*` ({name})", "", "| key | type | default | meaning |", "|---|---|---|---|"]
-        for key, kind, default, meaning in rows:
-            cell = meaning.replace("|", "\\|")
-            out.append(f"| `{prefix}.{key}` | `{kind}` | `{default}` | {cell} |")
-        out.append("")
+        out += [f"## `{prefix}.*` ({name})", ""]
+        groups = [("", rows)]
+        if name == "ModelConfig":
+            first = next(i for i, row in enumerate(rows) if row[0] in front_end)
+            last = first + len(front_end)
+            groups = [
+                ("The network", rows[:first]),
+                ("The feature front end (`mop.feature_config.FeatureConfig`)", rows[first:last]),
+                ("The multi-step read-out", rows[last:]),
+            ]
+        for title, group in groups:
+            out += [f"### {title}", ""] if title else []
+            out += ["| key | type | default | meaning |", "|---|---|---|---|"]
+            for key, kind, default, meaning in group:
+                cell = meaning.replace("|", "\\|")
+                out.append(f"| `{prefix}.{key}` | `{kind}` | `{default}` | {cell} |")
+            out.append("")
     return "\n".join(out)
 
 

@@ -16,13 +16,12 @@ y_<c and the inputs alone (NaN for t < c), exactly the numbers `mop predict MODE
 (init=0: from the record's start, y_0 its initial condition, t >= 1).
 
 ARX and N4SID are mop.identify's fits (`mop fit arx|n4sid`); Learned trains through the path `mop train --data
-FILE [--init RUN]` takes (mop.recipe.training_config, then mop.recipe.training.train): the records are
-written to a CSV in the run's directory, which the run's config names.
+FILE [--init RUN]` takes (mop.recipe.fit.fit_record: the config, the training, the held-out choice): the
+records are written to a CSV beside the run's directory, which the run's config names.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import os
@@ -33,24 +32,18 @@ from typing import Any
 
 import numpy as np
 
-from mop.config import RunConfig, parse_overrides
+from mop.config import parse_overrides
 from mop.errors import MopError
 from mop.identify.arx import ARX as ArxIdentifier
 from mop.identify.n4sid import N4SID as N4sidIdentifier
 from mop.identify.select import SIMULATION, fit, fit_orders
 from mop.identify.store import FILE as FITTED_FILE
 from mop.identify.store import load as load_fitted
-from mop.io import reading_once
-from mop.models import build_model
 from mop.predictors import Predictor
-from mop.recipe.layers import training_config
-from mop.recipe.selection import select_against_arx
-from mop.recipe.training import train
+from mop.recipe.fit import fit_record
 from mop.record import Record, as_pairs, read_records, write_records
 from mop.records import predict_all, simulate_all
 from mop.runs import load_predictor
-from mop.train import resolve_config, resolve_device
-from mop.train.estimate import step_seconds
 
 Records = Record | Sequence[Record] | str | os.PathLike | tuple[Any, Any]
 
@@ -257,29 +250,19 @@ class Learned(Estimator):
         if val is not None:
             val_records, _ = as_records(val, "validation data")
             val_path = str(write_records(val_records, base / "validation.csv"))
-        with reading_once():  # as `mop train --data`: the records' file is read once
-            recipe_budget = self.budget_minutes if self.init is None else None
-            config = training_config(
-                None, None, str(path), val_path, self.overrides, self.init, recipe_budget
-            )
-            if (
-                self.init is not None
-                and self.budget_minutes is not None
-                and "train.steps" not in parse_overrides(self.overrides)
-            ):
-                config = within_budget(config, self.budget_minutes)
-            self.run_dir_ = train(config, base / "run", progress=self.progress)
-            if config.model.rls_prior == "fit" and not config.train.shrink_correction:  # as mop train
-                self.selection_ = select_against_arx(self.run_dir_, config)
+        run = fit_record(
+            base / "run",
+            str(path),
+            val_path,
+            overrides=self.overrides,
+            init=self.init,
+            budget=self.budget_minutes if self.init is None else None,
+            fine_tune_minutes=self.budget_minutes if self.init is not None else None,
+            progress=self.progress,
+        )
+        self.run_dir_ = run.run_dir
+        if run.selection is not None:
+            self.selection_ = run.selection
         fitted = self.run_dir_ / FITTED_FILE
         self.predictor_ = load_fitted(fitted.parent) if fitted.is_file() else load_predictor(self.run_dir_)
         return self
-
-
-def within_budget(config: RunConfig, minutes: float) -> RunConfig:
-    """config with train.steps cut to what `minutes` allow at the measured time of one step."""
-    resolved = resolve_config(config)
-    device = resolve_device(resolved.train.device)
-    seconds = step_seconds(resolved, build_model(resolved.model), device)
-    steps = max(1, min(config.train.steps, int(minutes * 60 / max(seconds, 1e-9))))
-    return dataclasses.replace(config, train=dataclasses.replace(config.train, steps=steps))

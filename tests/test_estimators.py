@@ -12,11 +12,12 @@ import torch
 import mop
 from mop.cli import main
 from mop.errors import MopError
-from mop.estimators import ARX, N4SID, Learned, as_records, within_budget
+from mop.estimators import ARX, N4SID, Learned, as_records
 from mop.identify import fit
 from mop.identify import load as load_fitted
 from mop.io import read_trajectories
 from mop.predictors import simulate
+from mop.recipe.finetune import within_budget
 from mop.recipe.layers import training_config
 from mop.record import Record, read_records, write_records
 from mop.runs import load_config

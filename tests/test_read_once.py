@@ -7,8 +7,8 @@ import contextlib
 import numpy as np
 import pytest
 
-import mop.commands.train
 import mop.io
+import mop.recipe.fit
 from mop.cli import main
 from mop.record import Record, write_records
 
@@ -49,7 +49,7 @@ def test_a_fine_tune_reads_the_file_once_and_trains_the_same_weights(tmp_path, c
     assert main([*argv, "--out", str(tmp_path / "once")]) == 0
     assert "held-out simulation" in capsys.readouterr().out  # the held-out tail at five gains and the ARX
     assert len(counted) == 1
-    monkeypatch.setattr(mop.commands.train, "reading_once", contextlib.nullcontext)
+    monkeypatch.setattr(mop.recipe.fit, "reading_once", contextlib.nullcontext)
     assert main([*argv, "--out", str(tmp_path / "each")]) == 0
     assert len(counted) >= 2  # without the block the run reads it again
     once, each = ((tmp_path / d / "model.safetensors").read_bytes() for d in ("once", "each"))

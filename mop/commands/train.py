@@ -10,16 +10,8 @@ import argparse
 
 from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
-from mop.io import reading_once
-from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
-from mop.recipe.layers import training_config
-from mop.recipe.records import budget_plan, feature_line, order_line
-from mop.recipe.selection import select_against_arx, selection_line
-from mop.recipe.shrink import SHRINK_FILE, shrink_line
-from mop.recipe.training import train
-from mop.runs import read_run_json
-from mop.train.data import validates_tails
-from mop.train.records import recorded_data
+from mop.recipe.budget import check_budget
+from mop.recipe.fit import fit_record
 
 EPILOG = """examples:
   mop train --out runs/linear                        # the linear family: CPU preset small, GPU paper
@@ -96,51 +88,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    with reading_once():  # the record is read once, whichever steps of the recipe look at it
-        return _run(args)
-
-
-def _run(args: argparse.Namespace) -> int:
     source, overrides = args.source, list(args.overrides or [])
     if source is not None and "=" in source:  # no config file: the first word is an override
         source, overrides = None, [source, *overrides]
     budget = None if args.budget is None else check_budget(args.budget)
-    config = training_config(source, args.preset, args.data, args.val, overrides, args.init, budget)
-    # the records recipe's held-out choice after training, for a fine-tune on the record too (unless it
-    # chose its gain by train.shrink_correction)
-    selects = (
-        config.data is not None and config.model.rls_prior == "fit" and not config.train.shrink_correction
-    )
-    recipe = selects and args.init is None
-    if recipe:
-        plan = budget_plan(config, DEFAULT_BUDGET_MINUTES if budget is None else budget)
-        if plan.steps == config.train.steps:
-            print(plan.line())
-    if config.data is not None:
-        print(recorded_data(config.data).summary(config.train.horizon, validates_tails(config)))
-        print(feature_line(config) or "feature: none (the network reads the record alone)")
-        chosen = source is not None or args.preset is not None
-        orders = order_line(config, overrides, args.init, chosen)
-        if orders:
-            print(orders)
-        if config.model.record_prior_steps:
-            print(
-                f"record_norm: each record's running moments start from {config.model.record_prior_steps} "
-                "steps at this record's mean and std (model.record_prior_steps), so it is read at the "
-                "plant's scale from its first step"
-            )
-    out = train(
-        config,
+    fitted = fit_record(
         args.out,
+        args.data,
+        args.val,
+        source=source,
+        preset=args.preset,
+        overrides=overrides,
+        init=args.init,
+        budget=budget,
         progress=not args.no_progress,
         wait=not args.no_wait,
         fresh=args.fresh,
         announce=print,
     )
-    if selects:
-        print(selection_line(select_against_arx(out, config)))
-    shrunk = out / SHRINK_FILE
-    if config.train.shrink_correction and shrunk.is_file():
-        print(shrink_line(read_run_json(shrunk), config.data.path))
+    out = fitted.run_dir
     print(f"run directory: {out}  (load with: mop.load({str(out)!r}))")
     return 0

@@ -6,7 +6,9 @@
 - finetune: the fine-tune recipe of `--init SOURCE`: its config;
 - source: the fine-tune's source (its architecture check, its weights at step 0);
 - shrink: the correction's gain chosen after a fine-tune (train.shrink_correction);
-- training: mop.train's loop with those steps around it (what `mop train` trains with);
+- training: mop.train's loop with those steps around it;
+- fit: the one sequence from a record to a run, config, training and held-out choice (fit_record: what
+  `mop train` and mop.estimators.Learned call);
 - budget: the steps a training budget in minutes buys on a record.
 
 It sits above mop.train (which trains a resolved config) and mop.experiments (whose experiments `mop train

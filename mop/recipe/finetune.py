@@ -5,7 +5,8 @@ they changed is refitted on the record (with_refitted_orders), a class model's i
 from the record's least-squares ARX (with_record_prior), and its windows fit the record's split
 (record_horizon). The steps around training are mop.recipe.training's: the source's weights at step 0
 (mop.recipe.source) and the correction's gain after the last step (train.shrink_correction,
-mop.recipe.shrink); keeping the best validation weights is the loop's option train.keep_best.
+mop.recipe.shrink); keeping the best validation weights is the loop's option train.keep_best. within_budget
+cuts a fine-tune's steps to a budget in minutes at this machine's step time (mop.estimators.Learned's).
 """
 
 from __future__ import annotations
@@ -19,8 +20,11 @@ from mop.config import (
     TrainConfig,
     parse_overrides,
 )
+from mop.models import build_model
 from mop.recipe.records import record_orders
 from mop.recipe.source import PRIOR_KEYS
+from mop.train import resolve_config, resolve_device
+from mop.train.estimate import step_seconds
 from mop.train.records import recorded_data
 
 # 125: on the tank_records plants 1-6 (pretrained:cascaded-tanks fine-tuned on est.csv, seeds 0 / 1, the
@@ -155,3 +159,13 @@ def record_horizon(train: TrainConfig, data: DataConfig) -> TrainConfig:
         min(max(round(train.simulate_after * fits / train.horizon), 1), fits) if train.simulate_after else 0
     )
     return dataclasses.replace(train, horizon=fits, simulate_after=after)
+
+
+def within_budget(config: RunConfig, minutes: float) -> RunConfig:
+    """config with train.steps cut to what `minutes` allow at the measured time of one step (on this machine:
+    mop.train.estimate.step_seconds), never raised."""
+    resolved = resolve_config(config)
+    device = resolve_device(resolved.train.device)
+    seconds = step_seconds(resolved, build_model(resolved.model), device)
+    steps = max(1, min(config.train.steps, int(minutes * 60 / max(seconds, 1e-9))))
+    return dataclasses.replace(config, train=dataclasses.replace(config.train, steps=steps))
