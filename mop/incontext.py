@@ -35,6 +35,7 @@ held-out check reads across the same kind of seam, one record earlier.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Sequence
 
@@ -123,16 +124,8 @@ def fitted_to_context(predictor: LearnedPredictor, context: Sequence[Record], ga
     (in context_normalization's units) and its correction times `gain` (see the module docstring): a new
     LearnedPredictor in the data's units; the predictor given is not changed."""
     cfg, norm = predictor.cfg, context_normalization(context)
-    arrays = [
-        np.concatenate(
-            [
-                (r.y - norm.y_mean.numpy()) / norm.y_std.numpy(),
-                *([] if r.u is None else [(r.u - norm.u_mean.numpy()) / norm.u_std.numpy()]),
-            ],
-            axis=1,
-        )
-        for r in context
-    ]
+    joined = lambda r: r.y if r.u is None else np.concatenate([r.y, r.u], axis=1)  # noqa: E731
+    arrays = [norm.inputs(torch.from_numpy(joined(r).astype(np.float64))[None])[0].numpy() for r in context]
     theta = least_squares_coefficients(
         arrays, cfg.output_dim, cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes
     )
@@ -146,9 +139,20 @@ def fitted_to_context(predictor: LearnedPredictor, context: Sequence[Record], ga
     weights = next(predictor.model.parameters())
     model = build_model(fitted).to(device=weights.device, dtype=weights.dtype)
     model.load_state_dict(predictor.model.state_dict())
-    model.eval()
+    return with_gain(
+        LearnedPredictor(model.eval(), name=predictor.name, mode=predictor.mode, normalization=norm), gain
+    )
+
+
+def with_gain(predictor: LearnedPredictor, gain: float) -> LearnedPredictor:
+    """The predictor with its correction times `gain` (a copy of its model; the same predictor at 1)."""
+    if gain == 1.0:
+        return predictor
+    model = copy.deepcopy(predictor.model)
     scale_correction(model, gain)
-    return LearnedPredictor(model, name=predictor.name, mode=predictor.mode, normalization=norm)
+    return LearnedPredictor(
+        model, name=predictor.name, mode=predictor.mode, normalization=predictor.normalization
+    )
 
 
 def _joined(first: Record, second: Record) -> Record:
@@ -175,15 +179,17 @@ def _window(predictor, test: Record, init: int, source: Record) -> tuple[np.ndar
 
 
 def _read(
-    predictor, test: Record, init: int, context: Sequence[Record], reading: str
+    predictor, test: Record, init: int, context: Sequence[Record], reading: str, fitted=None
 ) -> tuple[np.ndarray, int]:
-    """(simulation of test from init, context steps read) for one reading."""
+    """(simulation of test from init, context steps read) for one reading; fitted: the predictor fitted to
+    this context at gain 1 (fitted_to_context), where it is already made."""
     if reading == "none":
         return _simulate(predictor, test, init), 0
     if reading == "window":
         return _window(predictor, test, init, context[-1])
+    fitted = fitted or fitted_to_context(predictor, context)
     gain = float(reading.rpartition(" ")[2])
-    return _simulate(fitted_to_context(predictor, context, gain), test, init), sum(len(r) for r in context)
+    return _simulate(with_gain(fitted, gain), test, init), sum(len(r) for r in context)
 
 
 def readings(predictor) -> list[str]:
@@ -208,13 +214,16 @@ def simulate_with_context(
     if h > init + 1:
         end = source[len(source) - h :]
         before = [*context[:-1], source[: len(source) - h]]
+        fitted = fitted_to_context(predictor, before) if fits_context(predictor) else None
         for reading in readings(predictor):
-            scores[reading] = _rmse(end.y, _read(predictor, end, init, before, reading)[0])
+            scores[reading] = _rmse(end.y, _read(predictor, end, init, before, reading, fitted)[0])
     ranked = sorted(scores, key=lambda r: (scores[r], list(scores).index(r))) or ["none"]
     seen = np.concatenate([*(r.y for r in context), test.y[:init]])  # the outputs measured before the run
-    dropped = []
+    dropped, fitted = [], None
     for reading in ranked:
-        sim, steps = _read(predictor, test, init, context, reading)
+        if reading.startswith("fit") and fitted is None:
+            fitted = fitted_to_context(predictor, context)
+        sim, steps = _read(predictor, test, init, context, reading, fitted)
         if divergence_step(seen, sim) is None or reading == ranked[-1]:
             return InContext(sim, reading, steps, scores, tuple(dropped))
         dropped.append(reading)

@@ -170,8 +170,8 @@ def test_a_reading_that_diverges_on_the_test_gives_way_to_the_next_best(lti, mon
     plain = simulate_with_context(model, test, 50, [context])
     real = incontext._read
 
-    def wild(predictor, record, init, ctx, reading):
-        sim, steps = real(predictor, record, init, ctx, reading)
+    def wild(predictor, record, init, ctx, reading, fitted=None):
+        sim, steps = real(predictor, record, init, ctx, reading, fitted)
         return (sim * 1e6 if record is test and reading == plain.reading else sim), steps
 
     monkeypatch.setattr(incontext, "_read", wild)
