@@ -29,6 +29,10 @@ context's and the test's first `init`) gives way to the next best (a cubic featu
 record left every range on another: 5.6e5 m/s^2). The scores are returned beside the simulation. With
 `choose=False` the reading is "window" (the concatenation).
 
+A single-output class model reads a record of several outputs one output at a time: each output channel
+with all the inputs is a single-output record of the same plant, read and simulated as above, and the
+simulations are put side by side (by_channel; on the F-16's three accelerations, one force input).
+
 The seam: at the join of "window" the record jumps from the context's last state to the test's first; the
 held-out check reads across the same kind of seam, one record earlier.
 """
@@ -206,6 +210,8 @@ def simulate_with_context(
     if not 1 <= init < len(test):
         raise MopError(f"the test's initialization window {init} must be in [1, {len(test) - 1}]")
     context = list(context)
+    if by_channel(predictor, test):
+        return _by_channel(predictor, test, init, context, choose)
     if not choose:
         sim, steps = _read(predictor, test, init, context, "window")
         return InContext(sim, "window", steps, {})
@@ -229,15 +235,45 @@ def simulate_with_context(
         dropped.append(reading)
 
 
+def by_channel(predictor, test: Record) -> bool:
+    """Whether a single-output learned model (a class model) reads each output of a multi-output record on
+    its own: every output channel with all the inputs, as a single-output record of the same plant."""
+    cfg = getattr(predictor, "cfg", None)
+    return cfg is not None and cfg.output_dim == 1 and test.num_outputs > 1
+
+
+def _channel(record: Record, i: int) -> Record:
+    return Record(y=record.y[:, i : i + 1], u=record.u, name=record.name, sampling_time=record.sampling_time)
+
+
+def _by_channel(predictor, test: Record, init: int, context: list[Record], choose: bool) -> InContext:
+    """simulate_with_context of each output channel on its own, the simulations side by side; the readings,
+    scores and divergences named by channel (y0, y1, ..)."""
+    done = [
+        simulate_with_context(predictor, _channel(test, i), init, [_channel(r, i) for r in context], choose)
+        for i in range(test.num_outputs)
+    ]
+    return InContext(
+        simulation=np.concatenate([d.simulation for d in done], axis=1),
+        reading="; ".join(f"y{i}: {d.reading}" for i, d in enumerate(done)),
+        context_steps=max(d.context_steps for d in done),
+        held_out={f"y{i} {k}": v for i, d in enumerate(done) for k, v in d.held_out.items()},
+        diverged=tuple(f"y{i} {r}" for i, d in enumerate(done) for r in d.diverged),
+    )
+
+
 def reading_line(done: InContext) -> str:
     """How the context was read, and the evidence: one line for mop predict and mop benchmark."""
     what = {
         "none": "not read",
         "window": f"its last {done.context_steps} steps read before the test",
-    }.get(
-        done.reading,
-        f"all {done.context_steps} steps read as the feature's fit, correction {done.reading[4:]}",
-    )
+    }.get(done.reading, "")
+    if not what:
+        what = (
+            f"all {done.context_steps} steps read as the feature's fit, correction {done.reading[4:]}"
+            if done.reading.startswith("fit")
+            else f"each output on its own ({done.reading})"
+        )
     if done.diverged:
         what += f" ({', '.join(done.diverged)} diverged on the test)"
     if not done.held_out:

@@ -180,3 +180,21 @@ def test_a_reading_that_diverges_on_the_test_gives_way_to_the_next_best(lti, mon
     assert done.diverged == (plain.reading,) and done.reading == ranked[1]
     assert plain.reading in reading_line(done) and "diverged" in reading_line(done)
     np.testing.assert_array_equal(done.simulation, real(model, test, 50, [context], ranked[1])[0])
+
+
+def test_a_single_output_model_reads_each_output_of_a_record_on_its_own(lti):
+    """Two lti-siso records' outputs side by side with the first one's inputs make a two-output record;
+    pretrained:lti-siso simulates it with its context channel by channel, exactly as it simulates each
+    one-output record (that output, those inputs) with its own context, and the line names each channel's
+    reading."""
+    model, records = lti
+    u = records[3].u
+    two = Record(y=np.concatenate([records[3].y, records[4].y], axis=1), u=u, name="two")
+    context, test = two[:800], two[800:]
+    done = simulate_with_context(model, test, 50, [context])
+    for i in range(2):
+        one = Record(y=two.y[:, i : i + 1], u=u)
+        alone = simulate_with_context(model, one[800:], 50, [one[:800]])
+        np.testing.assert_array_equal(done.simulation[:, i : i + 1], alone.simulation)
+        assert f"y{i}: {alone.reading}" in done.reading
+    assert "each output on its own" in reading_line(done)
