@@ -1,6 +1,7 @@
 """The learned models: a registry (model.arch -> class) and the built-in architectures.
 
-    gpt   mop.models.transformer   the paper's GPT-2-style causal transformer
+    gpt   mop.models.transformer   the paper's GPT-2-style causal transformer: the body (mop.models.gpt_body)
+                                   inside the feature front end (mop.models.frontend)
     gru   mop.models.gru           GRU baseline
 
 A new architecture is one module in this package with a LearnedModel subclass (mop.models.interface:

@@ -1,8 +1,8 @@
 """Causal input features of the learned models: a running output scale and an RLS one-step prediction.
 
-Both are options of ModelConfig (off by default, so the paper's model is unchanged) and are computed inside
-the model from its inputs z_t = [y_t, u_t] (B, T, d_in), the first m channels being y_t; position t sees
-z_0..z_t only, so the model stays causal and LearnedPredictor needs nothing new.
+Both are options of ModelConfig (off by default, so the paper's model is unchanged) and are computed by the
+model's front end (mop.models.frontend) from its inputs z_t = [y_t, u_t] (B, T, d_in), the first m channels
+being y_t; position t sees z_0..z_t only, so the model stays causal and LearnedPredictor needs nothing new.
 
 model.input_scale = "running" (causal per-trajectory normalisation):
     s_t = sqrt(eps + (1 / (t+1)) sum_{tau <= t} ||y_tau||^2 / m)          (B, T, 1), eps = SCALE_EPS
