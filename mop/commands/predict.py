@@ -80,9 +80,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--context",
         metavar="FILE",
-        help="with --simulate: an estimation record the model reads before each test record (its in-context "
-        "data; the last part its window holds), used where it simulates the record's own held-out end at "
-        "least as well as without (mop.incontext)",
+        help="with --simulate: an estimation record the model reads before each test record, as its "
+        "in-context data: the last part its window holds, or (a class model) all of it as its feature's "
+        "least-squares fit; the reading that simulates the record's own held-out end best is used, none "
+        "where none beats the test alone (mop.incontext)",
     )
 
 
