@@ -4,7 +4,8 @@ A page holds a marker comment; the hook replaces it with text built from the pac
 
     <!-- mop:cli -->        `mop COMMAND --help` of every command in mop.cli.COMMANDS (and their subcommands)
     <!-- mop:knobs -->      one table per config dataclass of mop/config.py: key, type, default, meaning (the
-                            feature front end's model.* keys from mop/feature_config.py, a table of their own)
+                            feature front end's model.* keys from mop/feature_config.py, a table of their own;
+                            the network keys each architecture reads, from mop/network_config.py)
     <!-- mop:cards -->      the shipped models' cards, mop/pretrained/*/CARD.md
     <!-- mop:changelog -->  CHANGELOG.md
 
@@ -15,9 +16,11 @@ from __future__ import annotations
 
 import argparse
 import ast
+import importlib.util
 import io
 import os
 import re
+import sys
 import tokenize
 from pathlib import Path
 
@@ -147,7 +150,28 @@ def knobs_reference() -> str:
                 cell = meaning.replace("|", "\\|")
                 out.append(f"| `{prefix}.{key}` | `{kind}` | `{default}` | {cell} |")
             out.append("")
+            if title == "The network":
+                out += [*network_sections(prefix), ""]
     return "\n".join(out)
+
+
+def network_sections(prefix: str) -> list[str]:
+    """The network keys each architecture reads: its section in mop/network_config.py, found by name (the
+    file is loaded by path, so the page shows this tree's sections whichever mop is installed)."""
+    path = ROOT / "mop" / "network_config.py"
+    spec = importlib.util.spec_from_file_location("_docs_network_config", path)
+    network_config = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = network_config  # dataclasses looks its module up
+    spec.loader.exec_module(network_config)
+
+    out = ["Each architecture reads its own network keys (`mop.network_config`, checked by its section):", ""]
+    for arch in network_config.network_config_names():
+        section = network_config.network_config_class(arch)
+        keys = ", ".join(f"`{prefix}.{key}`" for key in section.keys())
+        out.append(f'- `{prefix}.arch = "{arch}"` (`{section.__name__}`): {keys}')
+    generic = network_config.GenericNetworkConfig.__name__
+    out.append(f"- any other architecture (`{generic}`): every network key, with every check")
+    return out
 
 
 def cards_page() -> str:

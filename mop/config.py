@@ -14,6 +14,7 @@ from typing import Any, TypeVar
 from mop.errors import MopError, check, check_choice, check_int  # noqa: F401  (check: re-exported)
 from mop.feature_config import FEATURE_CONFIG_KEYS, FeatureConfig
 from mop.identity import identity
+from mop.network_config import NETWORK_KEYS, NetworkConfig, network_config_class
 from mop.systems.base import SystemConfig, config_class
 from mop.typecheck import dataclass_type, parse_value, type_matches, type_words
 
@@ -127,10 +128,12 @@ MODEL_CHOICES: dict[str, tuple[str, ...]] = {
 class ModelConfig:
     """The learned predictor. input_dim / output_dim of 0 mean "take them from the system family".
 
-    Its keys come in three groups: the network (arch .. position), the feature front end (input_scale ..
-    observation_mask: FeatureConfig's keys, mop.feature_config, which documents and checks them; held
-    flat here, so model.rls_order=4 and every saved config.json read as before; front_end gives them as
-    that section), and the multi-step read-out (forecast_mode .. gap_loss).
+    Its keys come in three groups: the network (arch .. position: model.arch names the architecture, and
+    network gives the keys it reads as its section, mop.network_config, which checks them), the feature
+    front end (input_scale .. observation_mask: FeatureConfig's keys, mop.feature_config, which documents
+    and checks them; front_end gives them as that section), and the multi-step read-out (forecast_mode ..
+    gap_loss). All are held flat here, so model.width=128 and model.rls_order=4 and every saved
+    config.json read as before.
     """
 
     arch: str = "gpt"  # a name in mop.models' registry: "gpt" (the paper's GPT-2 body), "gru" (baseline)
@@ -183,19 +186,19 @@ class ModelConfig:
         """The feature front end's keys as their own section."""
         return FeatureConfig(**{key: getattr(self, key) for key in FEATURE_CONFIG_KEYS})
 
+    @property
+    def network(self) -> NetworkConfig:
+        """The network keys model.arch reads, as that architecture's section (mop.network_config; an
+        architecture without one of its own gets the generic section, every network key)."""
+        return network_config_class(self.arch).of(self)
+
     def __post_init__(self) -> None:
         # the known architectures live in mop.models' registry; build_model and the trainer check them
         check(isinstance(self.arch, str) and self.arch != "", f"model.arch must be a name, got {self.arch!r}")
-        for name in ("num_layers", "num_heads", "width", "context"):
-            check_int(f"model.{name}", getattr(self, name), 1)
-        check(
-            self.width % self.num_heads == 0,
-            f"model.num_heads ({self.num_heads}) must divide model.width ({self.width})",
-        )
-        check(self.input_dim >= 0 and self.output_dim >= 0, "model.input_dim/output_dim must be >= 0")
-        check(0 <= self.dropout < 1, f"model.dropout must be in [0, 1), got {self.dropout}")
+        self.network  # noqa: B018  (the architecture's section checks the network's keys when built)
         for name, choices in MODEL_CHOICES.items():
-            check_choice(f"model.{name}", getattr(self, name), choices)
+            if name not in NETWORK_KEYS:  # the network's choices: its section's
+                check_choice(f"model.{name}", getattr(self, name), choices)
         check_int("model.horizons", self.horizons, 1, 100, " (1 = the one-step read-out)")
         self.front_end  # noqa: B018  (FeatureConfig checks the front end's keys when built)
         self._check_combinations()

@@ -25,7 +25,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.record",),  # a measured record (mop.io's files read once)
     ("mop.pretrained",),  # the shipped runs' files and cards (mop.runs resolves pretrained:NAME with it)
     ("mop.plots", "mop.checkpoint"),
-    ("mop.systems", "mop.config", "mop.feature_config"),  # mop.feature_config: the model's front-end keys
+    # mop.feature_config, mop.network_config: the model's front-end keys and its network's per architecture
+    ("mop.systems", "mop.config", "mop.feature_config", "mop.network_config"),
     ("mop.predictors",),
     ("mop.records",),  # a predictor over a user's records and the figures of merit
     ("mop.benchmarks",),  # the benchmarks' splits and protocol
