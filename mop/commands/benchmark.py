@@ -114,13 +114,12 @@ class InContextModel:
 
     def __init__(self, model, estimation) -> None:
         self.model, self.estimation, self.name = model, estimation, model.name
-        self.reading = ""  # how the last test read the context (mop.incontext.reading_line)
 
-    def run(self, test) -> TestScore:
+    def run(self, test) -> tuple[TestScore, str]:
+        """The test's score and how the estimation part was read (mop.incontext.reading_line)."""
         n = max(test.init_window, 1)
         done = simulate_with_context(self.model, test, n, self.estimation)
-        self.reading = reading_line(done)
-        return score_test(test, done.simulation)
+        return score_test(test, done.simulation), reading_line(done)
 
 
 def _fitted(kind: str, split: Split, warnings: list[str]):
@@ -175,9 +174,11 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
         scores = {}
         for name, model in models.items():
             bar.set_postfix_str(f"{split.name}: simulating {test.name} with {name}")
-            score = model.run(test) if isinstance(model, InContextModel) else run_test(model, test)
             if isinstance(model, InContextModel):
-                notes.append(f"{name} on {test.name}: the estimation part {model.reading}")
+                score, reading = model.run(test)
+                notes.append(f"{name} on {test.name}: the estimation part {reading}")
+            else:
+                score = run_test(model, test)
             scores[name] = score
             _write_simulation(folder / f"{test.name}_{name.replace(':', '-')}.csv", test, score)
             if score.diverged_at is not None:

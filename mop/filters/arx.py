@@ -282,28 +282,29 @@ class NARXPredictor(ARXPredictor):
             traj.y.dtype
         )
 
+    def _free_run(self, traj: Trajectories, origin: int, end: int) -> Tensor:
+        """(B, end - origin, m): y_origin..y_{end-1} predicted from y_<origin with the outputs from origin on
+        read as missing (the recursion's own predictions fed back, bounded), in float64."""
+        y = traj.y[:, :end].double().clone()
+        y[:, origin:] = float("nan")
+        u = _u(traj)
+        part = None if u is None else u[:, :end]
+        p, q = self.order, self.input_order
+        return arx_predict(y, part, p, q, True, self._prior, bounded=0, cubes=self.cubes)[:, origin:]
+
     def forecast(self, traj: Trajectories, steps: int, start: int = 0) -> Tensor:
-        """(B, T+1, K, m): from each origin t >= start, y_t..y_{t+K-1} read as missing (as simulate), one
-        recursion per origin; NaN for origins before start."""
-        y, u, p, q = traj.y.double(), _u(traj), self.order, self.input_order
-        B, T1, m = y.shape
-        out = y.new_full((B, T1, steps, m), float("nan"))
+        """(B, T+1, K, m): from each origin t >= start, _free_run over y_t..y_{t+K-1} (one recursion per
+        origin); NaN for origins before start."""
+        B, T1, m = traj.y.shape
+        out = traj.y.new_full((B, T1, steps, m), float("nan"), dtype=torch.float64)
         for t in range(start, T1):
             end = min(t + steps, T1)
-            cut = y[:, :end].clone()
-            cut[:, t:] = float("nan")
-            part = None if u is None else u[:, :end]
-            pred = arx_predict(cut, part, p, q, True, self._prior, bounded=0, cubes=self.cubes)
-            out[:, t, : end - t] = pred[:, t:end]
+            out[:, t, : end - t] = self._free_run(traj, t, end)
         return out.to(traj.y.dtype)
 
     def simulate(self, traj: Trajectories, context: int) -> Tensor:
-        """(B, T+1-c, m): y_c..y_T read as missing, the recursion's predictions fed back."""
-        y = traj.y.double().clone()
-        y[:, context:] = float("nan")
-        p, q = self.order, self.input_order
-        out = arx_predict(y, _u(traj), p, q, True, self._prior, bounded=0, cubes=self.cubes)
-        return out[:, context:].to(traj.y.dtype)
+        """(B, T+1-c, m): _free_run from the context c to the record's end."""
+        return self._free_run(traj, context, traj.y.shape[1]).to(traj.y.dtype)
 
 
 PREDICTORS.add("narx-10-cubes-10-offset-ls", lambda: NARXPredictor(10, 10, "narx-10-cubes-10-offset-ls"))
