@@ -97,8 +97,8 @@ class FeatureConfig:
         )
         for name, choices in FEATURE_CHOICES.items():
             check_choice(f"model.{name}", getattr(self, name), choices)
-        check_int("model.rls_order", self.rls_order, 0, 20, " (0 = off)")
-        check_int("model.arx_order", self.arx_order, 0, 20, " (0 = output-only RLS)")
+        check_int("model.rls_order", self.rls_order, 0, 40, " (0 = off)")
+        check_int("model.arx_order", self.arx_order, 0, 40, " (0 = output-only RLS)")
         check_int("model.rls_cubes", self.rls_cubes, 0, 20, " (0 = linear regressors)")
         for name in ("rls_offset", "observation_mask"):
             check_choice(f"model.{name}", getattr(self, name), (True, False))

@@ -3,14 +3,16 @@
 `mop train --data REC --budget MINUTES` plans the records recipe's steps as
 
     steps = max(MIN_STEPS, min(budget_steps, data_steps))
-    budget_steps = budget * 60 / NOMINAL_STEP_SECONDS            (what the budget buys on the reference CPU)
+    budget_steps = budget * 60 / step_seconds                     (what the budget buys on the reference CPU)
+    step_seconds = NOMINAL_STEP_SECONDS * max(1, horizon / NOMINAL_HORIZON)
     data_steps = ceil(MAX_EPOCHS * windows / batch_size)          (no more passes over the record than this)
 
 so the same record, budget and seed train the same steps (and weights) on every machine: the plan is a pure
 function (plan_steps), and the wall time it takes is printed from the step time measured on this machine.
 Records of up to about 1000 samples keep the MIN_STEPS the recipe was tuned with.
 NOMINAL_STEP_SECONDS is one step of the recipe's 1 x 32 model at batch 64 x 50 on a 2-core CPU (19-20 ms,
-measured with `mop train --data`'s trial steps). MAX_EPOCHS keeps a short record where the recipe was tuned:
+measured with `mop train --data`'s trial steps); windows longer than NOMINAL_HORIZON (a long ARX feature's)
+cost proportionally more. MAX_EPOCHS keeps a short record where the recipe was tuned:
 1000 steps of batch 64 over the 970 windows of a 1024-sample record are 66 passes.
 """
 
@@ -23,6 +25,7 @@ from mop.errors import MopError
 
 DEFAULT_BUDGET_MINUTES = 5.0
 NOMINAL_STEP_SECONDS = 0.02
+NOMINAL_HORIZON = 50  # the windows' length NOMINAL_STEP_SECONDS was measured on
 MAX_EPOCHS = 70
 MIN_STEPS = 1000  # the recipe's steps on short records, as tuned (a record of up to ~1000 samples)
 
@@ -36,12 +39,13 @@ class BudgetPlan:
     batch_size: int
     steps: int
     limited_by: str  # "budget" or "record" (MAX_EPOCHS passes over its windows) or "minimum"
+    step_seconds: float = NOMINAL_STEP_SECONDS  # a step's nominal cost on the reference CPU
 
     def line(self, step_seconds: float | None = None) -> str:
         """One line for the user: the plan, and the time it takes at `step_seconds` (measured here)."""
         passes = self.steps * self.batch_size / max(self.windows, 1)
         why = {
-            "budget": f"what {self.minutes:g} min buy at {NOMINAL_STEP_SECONDS * 1e3:.0f} ms a step",
+            "budget": f"what {self.minutes:g} min buy at {self.step_seconds * 1e3:.0f} ms a step",
             "record": f"{MAX_EPOCHS} passes over the record's {self.windows} windows, within the budget",
             "minimum": f"the minimum of {MIN_STEPS} steps",
         }[self.limited_by]
@@ -63,12 +67,14 @@ def check_budget(minutes: float) -> float:
     return value
 
 
-def plan_steps(minutes: float, windows: int, batch_size: int) -> BudgetPlan:
-    """The steps `minutes` buy on a record of `windows` training windows (see the module docstring)."""
+def plan_steps(minutes: float, windows: int, batch_size: int, horizon: int = NOMINAL_HORIZON) -> BudgetPlan:
+    """The steps `minutes` buy on a record of `windows` training windows of `horizon` steps (see the module
+    docstring)."""
     minutes = check_budget(minutes)
-    by_budget = int(minutes * 60 / NOMINAL_STEP_SECONDS)
+    step_seconds = NOMINAL_STEP_SECONDS * max(1.0, horizon / NOMINAL_HORIZON)
+    by_budget = int(minutes * 60 / step_seconds)
     by_record = math.ceil(MAX_EPOCHS * windows / batch_size)
     steps, why = (by_budget, "budget") if by_budget <= by_record else (by_record, "record")
     if steps < MIN_STEPS:
         steps, why = MIN_STEPS, "minimum"
-    return BudgetPlan(minutes, windows, batch_size, steps, why)
+    return BudgetPlan(minutes, windows, batch_size, steps, why, step_seconds)

@@ -21,7 +21,7 @@ from mop.config import (
     parse_overrides,
 )
 from mop.models import build_model
-from mop.recipe.records import record_orders
+from mop.recipe.records import fitted_long_orders, record_orders
 from mop.recipe.source import PRIOR_KEYS
 from mop.train import resolve_config, resolve_device
 from mop.train.estimate import step_seconds
@@ -80,9 +80,11 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     part (model.rls_prior = "fit", P_0 = 1e-3 I in the run's normalised units), as the records recipe's
     does, so from its first steps the model reads the record's ARX rather than one identified from those
     steps alone, unless an override names the prior (PRIOR_KEYS). The feature's orders are those `mop fit arx
-    REC` chooses on the whole record (record_orders), unless an override names model.rls_order or
-    model.arx_order: simulated with the correction's gain 0 (mop.recipe.shrink) the model is then the linear
-    model the user fits on REC (refitted on the training part; a simulation reads no outputs to update it).
+    REC` chooses on the whole record (record_orders), or on a long record a longer ARX(P, P) that simulates
+    the training part's held-out end better (the records recipe's fitted_long_orders, P at most half the
+    windows), unless an override names model.rls_order or model.arx_order: simulated with the correction's
+    gain 0 (mop.recipe.shrink) the model is then the linear model the user fits on REC (refitted on the
+    training part; a simulation reads no outputs to update it).
     Measured with scripts/carry_over.py, seeds 0 / 1, simulations from steps 0, 50, 200 (README.md at
     07be122), against the source's ARX(10, 10): tank plants 1-6 below their fitted ARX in 32 of 36 (mean
     RMSE 0.471) against 24 (0.465), Wiener-Hammerstein 1-3 in 18 of 18 both (0.341 against 0.326),
@@ -117,7 +119,9 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     ):
         orders = record_orders(config.data.path)
         if orders is not None:
-            model = dataclasses.replace(model, rls_order=orders[0], arx_order=orders[1])
+            longest = config.train.horizon // 2  # the windows stay at least twice the orders
+            p, q = fitted_long_orders(config.data, *orders, max_order=longest)
+            model = dataclasses.replace(model, rls_order=p, arx_order=q)
     own_units = source.data is None or not source.data.fitted
     if own_units and "model.record_prior_steps" not in named:
         model = dataclasses.replace(model, record_prior_steps=RECORD_PRIOR_STEPS)

@@ -2,10 +2,11 @@
 
 Before training (recorded_recipe, layer 3 of mop.recipe.layers): the ARX orders `mop fit arx` chooses on the
 record's training part (fitted_orders), cubed output lags where a cubic NARX simulates the held-out end of
-that part better (fitted_cubes, mop.identify.cubic), the feature started from their least-squares fit, the
-model RECORDED_MODEL and the steps its budget buys on the record (budget_plan, mop.recipe.budget). After
-training: the held-out choice between the network's correction at each gain and the fitted ARX
-(mop.recipe.selection). feature_line and order_line say what was chosen and why.
+that part better (fitted_cubes, mop.identify.cubic), else a longer ARX where a long record supports one
+(fitted_long_orders, mop.identify.long_arx; windows of at least twice its orders), the feature started from
+their least-squares fit, the model RECORDED_MODEL and the steps its budget buys on the record (budget_plan,
+mop.recipe.budget). After training: the held-out choice between the network's correction at each gain and
+the fitted ARX (mop.recipe.selection). feature_line and order_line say what was chosen and why.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from mop.config import (
 from mop.errors import MopError
 from mop.identify.arx import ARX
 from mop.identify.cubic import EXTRA_LAGS, choose_cubes
+from mop.identify.long_arx import LONG_ORDERS, choose_long_orders
 from mop.identify.select import feasible_order, fit
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_steps
 from mop.record import RecordsLike, read_records
@@ -73,17 +75,42 @@ def fitted_cubes(data: DataConfig, p: int, q: int) -> tuple[int, int]:
     return p, c
 
 
+def fitted_long_orders(
+    data: DataConfig, p: int, q: int, max_order: int = max(LONG_ORDERS)
+) -> tuple[int, int]:
+    """(p, q): the ARX orders of the records recipe's linear feature, `mop fit arx`'s (p, q) or a longer
+    ARX(P, P), P <= max_order, where the record is long enough and it simulates the last 20% of the training
+    part better (mop.identify.long_arx.choose_long_orders, normalised as the network reads it)."""
+    record = recorded_data(data)
+    if record.num_missing:
+        return p, q
+    m = record.output_dim
+    parts = record.normalised(dataclasses.replace(data, **record.fit()), record.train_parts)
+    p, q, _ = choose_long_orders([(a[:, :m], a[:, m:]) for a in parts], p, q, max_order)
+    return p, q
+
+
 def record_orders(path: str) -> tuple[int, int] | None:
     """(p, q): arx_orders on the whole estimation record at `path`, its validation part included: the
     orders of `mop fit arx PATH`."""
     return arx_orders(read_records(path), path)
 
 
-def budget_plan(config: RunConfig, minutes: float = DEFAULT_BUDGET_MINUTES) -> BudgetPlan:
-    """The steps `minutes` buy on config.data's training windows (mop.recipe.budget.plan_steps)."""
+def budget_plan(
+    config: RunConfig, minutes: float = DEFAULT_BUDGET_MINUTES, horizon: int | None = None
+) -> BudgetPlan:
+    """The steps `minutes` buy on config.data's training windows of `horizon` (default
+    config.train.horizon) steps (mop.recipe.budget.plan_steps)."""
+    horizon = config.train.horizon if horizon is None else horizon
     record = recorded_data(config.data)
-    windows = window_count(record.train_parts, config.train.horizon)
-    return plan_steps(minutes, windows, config.train.batch_size)
+    windows = window_count(record.train_parts, horizon)
+    return plan_steps(minutes, windows, config.train.batch_size, horizon)
+
+
+def feature_horizon(horizon: int, p: int, q: int) -> int:
+    """The training windows' length for a feature of orders (p, q): at least 2 max(p, q), so that the
+    feature regresses (rather than holding its start-up's last value) on at least half of every window."""
+    return max(horizon, 2 * max(p, q))
 
 
 def recorded_recipe(
@@ -91,13 +118,19 @@ def recorded_recipe(
 ) -> dict[str, object]:
     """The records recipe's settings for config.data: the ARX orders `mop fit arx` chooses on the training
     part (fitted_orders), cubed output lags where a cubic NARX simulates the held-out end of the training
-    part better (fitted_cubes), the feature started from their least-squares fit, RECORDED_MODEL, and the
+    part better (fitted_cubes), else the longer ARX orders a long record supports (fitted_long_orders) with
+    windows of feature_horizon, the feature started from their least-squares fit, RECORDED_MODEL, and the
     steps the budget (minutes) buys on the record (budget_plan: longer records train longer)."""
     p, q = fitted_orders(config.data)
     p, c = fitted_cubes(config.data, p, q) if cubes else (p, 0)
+    if c == 0:
+        p, q = fitted_long_orders(config.data, p, q)
+    horizon = feature_horizon(config.train.horizon, p, q)
+    longer = {"train.horizon": horizon, "model.context": max(config.model.context, horizon)}
     return {
         **RECORDED_MODEL,
-        "train.steps": budget_plan(config, budget).steps,
+        **(longer if horizon > config.train.horizon else {}),
+        "train.steps": budget_plan(config, budget, horizon).steps,
         "model.rls_order": p,
         "model.arx_order": q,
         "model.rls_cubes": c,
@@ -156,6 +189,12 @@ def order_line(
         if m.rls_prior == "fit" and m.rls_cubes:
             cubed = f"{m.rls_cubes} cubed output lags"
             return f"orders: {orders} with {cubed}, the source model's (--init {init})"
+        if m.rls_prior == "fit" and m.rls_order == m.arx_order and m.rls_order in LONG_ORDERS:
+            return (
+                f"orders: {orders}, longer than `mop fit arx {config.data.path}` searches: of its orders and "
+                f"ARX(P, P), P in {', '.join(map(str, LONG_ORDERS))}, the one that simulates the last 20% of "
+                "the training part best (mop.identify.long_arx)"
+            )
         if m.rls_prior == "fit":
             return f"orders: {orders}, {rule} on the whole record, as `mop fit arx {config.data.path}` does"
         return f"orders: {orders}, the source model's (--init {init})"
@@ -167,6 +206,13 @@ def order_line(
                 f"lags: from {rule} on the training part, the cubic NARX with up to {EXTRA_LAGS} more output "
                 "lags that simulates the last 20% of that part best, clearly better than every linear one, "
                 "and stays bounded when driven twice as hard (mop.identify.cubic)"
+            )
+        if m.rls_order == m.arx_order and m.rls_order in LONG_ORDERS:
+            return (
+                f"orders: {orders}, longer than `mop fit arx` searches (up to 10): of its orders and "
+                f"ARX(P, P), P in {', '.join(map(str, LONG_ORDERS))}, the one that simulates the last 20% of "
+                "the training part best (mop.identify.long_arx), fitted on the rest; windows of "
+                f"{config.train.horizon} steps"
             )
         return (
             f"orders: {orders}, {rule} on the training part only (the held-out part stays unseen), so they "
