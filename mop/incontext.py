@@ -17,7 +17,10 @@ model has read the context records. There are three readings:
   with its feature starting from those coefficients (model.rls_prior, as a fine-tune of the class model
   starts at step 0, mop.recipe.finetune.with_record_prior), and its network's correction scaled by a gain
   g in GAINS (0: the fitted feature alone, 1: the class model as trained; mop.recipe.shrink). So the model's
-  context is the whole estimation record, not its last C steps, with no training.
+  context is the whole estimation record, not its last C steps, with no training. Where the context is long
+  enough to support a longer linear ARX than the model's own (long_orders: the records recipe's rule,
+  mop.identify.long_arx), the readings "fit ARX(P, P) gain G" fit that one instead (the network reads the
+  feature's prediction, whatever its orders).
 
 Which reading: each is measured on the context itself before the test is touched. The last context
 record's last H steps (H = min(len / 4, 2000)) are simulated from their first `init` outputs after the
@@ -41,6 +44,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -48,6 +52,7 @@ import torch
 
 from mop.errors import MopError
 from mop.filters.arx import least_squares_coefficients
+from mop.identify.long_arx import choose_long_orders
 from mop.models.normalization import Normalization
 from mop.models.predictor import LearnedPredictor
 from mop.models.registry import build_model
@@ -123,15 +128,43 @@ def context_normalization(context: Sequence[Record]) -> Normalization:
     return Normalization(t(y.mean(axis=0)), t(std(y)), t(u.mean(axis=0)), t(std(u)))
 
 
-def fitted_to_context(predictor: LearnedPredictor, context: Sequence[Record], gain: float = 1.0):
+def _normalised(context: Sequence[Record]) -> list[np.ndarray]:
+    """Each context record (L, m + k) in context_normalization's units."""
+    norm = context_normalization(context)
+    joined = lambda r: r.y if r.u is None else np.concatenate([r.y, r.u], axis=1)  # noqa: E731
+    return [norm.inputs(torch.from_numpy(joined(r).astype(np.float64))[None])[0].numpy() for r in context]
+
+
+def long_orders(predictor, context: Sequence[Record]) -> tuple[int, int] | None:
+    """(P, P): a longer ARX than the class model's own linear ARX(p, q) feature where the context is long
+    enough and it simulates the held-out end of the context records better (the records recipe's rule,
+    mop.identify.long_arx.choose_long_orders, P at most half the model's context); None otherwise (a cubic
+    feature, a feature without inputs, a short context)."""
+    cfg = getattr(predictor, "cfg", None)
+    if not fits_context(predictor) or cfg.rls_cubes or cfg.arx_order == 0:
+        return None
+    m = cfg.output_dim
+    parts = [(a[:, :m], a[:, m:]) for a in _normalised(context)]
+    orders = (cfg.rls_order, cfg.arx_order)
+    p, q, _ = choose_long_orders(parts, *orders, max_order=cfg.context // 2)
+    return None if (p, q) == orders else (p, q)
+
+
+def fitted_to_context(
+    predictor: LearnedPredictor,
+    context: Sequence[Record],
+    gain: float = 1.0,
+    orders: tuple[int, int] | None = None,
+):
     """The class model with its feature's coefficients fitted by least squares on every context record
     (in context_normalization's units) and its correction times `gain` (see the module docstring): a new
-    LearnedPredictor in the data's units; the predictor given is not changed."""
+    LearnedPredictor in the data's units; the predictor given is not changed. orders: the feature's (p, q)
+    instead of the model's own (long_orders; its input is the feature's prediction whatever its orders)."""
     cfg, norm = predictor.cfg, context_normalization(context)
-    joined = lambda r: r.y if r.u is None else np.concatenate([r.y, r.u], axis=1)  # noqa: E731
-    arrays = [norm.inputs(torch.from_numpy(joined(r).astype(np.float64))[None])[0].numpy() for r in context]
+    if orders is not None:
+        cfg = dataclasses.replace(cfg, rls_order=orders[0], arx_order=orders[1])
     theta = least_squares_coefficients(
-        arrays, cfg.output_dim, cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes
+        _normalised(context), cfg.output_dim, cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes
     )
     fitted = dataclasses.replace(
         cfg,
@@ -185,21 +218,33 @@ def _window(predictor, test: Record, init: int, source: Record) -> tuple[np.ndar
 def _read(
     predictor, test: Record, init: int, context: Sequence[Record], reading: str, fitted=None
 ) -> tuple[np.ndarray, int]:
-    """(simulation of test from init, context steps read) for one reading; fitted: the predictor fitted to
-    this context at gain 1 (fitted_to_context), where it is already made."""
+    """(simulation of test from init, context steps read) for one reading; fitted: {orders: the predictor
+    fitted to this context at gain 1 (fitted_to_context)}, filled in as they are made."""
     if reading == "none":
         return _simulate(predictor, test, init), 0
     if reading == "window":
         return _window(predictor, test, init, context[-1])
-    fitted = fitted or fitted_to_context(predictor, context)
+    fitted = {} if fitted is None else fitted
+    orders = reading_orders(reading)
+    if orders not in fitted:
+        fitted[orders] = fitted_to_context(predictor, context, orders=orders)
     gain = float(reading.rpartition(" ")[2])
-    return _simulate(with_gain(fitted, gain), test, init), sum(len(r) for r in context)
+    return _simulate(with_gain(fitted[orders], gain), test, init), sum(len(r) for r in context)
 
 
-def readings(predictor) -> list[str]:
-    """The readings a predictor can take, in their order of preference on ties."""
+def reading_orders(reading: str) -> tuple[int, int] | None:
+    """The feature's orders a "fit ARX(P, Q) gain G" reading names; None for "fit gain G" (the model's)."""
+    found = re.match(r"fit ARX\((\d+), (\d+)\)", reading)
+    return None if found is None else (int(found[1]), int(found[2]))
+
+
+def readings(predictor, orders: tuple[int, int] | None = None) -> list[str]:
+    """The readings a predictor can take, in their order of preference on ties; orders: long_orders's, whose
+    "fit ARX(P, P) gain G" readings come last."""
     fit = [f"fit gain {g:g}" for g in GAINS] if fits_context(predictor) else []
-    return ["none", "window", *fit]
+    named = [] if orders is None or not fit else [f"fit ARX({orders[0]}, {orders[1]})"]
+    long = [f"{name} gain {g:g}" for name in named for g in GAINS]
+    return ["none", "window", *fit, *long]
 
 
 def simulate_with_context(
@@ -220,15 +265,13 @@ def simulate_with_context(
     if h > init + 1:
         end = source[len(source) - h :]
         before = [*context[:-1], source[: len(source) - h]]
-        fitted = fitted_to_context(predictor, before) if fits_context(predictor) else None
-        for reading in readings(predictor):
+        fitted = {}
+        for reading in readings(predictor, long_orders(predictor, before)):
             scores[reading] = _rmse(end.y, _read(predictor, end, init, before, reading, fitted)[0])
     ranked = sorted(scores, key=lambda r: (scores[r], list(scores).index(r))) or ["none"]
     seen = np.concatenate([*(r.y for r in context), test.y[:init]])  # the outputs measured before the run
-    dropped, fitted = [], None
+    dropped, fitted = [], {}
     for reading in ranked:
-        if reading.startswith("fit") and fitted is None:
-            fitted = fitted_to_context(predictor, context)
         sim, steps = _read(predictor, test, init, context, reading, fitted)
         if divergence_step(seen, sim) is None or reading == ranked[-1]:
             return InContext(sim, reading, steps, scores, tuple(dropped))
@@ -269,8 +312,11 @@ def reading_line(done: InContext) -> str:
         "window": f"its last {done.context_steps} steps read before the test",
     }.get(done.reading, "")
     if not what:
+        orders = reading_orders(done.reading)
+        feature = "the feature's" if orders is None else f"an ARX{orders} feature's"
         what = (
-            f"all {done.context_steps} steps read as the feature's fit, correction {done.reading[4:]}"
+            f"all {done.context_steps} steps read as {feature} fit, correction gain "
+            f"{done.reading.rpartition(' ')[2]}"
             if done.reading.startswith("fit")
             else f"each output on its own ({done.reading})"
         )
