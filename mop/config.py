@@ -161,6 +161,7 @@ class ModelConfig:
     rls_prior_cov: list[float] | None = FeatureConfig.rls_prior_cov
     rls_prior_weights: list[float] | None = FeatureConfig.rls_prior_weights
     rls_prior_noise: float = FeatureConfig.rls_prior_noise
+    rls_fixed: bool = FeatureConfig.rls_fixed
     rls_p0: float = FeatureConfig.rls_p0
     output_units: list[float] | None = FeatureConfig.output_units
     input_units: list[float] | None = FeatureConfig.input_units

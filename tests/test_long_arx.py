@@ -70,7 +70,7 @@ def test_the_recipe_trains_a_long_feature_on_windows_twice_its_orders_and_budget
     rec = write(tmp_path / "rec.csv", y, u)
     config = training_config(None, None, str(rec), budget=1)
     m = config.model
-    assert (m.rls_order, m.arx_order, m.rls_cubes) == (30, 30, 0)
+    assert (m.rls_order, m.arx_order, m.rls_cubes, m.rls_fixed) == (30, 30, 0, True)
     assert config.train.horizon == 60 and m.context == 60
     windows = 7200 - 60  # the training part (the last 10% validates), windows of 61 steps
     assert config.train.steps == plan_steps(1, windows, 64, 60).steps
@@ -94,5 +94,52 @@ def test_a_fine_tuned_class_model_reads_the_long_order_a_long_record_needs(tmp_p
     y, u = delayed_plant(6000, delay=18)
     rec = write(tmp_path / "rec.csv", y, u)
     config = training_config(None, None, str(rec), init="pretrained:lti-siso")
-    assert (config.model.rls_order, config.model.arx_order, config.model.rls_prior) == (20, 20, "fit")
+    m = config.model
+    assert (m.rls_order, m.arx_order, m.rls_prior, m.rls_fixed) == (20, 20, "fit", True)
     assert "longer than `mop fit arx" in order_line(config, [], init="pretrained:lti-siso")
+
+
+@pytest.mark.parametrize("gaps", [False, True])
+def test_a_fixed_feature_is_the_recursion_whose_p0_vanishes_and_the_fitted_arxs_prediction(gaps):
+    """model.rls_fixed (P_0 = 0) skips the recursion: it equals the step-by-step recursion from P_0 =
+    1e-300 (no pair can move theta) to rounding, and the ARX's own predictions computed independently in
+    numpy: one step ahead on complete outputs, the free run (mop.identify.cubic.simulate_narx) where the
+    outputs after the first 50 are missing."""
+    import torch
+
+    from mop.filters.arx import arx_predict, least_squares_coefficients
+    from mop.identify.cubic import regressor_rows
+
+    y, u = delayed_plant(1500, delay=18)
+    theta = least_squares_coefficients([np.concatenate([y, u], 1)], 1, 20, 20, True)
+    yt, ut = torch.from_numpy(y)[None].clone(), torch.from_numpy(u)[None]
+    if gaps:
+        yt[:, 50:] = float("nan")
+    fast = arx_predict(yt, ut, 20, 20, True, (torch.from_numpy(theta), 0.0), bounded=0)[0].numpy()
+    slow = arx_predict(yt, ut, 20, 20, True, (torch.from_numpy(theta), 1e-300), bounded=0)[0].numpy()
+    np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=1e-12)
+    if gaps:
+        np.testing.assert_allclose(fast[50:], simulate_narx(theta, y, u, 20, 20, 0, 50), rtol=1e-9, atol=1e-9)
+    else:
+        one_step = regressor_rows(y, u, 20, 20, 0) @ theta  # row t predicts y_{t+1}
+        np.testing.assert_allclose(fast[21:], one_step[20:-1], rtol=1e-9, atol=1e-9)
+
+
+def test_a_fixed_feature_needs_coefficients_to_stay_at(tmp_path, capsys):
+    from mop.cli import main
+
+    rec = write(tmp_path / "rec.csv", *delayed_plant(600, delay=2))
+    code = main(
+        [
+            "train",
+            "--data",
+            str(rec),
+            "--out",
+            str(tmp_path / "run"),
+            "model.rls_order=2",
+            "model.rls_fixed=true",
+        ]
+    )
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and "model.rls_fixed" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "run").exists()

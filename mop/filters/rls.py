@@ -74,6 +74,12 @@ def _rls_run(y: Tensor, order: int) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
 Prior = tuple[Tensor | None, float | Tensor]
 
 
+def fixed(prior: Prior | None) -> bool:
+    """Whether the prior fixes theta at theta_0: P_0 = 0 (a number), so k = 0 and no pair updates it (a
+    fixed ARX, model.rls_fixed); the recursions then skip the updates."""
+    return prior is not None and not isinstance(prior[1], Tensor) and prior[1] == 0
+
+
 def initial_state(prior: Prior | None, B: int, d: int, m: int, like: Tensor) -> tuple[Tensor, Tensor]:
     """(theta (B, d, m), P (B, d, d)) at the start of the recursion, in like's dtype and device: theta_0 = 0
     and P_0 = I without a prior; prior: its theta_0 and P_0 (p0 I for a number). With the pairs (phi_s,
@@ -100,6 +106,10 @@ def rls_loop(
     updates_from = start if updates_from is None else updates_from
     theta, P = initial_state(prior, B, phi.shape[-1], m, y)
     preds = [y.new_zeros(B, m)] + [y[:, t - 1] for t in range(1, min(start + 1, T))]
+    if fixed(prior) and start + 1 < T:  # P_0 = 0: no pair moves theta; every prediction at once
+        later = phi[:, start : T - 1] @ theta  # (B, T - 1 - start, m)
+        thetas = dict.fromkeys(range(start + 1, T), theta)
+        return torch.cat([torch.stack(preds, dim=1), later], dim=1), phi, thetas
     thetas = {}
     for t in range(start + 1, T):
         if t - 1 >= updates_from:  # the newest pair (phi_{t-2}, y_{t-1})
@@ -165,8 +175,8 @@ def _rls_run_gaps(
     d = phi_measured.shape[-1]
     theta, P = initial_state(prior, B, d, m, y)
     P = P[:, None].repeat(1, m, 1, 1)  # (B, m, d, d)
-    fits = []
-    for t in range(start + 1, T):
+    fits = [theta] * max(T - 1 - start, 0) if fixed(prior) else []
+    for t in range(start + 1, T if not fixed(prior) else start + 1):
         phi, upd = phi_measured[:, t - 2], update[:, t - 1]  # the newest pair (phi_{t-2}, y_{t-1})
         every = bool(upd.all())
         if every or bool(upd.any()):
@@ -181,7 +191,9 @@ def _rls_run_gaps(
         fits.append(theta)
     # predictions from the measured regressors, right wherever nothing filled in is read
     preds = torch.cat([y.new_zeros(B, 1, m), measured[:, : min(start, T - 1)]], dim=1)[:, :T]
-    if fits:
+    if fits and fixed(prior):
+        preds = torch.cat([preds, phi_measured[:, start : T - 1] @ theta], dim=1)
+    elif fits:
         thetas = torch.stack(fits, dim=1)  # (B, T - 1 - start, d, m): theta_t, t = start + 1 ..
         preds = torch.cat([preds, (thetas.mT @ phi_measured[:, start : T - 1, :, None])[..., 0]], dim=1)
     padded = torch.cat([y.new_zeros(B, order - 1, m), torch.where(seen, y, preds)], 1)  # (B, T+p-1, m)

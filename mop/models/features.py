@@ -186,9 +186,9 @@ def gap_positions(inputs: Tensor, cfg: ModelConfig) -> Tensor | None:
 def feature_prior(cfg: ModelConfig) -> Prior | MixturePrior | None:
     """(theta_0 (d, m) float64, P_0) of the RLS / ARX feature where model.rls_prior holds the coefficients
     (d = p m + q k [+ 1] rows, in mop.filters.arx's regressor order): P_0 the (d, d) matrix
-    model.rls_prior_cov, or PRIOR_P0 (times I) without it. Without them (None: theta_0 = 0, model.rls_p0)
-    where rls_p0 is not 1, else None (the recursion's own theta_0 = 0, P_0 = I). With
-    model.rls_prior_weights, the MixturePrior of those K blocks of coefficients and covariances."""
+    model.rls_prior_cov, or PRIOR_P0 (times I) without it, or 0 with model.rls_fixed. Without them (None:
+    theta_0 = 0, model.rls_p0) where rls_p0 is not 1, else None (the recursion's own theta_0 = 0, P_0 =
+    I). With model.rls_prior_weights, the MixturePrior of those K blocks of coefficients and covariances."""
     if not isinstance(cfg.rls_prior, list):
         return None if cfg.rls_p0 == 1.0 else (None, cfg.rls_p0)
     if cfg.rls_prior_weights is not None:
@@ -198,6 +198,8 @@ def feature_prior(cfg: ModelConfig) -> Prior | MixturePrior | None:
         weights = torch.tensor(cfg.rls_prior_weights, dtype=torch.float64)
         return MixturePrior(weights, means, covs, cfg.rls_prior_noise)
     theta = torch.tensor(cfg.rls_prior, dtype=torch.float64).reshape(-1, cfg.output_dim)
+    if cfg.rls_fixed:
+        return theta, 0.0
     if cfg.rls_prior_cov is None:
         return theta, PRIOR_P0
     return theta, torch.tensor(cfg.rls_prior_cov, dtype=torch.float64).reshape(theta.shape[0], -1)

@@ -121,7 +121,8 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
         if orders is not None:
             longest = config.train.horizon // 2  # the windows stay at least twice the orders
             p, q = fitted_long_orders(config.data, *orders, max_order=longest)
-            model = dataclasses.replace(model, rls_order=p, arx_order=q)
+            long = (p, q) != orders  # a long ARX stays at its fit (model.rls_fixed), as the records recipe's
+            model = dataclasses.replace(model, rls_order=p, arx_order=q, rls_fixed=long)
     own_units = source.data is None or not source.data.fitted
     if own_units and "model.record_prior_steps" not in named:
         model = dataclasses.replace(model, record_prior_steps=RECORD_PRIOR_STEPS)

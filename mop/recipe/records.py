@@ -3,8 +3,9 @@
 Before training (recorded_recipe, layer 3 of mop.recipe.layers): the ARX orders `mop fit arx` chooses on the
 record's training part (fitted_orders), cubed output lags where a cubic NARX simulates the held-out end of
 that part better (fitted_cubes, mop.identify.cubic), else a longer ARX where a long record supports one
-(fitted_long_orders, mop.identify.long_arx; windows of at least twice its orders), the feature started from
-their least-squares fit, the model RECORDED_MODEL and the steps its budget buys on the record (budget_plan,
+(fitted_long_orders, mop.identify.long_arx; windows of at least twice its orders; fixed at its fit,
+model.rls_fixed, as the recursion would cost most of each step), the feature started from their
+least-squares fit, the model RECORDED_MODEL and the steps its budget buys on the record (budget_plan,
 mop.recipe.budget). After training: the held-out choice between the network's correction at each gain and
 the fitted ARX (mop.recipe.selection). feature_line and order_line say what was chosen and why.
 """
@@ -130,6 +131,7 @@ def recorded_recipe(
     return {
         **RECORDED_MODEL,
         **(longer if horizon > config.train.horizon else {}),
+        **({"model.rls_fixed": True} if max(p, q) in LONG_ORDERS and c == 0 else {}),
         "train.steps": budget_plan(config, budget, horizon).steps,
         "model.rls_order": p,
         "model.arx_order": q,
