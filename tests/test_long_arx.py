@@ -10,7 +10,7 @@ from mop.identify.cubic import simulate_narx
 from mop.identify.long_arx import LONG_ORDERS, choose_long_orders
 from mop.recipe.budget import NOMINAL_HORIZON, NOMINAL_STEP_SECONDS, plan_steps
 from mop.recipe.layers import training_config
-from mop.recipe.records import order_line
+from mop.recipe.records import feature_line, order_line
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -75,6 +75,9 @@ def test_the_recipe_trains_a_long_feature_on_windows_twice_its_orders_and_budget
     windows = 7200 - 60  # the training part (the last 10% validates), windows of 61 steps
     assert config.train.steps == plan_steps(1, windows, 64, 60).steps
     assert "longer than `mop fit arx`" in order_line(config, [])
+    assert "ARX(30, 30) with an intercept one-step prediction fixed at its least-squares fit" in feature_line(
+        config
+    )
 
 
 def test_longer_windows_buy_proportionally_fewer_steps():

@@ -167,6 +167,8 @@ def feature_line(config: RunConfig) -> str | None:
     if m.rls_cubes:
         kind = f"cubic NARX ({kind} with the cubes of its first {m.rls_cubes} output lags)"
     start = " started from its least-squares fit on the training part" if m.rls_prior != "none" else ""
+    if m.rls_fixed:
+        start = " fixed at its least-squares fit on the training part"
     offset = " with an intercept" if m.rls_offset else ""
     return (
         f"feature: the network reads the {kind}{offset} one-step prediction{start}, and predicts its residual"
