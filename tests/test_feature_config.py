@@ -22,7 +22,8 @@ SAVED_ORDER = (
     *("arch", "num_layers", "num_heads", "width", "context", "input_dim", "output_dim", "readout"),
     *("dropout", "position", "input_scale", "record_norm", "residual_scale", "record_moments"),
     *("record_prior_steps", "residual_decay", "rls_order", "arx_order", "rls_offset", "rls_cubes"),
-    *("rls_prior", "rls_prior_cov", "rls_prior_weights", "rls_prior_noise", "rls_p0", "output_units"),
+    *("rls_prior", "rls_prior_cov", "rls_prior_weights", "rls_prior_noise", "rls_fixed", "rls_p0"),
+    "output_units",
     *("input_units", "features", "observation_mask", "forecast_mode", "horizons", "horizon_loss", "gap_loss"),
 )
 # the front end's defaults a saved config.json leaves out (mop.identity writes a key away from its default)
@@ -30,7 +31,7 @@ SAVED_DEFAULTS = {
     **{"input_scale": "none", "record_norm": "none", "residual_scale": "none", "record_moments": "measured"},
     **{"record_prior_steps": 0, "residual_decay": 0.5, "rls_order": 0, "arx_order": 0, "rls_offset": False},
     **{"rls_cubes": 0, "rls_prior": "none", "rls_prior_cov": None, "rls_prior_weights": None},
-    **{"rls_prior_noise": 0.0, "rls_p0": 1.0, "output_units": None, "input_units": None},
+    **{"rls_prior_noise": 0.0, "rls_fixed": False, "rls_p0": 1.0, "output_units": None, "input_units": None},
     **{"features": "given", "observation_mask": False},
 }
 # (front-end settings, a word of the message both refuse them with)
@@ -40,7 +41,8 @@ BAD_FRONT_ENDS = [
     ({"output_units": [-1.0]}, "output_units"),
     ({"residual_decay": 1.0}, "residual_decay"),
     ({"input_scale": "sometimes"}, "input_scale"),
-    ({"rls_order": 21}, "rls_order"),
+    ({"rls_order": 41}, "rls_order"),
+    ({"rls_order": 2, "rls_fixed": True}, "rls_fixed"),
     ({"rls_offset": 1}, "rls_offset"),
     ({"arx_order": 2}, "arx_order"),
     ({"rls_order": 2, "rls_cubes": 3}, "rls_cubes"),
