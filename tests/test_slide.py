@@ -67,6 +67,8 @@ CASES = [
     ("learned", 2, 0, {"rls_order": 3}, True),  # RLS-AR feature, no inputs
     ("rope", 1, 1, {}, False),  # no feature
     ("learned", 1, 1, {**ARX, "rls_prior": [0.1] * 2 * (2 * 2 + 3 * 1 + 1)}, False),  # listed prior
+    # a fixed feature (model.rls_fixed): no window updates its fit
+    ("learned", 1, 1, {**ARX, "rls_prior": [0.1] * 2 * (2 * 2 + 3 * 1 + 1), "rls_fixed": True}, True),
 ]
 
 

@@ -35,7 +35,7 @@ import torch
 from scipy.special import erf
 from torch import Tensor
 
-from mop.filters.rls import initial_state, regressors
+from mop.filters.rls import fixed, initial_state, regressors
 from mop.models.attention import rope_angles
 from mop.models.features import feature_prior, input_count
 from mop.models.horizons import split_horizons
@@ -65,10 +65,13 @@ class _Features:
         self.r = self.p if self.q == 0 else max(self.p, self.q)  # rls_loop's start
         C = cfg.context
         d = (self.p + self.cubes) * self.m + self.q * self.k + int(self.offset)
-        theta0, P0 = initial_state(feature_prior(cfg), B, d, self.m, like.double())  # (B, d, m), (B, d, d)
+        prior = feature_prior(cfg)
+        theta0, P0 = initial_state(prior, B, d, self.m, like.double())  # (B, d, m), (B, d, d)
         self.theta0, self.P0 = theta0.cpu().numpy(), P0.cpu().numpy()
-        self.theta = np.repeat(self.theta0[None], C, axis=0)  # (C, B, d, m)
-        self.P = np.repeat(self.P0[None], C, axis=0)  # (C, B, d, d)
+        # a fixed feature (model.rls_fixed, P_0 = 0): every window predicts with theta_0, nothing to update
+        self.fixed = fixed(prior)
+        self.theta = np.repeat(self.theta0[None], 1 if self.fixed else C, axis=0)  # (C, B, d, m)
+        self.P = None if self.fixed else np.repeat(self.P0[None], C, axis=0)  # (C, B, d, d)
         self.ys = np.zeros((B, self.p * self.m))  # [y_tau; ..; y_{tau-p+1}]
         self.phi: np.ndarray | None = None  # phi_{tau-1} (B, 1, d)
 
@@ -92,6 +95,9 @@ class _Features:
         phi = np.concatenate([self.ys, self.ys[:, : self.cubes * self.m] ** 3, known], axis=-1)[
             :, None
         ]  # (B, 1, d)
+        if self.fixed:
+            self.phi = phi
+            return np.where(start_up, y, (phi @ self.theta0)[:, 0]).astype(dtype)
         self.theta[slot], self.P[slot] = self.theta0, self.P0  # the new window starts afresh
         if self.phi is not None:  # rls_update with the pair (phi_{tau-1}, y_tau), in every fitting window
             old = self.phi
