@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from mop.config import (
     DataConfig,
     RunConfig,
@@ -63,17 +65,23 @@ def fitted_orders(data: DataConfig) -> tuple[int, int]:
     return orders
 
 
+def training_pairs(data: DataConfig) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """[(y (L, m), u (L, k))] of the record's training parts, normalised as the network reads them; None
+    where outputs are missing (the candidates' least squares need them all)."""
+    record = recorded_data(data)
+    if record.num_missing:
+        return None
+    m = record.output_dim
+    parts = record.normalised(dataclasses.replace(data, **record.fit()), record.train_parts)
+    return [(a[:, :m], a[:, m:]) for a in parts]
+
+
 def fitted_cubes(data: DataConfig, p: int, q: int) -> tuple[int, int]:
     """(p, c): the output lags and cubed lags of the records recipe's feature, by held-out free-run
     simulation of cubic NARX candidates on the record's training part (mop.identify.cubic.choose_cubes,
-    normalised as the network reads it); (p, 0) keeps the ARX(p, q) `mop fit arx` chose."""
-    record = recorded_data(data)
-    if record.num_missing:
-        return p, 0
-    m = record.output_dim
-    parts = record.normalised(dataclasses.replace(data, **record.fit()), record.train_parts)
-    p, c, _ = choose_cubes([(a[:, :m], a[:, m:]) for a in parts], p, q)
-    return p, c
+    training_pairs); (p, 0) keeps the ARX(p, q) `mop fit arx` chose."""
+    pairs = training_pairs(data)
+    return (p, 0) if pairs is None else choose_cubes(pairs, p, q)[:2]
 
 
 def fitted_long_orders(
@@ -81,14 +89,9 @@ def fitted_long_orders(
 ) -> tuple[int, int]:
     """(p, q): the ARX orders of the records recipe's linear feature, `mop fit arx`'s (p, q) or a longer
     ARX(P, P), P <= max_order, where the record is long enough and it simulates the last 20% of the training
-    part better (mop.identify.long_arx.choose_long_orders, normalised as the network reads it)."""
-    record = recorded_data(data)
-    if record.num_missing:
-        return p, q
-    m = record.output_dim
-    parts = record.normalised(dataclasses.replace(data, **record.fit()), record.train_parts)
-    p, q, _ = choose_long_orders([(a[:, :m], a[:, m:]) for a in parts], p, q, max_order)
-    return p, q
+    part better (mop.identify.long_arx.choose_long_orders on training_pairs)."""
+    pairs = training_pairs(data)
+    return (p, q) if pairs is None else choose_long_orders(pairs, p, q, max_order)[:2]
 
 
 def record_orders(path: str) -> tuple[int, int] | None:
