@@ -11,6 +11,7 @@ from mop.identify.long_arx import LONG_ORDERS, choose_long_orders
 from mop.recipe.budget import NOMINAL_HORIZON, NOMINAL_STEP_SECONDS, plan_steps
 from mop.recipe.layers import training_config
 from mop.recipe.records import feature_line, order_line
+from mop.recipe.source import check_init
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -99,6 +100,7 @@ def test_a_fine_tuned_class_model_reads_the_long_order_a_long_record_needs(tmp_p
     config = training_config(None, None, str(rec), init="pretrained:lti-siso")
     m = config.model
     assert (m.rls_order, m.arx_order, m.rls_prior, m.rls_fixed) == (20, 20, "fit", True)
+    check_init(config)  # the fixed feature is the source's network with another prior: it may fine-tune
     assert "longer than `mop fit arx" in order_line(config, [], init="pretrained:lti-siso")
 
 
