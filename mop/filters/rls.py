@@ -175,8 +175,9 @@ def _rls_run_gaps(
     d = phi_measured.shape[-1]
     theta, P = initial_state(prior, B, d, m, y)
     P = P[:, None].repeat(1, m, 1, 1)  # (B, m, d, d)
-    fits = [theta] * max(T - 1 - start, 0) if fixed(prior) else []
-    for t in range(start + 1, T if not fixed(prior) else start + 1):
+    frozen = fixed(prior)  # no pair updates: every step's fit is theta_0
+    fits = [theta] * max(T - 1 - start, 0) if frozen else []
+    for t in range(start + 1, start + 1 if frozen else T):
         phi, upd = phi_measured[:, t - 2], update[:, t - 1]  # the newest pair (phi_{t-2}, y_{t-1})
         every = bool(upd.all())
         if every or bool(upd.any()):
@@ -191,7 +192,7 @@ def _rls_run_gaps(
         fits.append(theta)
     # predictions from the measured regressors, right wherever nothing filled in is read
     preds = torch.cat([y.new_zeros(B, 1, m), measured[:, : min(start, T - 1)]], dim=1)[:, :T]
-    if fits and fixed(prior):
+    if fits and frozen:
         preds = torch.cat([preds, phi_measured[:, start : T - 1] @ theta], dim=1)
     elif fits:
         thetas = torch.stack(fits, dim=1)  # (B, T - 1 - start, d, m): theta_t, t = start + 1 ..

@@ -70,7 +70,7 @@ class _Features:
         self.theta0, self.P0 = theta0.cpu().numpy(), P0.cpu().numpy()
         # a fixed feature (model.rls_fixed, P_0 = 0): every window predicts with theta_0, nothing to update
         self.fixed = fixed(prior)
-        self.theta = np.repeat(self.theta0[None], 1 if self.fixed else C, axis=0)  # (C, B, d, m)
+        self.theta = None if self.fixed else np.repeat(self.theta0[None], C, axis=0)  # (C, B, d, m)
         self.P = None if self.fixed else np.repeat(self.P0[None], C, axis=0)  # (C, B, d, d)
         self.ys = np.zeros((B, self.p * self.m))  # [y_tau; ..; y_{tau-p+1}]
         self.phi: np.ndarray | None = None  # phi_{tau-1} (B, 1, d)
@@ -95,8 +95,7 @@ class _Features:
         phi = np.concatenate([self.ys, self.ys[:, : self.cubes * self.m] ** 3, known], axis=-1)[
             :, None
         ]  # (B, 1, d)
-        if self.fixed:
-            self.phi = phi
+        if self.fixed:  # no window takes pairs, so phi need not be kept
             return np.where(start_up, y, (phi @ self.theta0)[:, 0]).astype(dtype)
         self.theta[slot], self.P[slot] = self.theta0, self.P0  # the new window starts afresh
         if self.phi is not None:  # rls_update with the pair (phi_{tau-1}, y_tau), in every fitting window
