@@ -98,7 +98,28 @@ def lti_siso_matrices(traj):
     return A, B, C, Q, R, x0, Q.copy()
 
 
-MATRICES = {"linear-inputs": linear_inputs_matrices, "lti-siso": lti_siso_matrices}
+def lti_mimo_matrices(traj):
+    """lti-mimo (its state_space docstring): lti-siso's with each output row i of C_aug
+    [C_i, -mean_i] / (std_i + 1e-6), R = (noise_std^2 + 1e-10) I_m."""
+    p = traj.params.map(torch.Tensor.numpy)
+    Bn, n = p.A.shape[:2]
+    m = p.C.shape[1]
+    A = np.zeros((Bn, n + 1, n + 1))
+    A[:, :n, :n], A[:, n, n] = p.A, 1.0
+    B = np.concatenate([p.B, np.zeros((Bn, 1, p.B.shape[-1]))], axis=1)
+    C = np.concatenate([p.C, -p.y_mean[:, :, None]], axis=-1) / (p.y_std + 1e-6)[:, :, None]
+    Q = np.broadcast_to(1e-10 * np.eye(n + 1), (Bn, n + 1, n + 1)).copy()
+    R = (p.noise_std**2 + 1e-10)[:, None, None] * np.eye(m)
+    x0 = np.zeros((Bn, n + 1))
+    x0[:, n] = 1.0
+    return A, B, C, Q, R, x0, Q.copy()
+
+
+MATRICES = {
+    "linear-inputs": linear_inputs_matrices,
+    "lti-siso": lti_siso_matrices,
+    "lti-mimo": lti_mimo_matrices,
+}
 
 
 def test_every_linear_family_with_inputs_has_its_reference_matrices():

@@ -18,6 +18,7 @@ from mop.systems import (  # noqa: F401 (built-ins)
     duffing,
     linear,
     linear_inputs,
+    lti_mimo,
     lti_siso,
     quadrotor,
     switching,

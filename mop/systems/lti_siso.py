@@ -102,7 +102,8 @@ def _masked_normal(shape: tuple[int, ...], keep: float, valid: Tensor, generator
 
 
 class Drss(NamedTuple):
-    """Random SISO systems of sample_drss: A (B, n, n), B (B, n, 1), C (B, 1, n), D (B, 1, 1), order (B,)."""
+    """Random systems of sample_drss: A (B, n, n), B (B, n, k), C (B, m, n), D (B, m, k), order (B,)
+    (SISO: k = m = 1)."""
 
     A: Tensor
     B: Tensor
@@ -119,9 +120,14 @@ def sample_drss(
     mag: tuple[float, float] = (0.5, 0.97),
     phase: tuple[float, float] = (0.0, math.pi / 2),
     random_order: bool = True,
+    num_inputs: int = 1,
+    num_outputs: int = 1,
 ) -> Drss:
-    """Random stable SISO (A (B, n, n), B (B, n, 1), C (B, 1, n), D (B, 1, 1), order (B,)) as their
-    drss_matrices, order ~ U{1..max_order} (or max_order), padded to n = max_order with inert states."""
+    """Random stable (A (B, n, n), B (B, n, k), C (B, m, n), D (B, m, k), order (B,)) as their
+    drss_matrices, order ~ U{1..max_order} (or max_order), padded to n = max_order with inert states;
+    k = num_inputs, m = num_outputs (SISO by default: the same draws as theirs). B's and C's masks are
+    redrawn where all its valid entries are masked, as theirs, for each input's column of B and each output's
+    row of C (so every input moves the state and every output reads it)."""
     Bn, n = num_systems, max_order
     if random_order:
         order = torch.randint(1, n + 1, (Bn,), generator=generator, device=generator.device).cpu()
@@ -139,10 +145,14 @@ def sample_drss(
     eye = torch.eye(n, dtype=torch.float64).expand(Bn, n, n)
     T = torch.where(block, normal((Bn, n, n), generator), eye)  # identity on the padding
     A = torch.linalg.solve(T, A @ T)  # T^{-1} A T
-    B = _masked_normal((Bn, n, 1), P_BC_MASK, valid[:, :, None], generator)
-    C = _masked_normal((Bn, 1, n), P_BC_MASK, valid[:, None, :], generator)
-    D = normal((Bn, 1, 1), generator) * (uniform((Bn, 1, 1), 0, 1, generator) < P_D_MASK)
-    D = D * (uniform((Bn, 1, 1), 0, 1, generator) >= P_D_ZERO)
+    k, m = num_inputs, num_outputs
+    # each input's column of B and each output's row of C masked (and redrawn) on its own: for k = m = 1
+    # the same draws, in the same order, as B (B, n, 1), C (B, 1, n)
+    B = _masked_normal((Bn * k, n), P_BC_MASK, valid.repeat_interleave(k, 0), generator)
+    B = B.reshape(Bn, k, n).mT
+    C = _masked_normal((Bn * m, n), P_BC_MASK, valid.repeat_interleave(m, 0), generator).reshape(Bn, m, n)
+    D = normal((Bn, m, k), generator) * (uniform((Bn, m, k), 0, 1, generator) < P_D_MASK)
+    D = D * (uniform((Bn, m, k), 0, 1, generator) >= P_D_ZERO)
     if strictly_proper:
         D = torch.zeros_like(D)
     return Drss(A, B, C, D, order)
@@ -267,16 +277,17 @@ def normalized_linear_model(
     m0: Tensor | None = None,
     P0: Tensor | None = None,
 ) -> StateSpace:
-    """x_aug = [x; 1]: A_aug = blockdiag(A, 1), B_aug = [B; 0], C_aug = [C, -mean] / (std + 1e-6)."""
+    """x_aug = [x; 1]: A_aug = blockdiag(A, 1), B_aug = [B; 0], C_aug = [C, -mean] / (std + 1e-6) row by row,
+    R = (noise_std^2 + JITTER) I_m. mean, std: (B,) for one output or (B, m); noise_std (B,)."""
     A, B, C = A.double(), B.double(), C.double()
-    Bn, n = A.shape[0], A.shape[-1]
+    Bn, n, m = A.shape[0], A.shape[-1], C.shape[-2]
     A_aug = torch.zeros(Bn, n + 1, n + 1, dtype=torch.float64)
     A_aug[:, :n, :n], A_aug[:, n, n] = A, 1.0
     B_aug = torch.cat([B, B.new_zeros(Bn, 1, B.shape[-1])], dim=1)
-    scale = (std.double() + 1e-6)[:, None, None]
-    C_aug = torch.cat([C, -mean.double()[:, None, None]], dim=-1) / scale
+    scale = (std.double() + 1e-6).reshape(Bn, m, 1)
+    C_aug = torch.cat([C, -mean.double().reshape(Bn, m, 1)], dim=-1) / scale
     Q = JITTER * torch.eye(n + 1, dtype=torch.float64).expand(Bn, n + 1, n + 1)
-    R = (noise_std.double() ** 2 + JITTER)[:, None, None]
+    R = (noise_std.double() ** 2 + JITTER)[:, None, None] * torch.eye(m, dtype=torch.float64)
     if m0 is None:
         m0 = torch.zeros(Bn, n + 1, dtype=torch.float64)
         m0[:, n] = 1.0
