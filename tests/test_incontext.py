@@ -219,3 +219,26 @@ def test_a_long_context_reads_the_longer_arx_it_supports_when_that_simulates_its
     own = simulate_all(fitted_to_context(model, [context], 0.0), [test.pair], 50)[0]
     rmse = lambda sim: float(np.sqrt(np.mean((sim - test.y[50:]) ** 2)))  # noqa: E731
     assert 3 * rmse(done.simulation) < rmse(own)
+
+
+def test_a_three_output_class_model_reads_what_each_output_alone_misses():
+    """Six noise-free plants of up to 24 states with one input and three outputs (mop.systems.lti_mimo), 1500
+    steps of context: pretrained:lti-mimo, whose feature regresses each output on every output's lags,
+    simulates the test no worse than pretrained:lti-siso reading one output at a time on every plant (1%
+    tolerance: on a first-order plant both are exact) and below half of it on average; one output of a
+    plant of more than 15 states needs more lags than lti-siso's ARX(15, 15) holds, the three together do
+    not (measured: mean RMSE 0.000147 against 0.000779)."""
+    from mop.config import SystemConfig
+
+    family = make_family(SystemConfig(family="lti-mimo", max_order=24))
+    traj = family.generate(6, 1999, generator=generator(11))
+    mimo, siso = load_predictor("pretrained:lti-mimo"), load_predictor("pretrained:lti-siso")
+    three, alone = [], []
+    for b in range(6):
+        record = Record(y=traj.y[b].double().numpy(), u=traj.u[b].double().numpy())
+        context, test = record[:1500], record[1500:]
+        for model, scores in ((mimo, three), (siso, alone)):
+            sim = simulate_with_context(model, test, 50, [context]).simulation
+            scores.append(float(np.sqrt(np.mean((sim - test.y[50:]) ** 2))))
+        assert three[-1] <= 1.01 * alone[-1], (b, three[-1], alone[-1])
+    assert np.mean(three) < 0.5 * np.mean(alone)

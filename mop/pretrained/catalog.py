@@ -98,6 +98,18 @@ CLASS_MODELS: tuple[ShippedModel, ...] = (
         f"{CLASS}; nonlinear plants (saturation, dead zones): use a nonlinear class",
     ),
     ShippedModel(
+        "lti-mimo",
+        "class-lti-mimo",
+        "class model of LTI systems of order 1..10 with one input and three outputs (the lti-siso class, "
+        "mop.systems.lti_mimo: a structure with one shaker and three sensors), any units, trained for "
+        "free-run simulation: its feature regresses each output on every output's lags, zero-shot in context",
+        "records of another shape (k = 1 input and m = 3 outputs only: use pretrained:lti-siso for one "
+        "output), other input signals than the white N(0, 1) input it was trained on, nonlinear plants, and "
+        "records shorter than the ARX order's start-up (61 regressors an output); give the estimation record "
+        "with --context, or fine-tune it on your estimation record (mop train --data FILE --init "
+        "pretrained:lti-mimo)",
+    ),
+    ShippedModel(
         "wiener-hammerstein",
         "class-wiener-hammerstein",
         "class model of SISO Wiener-Hammerstein systems (linear blocks of order 1..5 around a static tanh "
