@@ -242,3 +242,25 @@ def test_a_three_output_class_model_reads_what_each_output_alone_misses():
             scores.append(float(np.sqrt(np.mean((sim - test.y[50:]) ** 2))))
         assert three[-1] <= 1.01 * alone[-1], (b, three[-1], alone[-1])
     assert np.mean(three) < 0.5 * np.mean(alone)
+
+
+def test_a_long_reading_stays_at_the_fit_over_the_whole_context():
+    """A reading of longer orders than the model's ("fit ARX(P, P)") keeps the feature at its least-squares
+    fit on the context (model.rls_fixed): at gain 0 it is the numpy simulation of the ARX(20, 20) with an
+    intercept fitted on all 3000 steps of a noisy three-output context (mop.identify.cubic's regressors, in
+    the context's mean / std units), from the test's first 50 outputs. Measured: within 3e-5 of the outputs'
+    std (the two least squares' ridges differ); adapting from P_0 = I over those 50 outputs, as the model's
+    own orders do, moved the 81 coefficients an output enough to leave it by 0.03 - 0.04."""
+    from mop.config import SystemConfig
+
+    family = make_family(SystemConfig(family="lti-mimo", noise_std=0.1))
+    traj = family.generate(2, 3599, generator=generator(4))
+    model = load_predictor("pretrained:lti-mimo")
+    for b in range(2):
+        y, u = traj.y[b].double().numpy(), traj.u[b].double().numpy()
+        context, test = Record(y=y[:3000], u=u[:3000]), Record(y=y[3000:], u=u[3000:])
+        sim = simulate_all(fitted_to_context(model, [context], 0.0, orders=(20, 20)), [test.pair], 50)[0]
+        my, sy, mu, su = context.y.mean(0), context.y.std(0), context.u.mean(0), context.u.std(0)
+        theta = fit_narx([((context.y - my) / sy, (context.u - mu) / su)], 20, 20, 0)
+        ref = simulate_narx(theta, (test.y - my) / sy, (test.u - mu) / su, 20, 20, 0, 50) * sy + my
+        np.testing.assert_allclose(sim, ref, atol=0.001 * float(test.y.std()))
