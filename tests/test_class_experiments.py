@@ -19,6 +19,7 @@ def _one_thread(one_thread):
     ("argv", "below"),
     [
         (["reproduce", "class-lti-siso", "--preset", "smoke"], "last"),
+        (["reproduce", "class-lti-mimo", "--preset", "smoke"], "last"),
         (["reproduce", "class-wiener-hammerstein", "--preset", "smoke"], "last"),
         (["reproduce", "class-cascaded-tanks", "--preset", "smoke"], "last"),
         # its cubic NARX feature (31 regressors) identified from the smoke preset's 80 steps simulates
