@@ -34,7 +34,9 @@ record left every range on another: 5.6e5 m/s^2). The scores are returned beside
 
 A single-output class model reads a record of several outputs one output at a time: each output channel
 with all the inputs is a single-output record of the same plant, read and simulated as above, and the
-simulations are put side by side (by_channel; on the F-16's three accelerations, one force input).
+simulations are put side by side (by_channel; on the F-16's three accelerations, one force input). Each
+channel then misses the other outputs' lags; the line names the shipped models of the record's widths that
+read them all (pretrained:lti-mimo for three outputs and one input).
 
 The seam: at the join of "window" the record jumps from the context's last state to the test's first; the
 held-out check reads across the same kind of seam, one record earlier.
@@ -56,6 +58,7 @@ from mop.identify.long_arx import choose_long_orders
 from mop.models.normalization import Normalization
 from mop.models.predictor import LearnedPredictor
 from mop.models.registry import build_model
+from mop.pretrained import fitting
 from mop.recipe.finetune import RECORD_PRIOR_STEPS
 from mop.recipe.shrink import GAINS, scale_correction
 from mop.record import Record
@@ -73,6 +76,7 @@ class InContext:
     context_steps: int  # steps of the context read before the test (0: none; "fit": all of them)
     held_out: dict[str, float]  # each reading's RMSE on the context's held-out end ({}: not measured)
     diverged: tuple[str, ...] = ()  # better-scored readings whose simulation of the test diverged
+    shipped: tuple[str, ...] = ()  # read one output at a time: the shipped models that read them all at once
 
 
 def context_limit(predictor) -> int | None:
@@ -307,6 +311,7 @@ def _by_channel(predictor, test: Record, init: int, context: list[Record], choos
         context_steps=max(d.context_steps for d in done),
         held_out={f"y{i} {k}": v for i, d in enumerate(done) for k, v in d.held_out.items()},
         diverged=tuple(f"y{i} {r}" for i, d in enumerate(done) for r in d.diverged),
+        shipped=tuple(fitting(test.num_outputs, test.num_inputs)),
     )
 
 
@@ -327,6 +332,8 @@ def reading_line(done: InContext) -> str:
         )
     if done.diverged:
         what += f" ({', '.join(done.diverged)} diverged on the test)"
+    if done.shipped:
+        what += f"; {', '.join(done.shipped)} reads every output together, each on all outputs' lags"
     if not done.held_out:
         return what
     scores = ", ".join(f"{k} {v:.4g}" for k, v in done.held_out.items())

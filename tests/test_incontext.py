@@ -198,6 +198,7 @@ def test_a_single_output_model_reads_each_output_of_a_record_on_its_own(lti):
         np.testing.assert_array_equal(done.simulation[:, i : i + 1], alone.simulation)
         assert f"y{i}: {alone.reading}" in done.reading
     assert "each output on its own" in reading_line(done)
+    assert done.shipped == () and "reads every output together" not in reading_line(done)  # none for m = 2
 
 
 def test_a_long_context_reads_the_longer_arx_it_supports_when_that_simulates_its_end_better(lti):
@@ -238,9 +239,11 @@ def test_a_three_output_class_model_reads_what_each_output_alone_misses():
         record = Record(y=traj.y[b].double().numpy(), u=traj.u[b].double().numpy())
         context, test = record[:1500], record[1500:]
         for model, scores in ((mimo, three), (siso, alone)):
-            sim = simulate_with_context(model, test, 50, [context]).simulation
-            scores.append(float(np.sqrt(np.mean((sim - test.y[50:]) ** 2))))
+            done = simulate_with_context(model, test, 50, [context])
+            scores.append(float(np.sqrt(np.mean((done.simulation - test.y[50:]) ** 2))))
         assert three[-1] <= 1.01 * alone[-1], (b, three[-1], alone[-1])
+        # read one output at a time, the line names the shipped model that reads all three
+        assert "pretrained:lti-mimo reads every output together" in reading_line(done)
     assert np.mean(three) < 0.5 * np.mean(alone)
 
 
