@@ -210,6 +210,8 @@ def test_predict_by_name_window_stream_and_steps(tmp_path):
         ("quadrotor", 3, 0, "0 inputs u"),
         ("linear", 5, 2, "2 inputs u"),
         ("linear-inputs", 5, 0, "0 inputs u"),
+        # a model with the observation mask (its mask channels are its own outputs', not the data's)
+        ("lti-siso", 3, 1, "trained with output_dim=1 and 1 inputs u"),
     ],
 )
 def test_predict_refuses_other_dimensions_in_one_line(name, outputs, inputs, word, tmp_path, capsys):

@@ -91,7 +91,8 @@ class ModelPredictor:
         if width + mask != self.cfg.input_dim or traj.output_dim != self.cfg.output_dim:
             model = self.source or "the model"
             k_data = width - traj.output_dim
-            k_model = self.cfg.input_dim - self.cfg.output_dim - mask
+            own_mask = self.cfg.output_dim if self.cfg.observation_mask else 0
+            k_model = self.cfg.input_dim - self.cfg.output_dim - own_mask
             raise MopError(
                 f"the data has output_dim={traj.output_dim} and {k_data} inputs u, but {model} was trained "
                 f"with output_dim={self.cfg.output_dim} and {k_model} inputs u; "
