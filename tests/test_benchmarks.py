@@ -137,6 +137,18 @@ def test_a_shipped_class_model_runs_in_context(tmp_path):
     assert rmse == pytest.approx(scores["pretrained:lti-siso"]["rmse"], rel=1e-5)
 
 
+def test_a_shipped_model_of_other_widths_is_refused_before_any_fit(tmp_path, capsys):
+    """pretrained:lti-mimo (three outputs) on a one-output record: one line naming the models that fit,
+    before the ARX listed first is fitted, and nothing written."""
+    est, val = own_records(tmp_path)
+    out = tmp_path / "out"
+    argv = ["benchmark", "--est", str(est), "--test", str(val), "--out", str(out), "--quiet"]
+    assert main([*argv, "--predictors", "arx,pretrained:lti-mimo"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pretrained:lti-mimo reads 3 output(s) and 1 input(s)" in err
+    assert "pretrained:lti-siso" in err and not out.exists()
+
+
 @pytest.mark.parametrize(
     "argv, words",
     [

@@ -27,6 +27,7 @@ from mop.estimators import Learned
 from mop.identify import fit
 from mop.identify.select import POLE_RADIUS
 from mop.incontext import reading_line, simulate_with_context
+from mop.pretrained import fitting_hint
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
 from mop.recipe.selection import selection_line
@@ -120,6 +121,19 @@ class InContextModel:
         n = max(test.init_window, 1)
         done = simulate_with_context(self.model, test, n, self.estimation)
         return score_test(test, done.simulation), reading_line(done)
+
+
+def check_reads(name: str, model, split: Split) -> None:
+    """One-line MopError, before any fit, unless the shipped model reads the split's records: the same
+    number of inputs and of outputs, or one output (read one output at a time, mop.incontext.by_channel)."""
+    cfg = model.cfg
+    k_model = cfg.input_dim - cfg.output_dim * (2 if cfg.observation_mask else 1)
+    m, k = split.tests[0].num_outputs, split.tests[0].num_inputs
+    if k != k_model or cfg.output_dim not in (1, m):
+        raise MopError(
+            f"{name} reads {cfg.output_dim} output(s) and {k_model} input(s), {split.name} has {m} and {k}; "
+            + fitting_hint(m, k)
+        )
 
 
 def _fitted(kind: str, split: Split, warnings: list[str]):
@@ -251,14 +265,15 @@ def run(args: argparse.Namespace) -> int:
             f"--predictors: unknown {', '.join(unknown) or '(none)'}; choose from {', '.join(PREDICTORS)} "
             "or pretrained:NAME (mop pretrained list)"
         )
-    for name in predictors:
-        if name.startswith("pretrained:"):
-            load_predictor(name)  # an unknown shipped model is one line, before any work
+    shipped = {n: load_predictor(n) for n in predictors if n.startswith("pretrained:")}  # unknown: one line
     budget = DEFAULT_BUDGET_MINUTES if args.budget is None else check_budget(args.budget)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise MopError(f"--out {out} is a file; give a folder")
     splits = _splits(args)
+    for name, model in shipped.items():
+        for split in splits:
+            check_reads(name, model, split)
     total = sum(len(predictors) * (1 + len(s.tests)) for s in splits)
     runs = {}
     with tqdm(total=total, disable=args.quiet, desc="benchmark", unit="task") as bar:
