@@ -11,8 +11,10 @@ input moves the state and every output reads it, and the outputs share the syste
 one input and three outputs, are a structure under test with one shaker and several accelerometers (the
 F-16 ground vibration test's). With k = m = 1 the draws are exactly lti-siso's.
 
-params: LtiMimoParams, the system (A, B, C, order, noise_std) and each output's normalization y_mean, y_std
-(B, m): what a Kalman filter that knows the system needs to predict the normalized outputs.
+params: lti-siso's types (LtiSisoSystem, LtiSisoParams), with B (B, n, k), C (B, m, n) and each output's
+normalization y_mean, y_std (B, m); the state space is lti-siso's (mop.systems.lti_siso.
+normalized_linear_model, row by row): what a Kalman filter that knows the system needs to predict the
+normalized outputs.
 """
 
 from __future__ import annotations
@@ -20,18 +22,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from torch import Tensor
 
 from mop.errors import check
-from mop.systems.base import (
-    StateSpace,
-    SystemFamily,
-    SystemParams,
-    Trajectories,
-    normal,
-    register_family,
+from mop.systems.base import Trajectories, normal, register_family
+from mop.systems.lti_siso import (
+    LtiSisoConfig,
+    LtiSisoFamily,
+    LtiSisoParams,
+    LtiSisoSystem,
+    lsim,
+    normalize,
 )
-from mop.systems.lti_siso import LtiSisoConfig, lsim, normalize, normalized_linear_model, sample_drss
 
 
 @dataclass(frozen=True)
@@ -51,69 +52,26 @@ class LtiMimoConfig(LtiSisoConfig):
             )
 
 
-@dataclass(frozen=True)
-class LtiMimoSystem(SystemParams):
-    """What sample draws: A (B, n, n), B (B, n, k), C (B, m, n) (n = max_order, padded), order (B,) long,
-    noise_std (B,): the white noise on each normalized output."""
-
-    A: Tensor
-    B: Tensor
-    C: Tensor
-    order: Tensor
-    noise_std: Tensor
-
-
-@dataclass(frozen=True)
-class LtiMimoParams(LtiMimoSystem):
-    """LtiMimoSystem plus each trajectory's normalization y_mean, y_std (B, m) (simulate fills them)."""
-
-    y_mean: Tensor
-    y_std: Tensor
-
-
 @register_family("lti-mimo", LtiMimoConfig)
-class LtiMimoFamily(SystemFamily):
+class LtiMimoFamily(LtiSisoFamily):
     """The lti-siso class with k inputs and m outputs. Its state is [x; 1] (max_order + 1): the constant
-    carries the normalization offsets. params: LtiMimoParams."""
-
-    Params = LtiMimoParams
+    carries the normalization offsets. params: lti-siso's LtiSisoParams, with y_mean, y_std (B, m); its
+    sample and state_space are lti-siso's (for k inputs and m outputs, row by row)."""
 
     def __init__(self, config: LtiMimoConfig, dtype: torch.dtype = torch.float32) -> None:
         super().__init__(config, dtype)
-        self.state_dim = config.max_order + 1
+        # lti-siso's sample draws B and C of these widths
         self.output_dim, self.input_dim = config.num_outputs, config.num_inputs
 
-    def sample(self, num_systems: int, *, generator: torch.Generator) -> LtiMimoSystem:
-        cfg = self.config
-        g = sample_drss(
-            num_systems,
-            cfg.max_order,
-            True,
-            generator,
-            (cfg.mag_low, cfg.mag_high),
-            (0.0, cfg.phase_high),
-            num_inputs=cfg.num_inputs,
-            num_outputs=cfg.num_outputs,
-        )
-        noise_std = torch.full((num_systems,), cfg.noise_std, dtype=torch.float64)
-        return LtiMimoSystem(A=g.A, B=g.B, C=g.C, order=g.order, noise_std=noise_std)
-
-    def simulate(self, params: LtiMimoSystem, horizon: int, *, generator: torch.Generator) -> Trajectories:
+    def simulate(self, params: LtiSisoSystem, horizon: int, *, generator: torch.Generator) -> Trajectories:
         A, B, C = params.A, params.B, params.C
         m, k = C.shape[1], B.shape[2]
         u = normal((A.shape[0], horizon + 1, k), generator)
         x, y_raw = lsim(A, B, C, torch.zeros(A.shape[0], m, k, dtype=A.dtype), u)
         y, mean, std = normalize(y_raw)
         y = y + self.config.noise_std * normal(tuple(y.shape), generator)
-        params = LtiMimoParams.extend(params, y_mean=mean, y_std=std)
+        params = LtiSisoParams.extend(params, y_mean=mean, y_std=std)
         x = torch.cat([x, torch.ones_like(x[..., :1])], dim=-1)  # the state of state_space: [x; 1]
         return Trajectories(
             y=y.to(self.dtype), u=u.to(self.dtype), x=x.to(self.dtype), params=params, family=self.name
         )
-
-    @staticmethod
-    def state_space(params: LtiMimoParams) -> StateSpace:
-        """The normalized outputs as a linear model on [x; 1]: y_t = (C x_t - mean) / (std + 1e-6) + v_t
-        row by row, x_0 = [0; 1] known exactly (P0 = 0), Q = 0, R = noise_std^2 I (each + JITTER)."""
-        p = params
-        return normalized_linear_model(p.A, p.B, p.C, p.y_mean, p.y_std, p.noise_std)

@@ -210,7 +210,7 @@ class LtiSisoConfig(SystemConfig):
 @dataclass(frozen=True)
 class LtiSisoSystem(SystemParams):
     """What sample draws: A (B, n, n), B (B, n, 1), C (B, 1, n) (n = max_order, padded), order (B,) long,
-    noise_std (B,): the white noise on the normalized outputs."""
+    noise_std (B,): the white noise on the normalized outputs (lti-mimo: B (B, n, k), C (B, m, n))."""
 
     A: Tensor
     B: Tensor
@@ -221,7 +221,8 @@ class LtiSisoSystem(SystemParams):
 
 @dataclass(frozen=True)
 class LtiSisoParams(LtiSisoSystem):
-    """LtiSisoSystem plus each trajectory's normalization y_mean, y_std (B,) (simulate fills them)."""
+    """LtiSisoSystem plus each trajectory's normalization y_mean, y_std (B,) (simulate fills them;
+    lti-mimo: (B, m), each output's)."""
 
     y_mean: Tensor
     y_std: Tensor
@@ -242,7 +243,14 @@ class LtiSisoFamily(SystemFamily):
     def sample(self, num_systems: int, *, generator: torch.Generator) -> LtiSisoSystem:
         cfg = self.config
         g = sample_drss(
-            num_systems, cfg.max_order, True, generator, (cfg.mag_low, cfg.mag_high), (0.0, cfg.phase_high)
+            num_systems,
+            cfg.max_order,
+            True,
+            generator,
+            (cfg.mag_low, cfg.mag_high),
+            (0.0, cfg.phase_high),
+            num_inputs=self.input_dim,
+            num_outputs=self.output_dim,
         )
         noise_std = torch.full((num_systems,), cfg.noise_std, dtype=torch.float64)
         return LtiSisoSystem(A=g.A, B=g.B, C=g.C, order=g.order, noise_std=noise_std)
