@@ -27,7 +27,7 @@ from mop.estimators import Learned
 from mop.identify import fit
 from mop.identify.select import POLE_RADIUS
 from mop.incontext import reading_line, simulate_with_context
-from mop.pretrained import fitting_hint
+from mop.pretrained import dimensions, fitting_hint
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
 from mop.recipe.selection import selection_line
@@ -126,12 +126,11 @@ class InContextModel:
 def check_reads(name: str, model, split: Split) -> None:
     """One-line MopError, before any fit, unless the shipped model reads the split's records: the same
     number of inputs and of outputs, or one output (read one output at a time, mop.incontext.by_channel)."""
-    cfg = model.cfg
-    k_model = cfg.input_dim - cfg.output_dim * (2 if cfg.observation_mask else 1)
+    m_model, k_model = dimensions(dataclasses.asdict(model.cfg))
     m, k = split.tests[0].num_outputs, split.tests[0].num_inputs
-    if k != k_model or cfg.output_dim not in (1, m):
+    if k != k_model or m_model not in (1, m):
         raise MopError(
-            f"{name} reads {cfg.output_dim} output(s) and {k_model} input(s), {split.name} has {m} and {k}; "
+            f"{name} reads {m_model} output(s) and {k_model} input(s), {split.name} has {m} and {k}; "
             + fitting_hint(m, k)
         )
 

@@ -31,6 +31,7 @@ without the mask refuses data with gaps in one line.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import warnings
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -43,7 +44,7 @@ from mop.missing import masked_inputs
 from mop.models.interface import LearnedModel
 from mop.models.normalization import InputStats, Normalization, out_of_range
 from mop.models.registry import predictor_names
-from mop.pretrained import fitting_hint
+from mop.pretrained import dimensions, fitting_hint
 from mop.systems.base import Trajectories
 
 MODES = ("window", "sliding", "stream")  # the paths beyond the context (see the module docstring)
@@ -91,8 +92,7 @@ class ModelPredictor:
         if width + mask != self.cfg.input_dim or traj.output_dim != self.cfg.output_dim:
             model = self.source or "the model"
             k_data = width - traj.output_dim
-            own_mask = self.cfg.output_dim if self.cfg.observation_mask else 0
-            k_model = self.cfg.input_dim - self.cfg.output_dim - own_mask
+            k_model = dimensions(dataclasses.asdict(self.cfg))[1]
             raise MopError(
                 f"the data has output_dim={traj.output_dim} and {k_data} inputs u, but {model} was trained "
                 f"with output_dim={self.cfg.output_dim} and {k_model} inputs u; "
