@@ -1,9 +1,11 @@
 """The lti-mimo family: lti-siso's class with k inputs and m outputs (mop.systems.lti_mimo)."""
 
 import numpy as np
+import pytest
 import torch
 
 from mop.config import SystemConfig
+from mop.errors import MopError
 from mop.predictors import make_predictor
 from mop.systems import generator, make_family
 from mop.systems.lti_siso import lsim, sample_drss
@@ -48,3 +50,9 @@ def test_outputs_are_normalized_each_and_the_filter_that_knows_the_system_is_exa
     np.testing.assert_allclose(y, expected, atol=1e-9)
     yhat = make_predictor("kalman").predict(traj).numpy()  # yhat[:, t] predicts y[:, t] from y[:, :t]
     assert np.abs(yhat - y).max() < 1e-6
+
+
+@pytest.mark.parametrize("key, value", [("num_outputs", 0), ("num_inputs", 1.5), ("num_outputs", True)])
+def test_a_width_that_is_not_a_positive_integer_is_refused_in_one_line(key, value):
+    with pytest.raises(MopError, match=f"system.{key} must be a positive integer"):
+        SystemConfig(family="lti-mimo", **{key: value})

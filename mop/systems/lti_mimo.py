@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import torch
 
-from mop.errors import check
+from mop.errors import check_int
 from mop.systems.base import Trajectories, normal, register_family
 from mop.systems.lti_siso import (
     LtiSisoConfig,
@@ -46,10 +46,7 @@ class LtiMimoConfig(LtiSisoConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         for key in ("num_inputs", "num_outputs"):
-            value = getattr(self, key)
-            check(
-                isinstance(value, int) and value >= 1, f"system.{key} must be an integer >= 1, got {value!r}"
-            )
+            check_int(f"system.{key}", getattr(self, key), 1)
 
 
 @register_family("lti-mimo", LtiMimoConfig)
