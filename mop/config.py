@@ -282,6 +282,9 @@ class TrainConfig:
     # what the one-step loss compares the prediction of y_t with: "outputs", y_t itself (the paper's), or
     # "optimal", the prediction of y_t by the Kalman filter that knows the training system (data.py)
     target: str = "outputs"
+    # N > 0: every training system's first N steps are its estimation record, on which the class model's
+    # feature is fitted before the window the network reads (mop.train.context); 0: none
+    context_prefix: int = 0
 
     @property
     def drops_outputs(self) -> bool:
@@ -303,6 +306,7 @@ class TrainConfig:
         for name in "steps batch_size horizon log_every checkpoint_every missing_burst_length".split():
             check_int(f"train.{name}", getattr(self, name), 1)
         check_int("train.simulate_after", self.simulate_after, 0, self.horizon, " (at most train.horizon)")
+        check_int("train.context_prefix", self.context_prefix, 0)
         check(
             self.num_source_systems >= 0,
             f"train.num_source_systems must be >= 0, got {self.num_source_systems}",

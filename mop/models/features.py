@@ -62,6 +62,9 @@ from mop.models.recordnorm import RecordStats, normalise, running_moments
 # unit-scale regressors move it little (the ridge term P_0^-1 = 1000 I against sum phi phi^T ~ 50 I), so the
 # feature is the fitted ARX, nudged by each window
 PRIOR_P0 = 1e-3
+# record_norm's pseudo-steps (model.record_prior_steps) of a class model that reads a feature fitted on an
+# estimation record: the record is in that record's normalised units, so its scale is known from step 0
+FITTED_PRIOR_STEPS = 100
 SCALE_EPS = 1e-4  # floor of s_t^2: a trajectory of zeros gets s = 0.01, not a division by zero
 RESIDUAL_FLOOR = 1e-8  # c_t^2 >= 1e-8 std_t(y)^2: the correction's scale is at least 1e-4 of the record's
 
@@ -234,17 +237,24 @@ def rls_next(
     return r[:, 1:].to(y.dtype)  # (B, T, m)
 
 
-def augment(inputs: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor | None, Tensor | None]:
-    """inputs (B, T, d_in) -> (network inputs (B, T, d_in + extra), scale s (B, T, 1)|None, base r|None)."""
+def augment(
+    inputs: Tensor, cfg: ModelConfig, fitted: Tensor | None = None
+) -> tuple[Tensor, Tensor | None, Tensor | None]:
+    """inputs (B, T, d_in) -> (network inputs (B, T, d_in + extra), scale s (B, T, 1)|None, base r|None).
+    fitted (B, d, m) float64|None: each record's feature coefficients fitted on its own estimation record
+    (train.context_prefix, mop.train.context), the inputs in that record's normalised units: the feature
+    and moments then run as those of the model given the coefficients as a listed model.rls_prior with
+    record_prior_steps = FITTED_PRIOR_STEPS (mop.incontext.fitted_to_context), one record each."""
     m, k = cfg.output_dim, input_count(cfg)
     y, seen = observed_outputs(inputs, cfg)  # (B, T, m), NaN where missing
     u = inputs[..., m : m + k] if cfg.arx_order > 0 else None
     if cfg.record_norm == "causal":
+        steps = cfg.record_prior_steps if fitted is None else FITTED_PRIOR_STEPS
         mask = None if seen is None else torch.cat([seen, torch.ones_like(inputs[..., m : m + k] > 0)], -1)
-        mean, std = running_moments(inputs[..., : m + k], mask, cfg.record_prior_steps)  # (B, T, m + k) each
-        base = _framed_feature(y, u, mean, std, cfg) if cfg.rls_order > 0 else None
+        mean, std = running_moments(inputs[..., : m + k], mask, steps)  # (B, T, m + k) each
+        base = _framed_feature(y, u, mean, std, cfg, fitted) if cfg.rls_order > 0 else None
         if cfg.record_moments == "filled" and seen is not None:
-            mean, std = filled_moments(inputs[..., : m + k], y, seen, base, cfg.record_prior_steps)
+            mean, std = filled_moments(inputs[..., : m + k], y, seen, base, steps)
         residual = None
         if cfg.residual_scale != "none":
             residual = residual_scale(y, base, seen, std[..., :m], cfg.residual_scale, cfg.residual_decay)
@@ -288,14 +298,21 @@ def feature_frame(mean: Tensor, std: Tensor, cfg: ModelConfig) -> tuple[Tensor, 
     return mean, torch.where(std > 0, std, torch.ones_like(std))
 
 
-def _framed_feature(y: Tensor, u: Tensor | None, mean: Tensor, std: Tensor, cfg: ModelConfig) -> Tensor:
+def _framed_feature(
+    y: Tensor, u: Tensor | None, mean: Tensor, std: Tensor, cfg: ModelConfig, fitted: Tensor | None = None
+) -> Tensor:
     """The RLS / ARX feature (B, T, m) of y (B, T, m), u (B, T, k)|None run in feature_frame, in y's units.
-    With a listed model.rls_prior, from the fitted start (fitted_start)."""
+    With a listed model.rls_prior, or each record's coefficients `fitted` (B, d, m), from the fitted start
+    (fitted_start)."""
     m, r = cfg.output_dim, min(feature_start(cfg), y.shape[1] - 1)
     shift, scale = feature_frame(mean[:, r : r + 1], std[:, r : r + 1], cfg)  # (B, 1, m + k) each
+    if fitted is not None:  # the coefficients' units are the inputs' (shift 0, scale 1), as a listed prior's
+        shift, scale = torch.zeros_like(shift), torch.ones_like(scale)
     ys = (y.double() - shift[..., :m]) / scale[..., :m]
     us = None if u is None else (u.double() - shift[..., m:]) / scale[..., m:]
-    if starts_fitted(cfg):
+    if fitted is not None:
+        rs = fitted_start(ys, us, cfg, (fitted.double(), 0.0 if cfg.rls_fixed else PRIOR_P0))
+    elif starts_fitted(cfg):
         rs = fitted_start(ys, us, cfg)
     else:
         rs = rls_next(
@@ -317,7 +334,7 @@ def starts_fitted(cfg: ModelConfig) -> bool:
     return cfg.record_norm == "causal" and isinstance(cfg.rls_prior, list)
 
 
-def fitted_start(ys: Tensor, us: Tensor | None, cfg: ModelConfig) -> Tensor:
+def fitted_start(ys: Tensor, us: Tensor | None, cfg: ModelConfig, prior: Prior | None = None) -> Tensor:
     """The feature r (B, T, m) of a class model with a listed model.rls_prior (coefficients fitted on an
     estimation record, in its normalised units ys (B, T, m), us (B, T, k)|None): the record read as if it
     had rested at its first values before step 0 (first_values; u_0), so the fitted ARX predicts from step 1
@@ -326,12 +343,13 @@ def fitted_start(ys: Tensor, us: Tensor | None, cfg: ModelConfig) -> Tensor:
     t <= r = max(p, q) and then regresses on zeros before step 0: a record simulated from its start (every
     y_t, t >= 1, missing) enters its free run from r held values (tank_records plant 3 from step 0: RMSE 0.76
     over its first 100 steps, against the fitted ARX's 0.26). The fit updates on the record's pairs only,
-    those of the recursion without the pad (y_s, s >= r)."""
+    those of the recursion without the pad (y_s, s >= r). prior: (theta_0 (d, m) or one per record
+    (B, d, m), P_0) instead of the model's (feature_prior)."""
     r = feature_start(cfg)
     first_y = first_values(ys).expand(-1, r, -1)
     yp = torch.cat([first_y, ys], dim=1)
     up = None if us is None else torch.cat([us[:, :1].expand(-1, r, -1), us], dim=1)
-    prior = feature_prior(cfg)
+    prior = feature_prior(cfg) if prior is None else prior
     # bounds_from=r: the r assumed values before the record are not measured, so they set no bounds
     rs = rls_next(
         yp,

@@ -65,10 +65,11 @@ class FeatureFrontEnd:
         """True when some feature is on (otherwise encode and decode are the identity)."""
         return reads_features(self.cfg)
 
-    def encode(self, inputs: Tensor) -> tuple[Tensor, Frame]:
+    def encode(self, inputs: Tensor, fitted: Tensor | None = None) -> tuple[Tensor, Frame]:
         """inputs (B, T, d_in) -> (body inputs (B, T, input_dim), the frame decode maps position t back with);
-        position t reads z_0..z_t only."""
-        x, scale, base = augment(inputs, self.cfg)
+        position t reads z_0..z_t only. fitted (B, d, m)|None: each record's feature coefficients fitted on
+        its estimation record (mop.models.features.augment; training with train.context_prefix)."""
+        x, scale, base = augment(inputs, self.cfg, fitted)
         return x, Frame(scale, base)
 
     def decode(self, frame: Frame, mu: Tensor, var: Tensor | None = None) -> tuple[Tensor, Tensor | None]:

@@ -82,13 +82,14 @@ class Transformer(GPTBody, LearnedModel):
         return self.front_end.reads_features
 
     def _outputs(
-        self, inputs: Tensor, last: bool = False, future: Tensor | None = None
+        self, inputs: Tensor, last: bool = False, future: Tensor | None = None, fitted: Tensor | None = None
     ) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """inputs (B, T, d_in) -> one-step mean (B, T, m), var (B, T, m)|None and the k-step heads' means
         (B, T, K-1, m)|None, in the inputs' units (T = 1: last). future: the k-step heads' future inputs
         (mop.models.horizons.add_future_inputs). The front end decodes every head (a k-step head predicts
-        its residual on the one-step feature)."""
-        x, frame = self.front_end.encode(inputs)  # (B, T, d_in + extra)
+        its residual on the one-step feature). fitted (B, d, m)|None: each record's feature coefficients
+        (FeatureFrontEnd.encode)."""
+        x, frame = self.front_end.encode(inputs, fitted)  # (B, T, d_in + extra)
         frame = frame.last() if last else frame
         h = self.hidden(x, last)
         mu, var, later = self.heads(h)
@@ -112,12 +113,14 @@ class Transformer(GPTBody, LearnedModel):
         require_gaussian(self.cfg)
         return self._outputs(inputs, last)[:2]
 
-    def loss(self, inputs: Tensor, targets: Tensor) -> Tensor:
+    def loss(self, inputs: Tensor, targets: Tensor, fitted: Tensor | None = None) -> Tensor:
         """MSE (readout 'mean') or mean Gaussian NLL (readout 'gaussian'); targets (B, T, m). With k-step
-        heads the mean over k of each head's loss (mop.models.heads.horizon_loss)."""
+        heads the mean over k of each head's loss (mop.models.heads.horizon_loss). fitted (B, d, m)|None:
+        each record's feature coefficients fitted on its estimation record (train.context_prefix)."""
         cfg = self.cfg
         gaps = gap_positions(inputs, cfg)
-        return horizon_loss(*self._outputs(inputs), targets, cfg.observation_mask, cfg.horizon_loss, gaps)
+        outputs = self._outputs(inputs, fitted=fitted)
+        return horizon_loss(*outputs, targets, cfg.observation_mask, cfg.horizon_loss, gaps)
 
     # ---- streaming ----
     def init_cache(self, batch_size: int) -> StreamCache:

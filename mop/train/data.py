@@ -29,6 +29,8 @@ gradient. The validation loss stays against y (the error the experiments measure
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 from torch import Tensor
 
@@ -38,6 +40,7 @@ from mop.filters.linear_gaussian import family_systems, kalman_means
 from mop.missing import drop_mask, drop_outputs, masked_inputs
 from mop.models.normalization import Normalization
 from mop.systems import make_family
+from mop.train.context import check_context_prefix, prefix_fit
 from mop.train.records import recorded_data
 
 NUM_VAL_SYSTEMS = 256
@@ -51,16 +54,37 @@ def in_model_units(z: Tensor, y: Tensor, model: ModelConfig) -> tuple[Tensor, Te
     return (z, y) if norm is None else (norm.inputs(z), norm.output_units(y.double()))
 
 
+def simulated_batch(family, num_systems: int, config: RunConfig, generator: torch.Generator) -> tuple:
+    """(inputs (B, T, d_in), targets (B, T, m)[, fitted (B, d, m)]) of num_systems fresh systems, in the
+    model's units (in_model_units); with train.context_prefix N > 0 each system's first N steps are its
+    estimation record (mop.train.context.prefix_fit: the rest in its units, and the feature's coefficients
+    fitted on it). train.target = "optimal" (no prefix): the Kalman filter's predictions as targets."""
+    cfg, n = config.train, config.train.context_prefix
+    traj = family.generate(num_systems, cfg.horizon + n, generator=generator)
+    z = traj.model_inputs()  # (B, N + T + 1, d_in)
+    if n > 0:
+        z, fitted = prefix_fit(z, n, config.model)
+        m = config.model.output_dim
+        return z[:, :-1].float().contiguous(), z[:, 1:, :m].float().contiguous(), fitted
+    y = traj.y
+    if cfg.target == "optimal":  # (B, N + T + 1, m): the Kalman filter's predictions of y_t
+        y = kalman_means(family_systems(family, traj.params, 0), traj.y, traj.u)
+    z, y = in_model_units(z, y, config.model)
+    return z[:, :-1].float().contiguous(), y[:, 1:].float().contiguous()
+
+
 class TrainingData:
-    """Batches of (inputs (B, T, d_in), targets (B, T, m)) on `device`, all randomness from one generator;
-    simulated ones in the model's units (in_model_units)."""
+    """Batches of (inputs (B, T, d_in), targets (B, T, m)[, fitted (B, d, m) with train.context_prefix]) on
+    `device`, all randomness from one generator; simulated ones in the model's units (in_model_units)."""
 
     def __init__(self, config: RunConfig, device: torch.device) -> None:
+        check_context_prefix(config)
+        self.config = config
         self.cfg = config.train
         self.model = config.model
         self.masked = config.model.observation_mask
         self.generator = torch.Generator(device=device).manual_seed(self.cfg.seed)
-        self.inputs = self.targets = None
+        self.pool: tuple | None = None
         if config.data is not None and self.cfg.target == "optimal":
             raise MopError(
                 "train.target=optimal trains against the Kalman filter of each simulated system; recorded "
@@ -74,39 +98,31 @@ class TrainingData:
         if self.cfg.target == "optimal":  # refuse a family without a linear-Gaussian model before step 1
             probe = self.family.sample(1, generator=torch.Generator(device=device).manual_seed(0))
             family_systems(self.family, probe, self.cfg.horizon)
-        if self.cfg.num_source_systems > 0:
-            self.inputs, self.targets = self._draw(self.cfg.num_source_systems)  # (M, T, d_in), (M, T, m)
+        if self.cfg.num_source_systems > 0:  # (M, T, d_in), (M, T, m)[, (M, d, m)]
+            self.pool = simulated_batch(self.family, self.cfg.num_source_systems, config, self.generator)
 
-    def _draw(self, num_systems: int) -> tuple[Tensor, Tensor]:
-        traj = self.family.generate(num_systems, self.cfg.horizon, generator=self.generator)
-        z = traj.model_inputs()  # (B, T+1, d_in)
-        y = traj.y if self.cfg.target == "outputs" else self._optimal(traj)  # (B, T+1, m)
-        z, y = in_model_units(z, y, self.model)
-        return z[:, :-1].float().contiguous(), y[:, 1:].float().contiguous()
+    def batch(self) -> tuple[Tensor, ...]:
+        """(inputs (B, T, d_in), targets (B, T, m)[, fitted (B, d, m)]); with a model that has an observation
+        mask, targets hold NaN where an output is missing (dropped here, or missing in the data) and inputs
+        the mask layout."""
+        inputs, targets, *fitted = self._clean_batch()
+        if self.masked:
+            inputs, targets = with_drop_outs(inputs, targets, self.cfg, self.generator)
+        return (inputs, targets, *fitted)
 
-    def _optimal(self, traj) -> Tensor:
-        """(B, T+1, m): the Kalman filter's predictions of y_t for each system of traj (train.target)."""
-        return kalman_means(family_systems(self.family, traj.params, 0), traj.y, traj.u)
-
-    def batch(self) -> tuple[Tensor, Tensor]:
-        """(inputs (B, T, d_in), targets (B, T, m)); with a model that has an observation mask, targets hold
-        NaN where an output is missing (dropped here, or missing in the data) and inputs the mask layout."""
-        batch = self._clean_batch()
-        return with_drop_outs(*batch, self.cfg, self.generator) if self.masked else batch
-
-    def _clean_batch(self) -> tuple[Tensor, Tensor]:
+    def _clean_batch(self) -> tuple[Tensor, ...]:
         if self.family is None:
             return self.windows.sample(self.cfg.batch_size, self.generator)
-        if self.inputs is None:
-            return self._draw(self.cfg.batch_size)
+        if self.pool is None:
+            return simulated_batch(self.family, self.cfg.batch_size, self.config, self.generator)
         index = torch.randint(
             0,
-            self.inputs.shape[0],
+            self.pool[0].shape[0],
             (self.cfg.batch_size,),
             generator=self.generator,
             device=self.generator.device,
         )
-        return self.inputs[index], self.targets[index]
+        return tuple(a[index] for a in self.pool)
 
 
 def with_drop_outs(
@@ -165,7 +181,7 @@ def tail_batch(windows: Tensor, cuts: Tensor, output_dim: int) -> tuple[Tensor, 
     return masked_inputs(z, m), scored[:, 1:].contiguous()
 
 
-def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, Tensor]:
+def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, ...]:
     """Held-out systems (a generator seeded apart from training) for the validation loss.
 
     Recorded data: the validation windows of mop.train.records (RecordedData.validation_windows); where
@@ -182,11 +198,9 @@ def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, T
         return tail_batch(windows.to(device), cuts, config.model.output_dim)
     if config.data is not None:
         val = recorded_data(config.data).validation(config.data, config.train.horizon, device)
-    else:
-        family = make_family(config.system)
-        traj = family.generate(NUM_VAL_SYSTEMS, config.train.horizon, generator=g)
-        z, y = in_model_units(traj.model_inputs(), traj.y, config.model)
-        val = z[:, :-1].float(), y[:, 1:].float()  # (N, T, d_in), (N, T, m)
+    else:  # (N, T, d_in), (N, T, m)[, (N, d, m)], against the outputs themselves
+        outputs = dataclasses.replace(config, train=dataclasses.replace(config.train, target="outputs"))
+        val = simulated_batch(make_family(config.system), NUM_VAL_SYSTEMS, outputs, g)
     if config.model.observation_mask:  # the same kind of drop-outs as in training, seeded apart
-        return with_drop_outs(*val, config.train, g)
+        return (*with_drop_outs(val[0], val[1], config.train, g), *val[2:])
     return val

@@ -295,10 +295,12 @@ def _step(state: TrainState) -> Tensor:
     cfg = state.config.train
     for group in state.optimizer.param_groups:
         group["lr"] = learning_rate(cfg, state.step)
-    inputs, targets = state.data.batch()  # (B, T, d_in), (B, T, m): the global batch
+    batch = state.data.batch()  # (B, T, d_in), (B, T, m)[, fitted (B, d, m)]: the global batch
     b, r = cfg.batch_size // state.world, state.rank
-    inputs, targets = inputs[r * b : (r + 1) * b], targets[r * b : (r + 1) * b]
-    return train_step(state.model, state.loss_fn, state.optimizer, inputs, targets, cfg, state.device)
+    inputs, targets, *fitted = (a[r * b : (r + 1) * b] for a in batch)
+    return train_step(
+        state.model, state.loss_fn, state.optimizer, inputs, targets, cfg, state.device, *fitted
+    )
 
 
 def _checkpoint(state: TrainState) -> None:

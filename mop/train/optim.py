@@ -54,14 +54,14 @@ def maybe_compile(model: nn.Module, cfg: TrainConfig, device: torch.device) -> n
 
 
 class LossModule(nn.Module):
-    """forward(inputs, targets) = model.loss(...): torch.compile and DDP hooks see the whole loss."""
+    """forward(inputs, targets[, fitted]) = model.loss(...): torch.compile and DDP see the whole loss."""
 
     def __init__(self, model: nn.Module) -> None:
         super().__init__()
         self.model = model
 
-    def forward(self, inputs: Tensor, targets: Tensor) -> Tensor:
-        return self.model.loss(inputs, targets)
+    def forward(self, inputs: Tensor, targets: Tensor, *fitted: Tensor) -> Tensor:
+        return self.model.loss(inputs, targets, *fitted)
 
 
 def train_step(
@@ -72,10 +72,12 @@ def train_step(
     targets: Tensor,
     cfg: TrainConfig,
     device: torch.device,
+    fitted: Tensor | None = None,
 ) -> Tensor:
-    """One AdamW step, loss over all positions of inputs (B, T, d_in), targets (B, T, m); detached loss."""
+    """One AdamW step, loss over all positions of inputs (B, T, d_in), targets (B, T, m); detached loss.
+    fitted (B, d, m)|None: each record's feature coefficients (train.context_prefix, mop.train.context)."""
     with autocast(cfg, device):
-        loss = loss_fn(inputs, targets)
+        loss = loss_fn(inputs, targets) if fitted is None else loss_fn(inputs, targets, fitted)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
@@ -85,9 +87,9 @@ def train_step(
 
 @torch.no_grad()
 def validation_loss(
-    model: nn.Module, val: tuple[Tensor, Tensor], cfg: TrainConfig, device: torch.device
+    model: nn.Module, val: tuple[Tensor, ...], cfg: TrainConfig, device: torch.device
 ) -> float:
-    """Mean model.loss on the held-out systems (does not touch any RNG)."""
+    """Mean model.loss on the held-out systems (inputs, targets[, fitted]; does not touch any RNG)."""
     model.eval()
     with autocast(cfg, device):
         loss = float(model.loss(*val))

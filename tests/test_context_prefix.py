@@ -1,0 +1,130 @@
+"""Training with an estimation record as context (train.context_prefix, mop.train.context): each training
+window is exactly a window of the in-context "fit" reading (mop.incontext.fitted_to_context), whose
+estimation record is the window's prefix; bad settings are one line before any work."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+import mop.train as mt
+from mop.checkpoint import load_tensors
+from mop.config import DataConfig, RunConfig
+from mop.errors import MopError
+from mop.incontext import context_normalization, fitted_to_context
+from mop.missing import masked_inputs
+from mop.models.registry import build_model
+from mop.record import Record
+from mop.runs import load_config, load_predictor
+from mop.systems import generator, make_family
+from mop.train import TrainingData, validation_batch
+from mop.train.context import check_context_prefix, prefix_fit
+from tests.reference import sigint_during_step
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+PREFIX, BODY = 400, 120
+
+
+@pytest.fixture(scope="module")
+def lti():
+    """pretrained:lti-siso and 4 systems of its class, PREFIX + BODY steps each."""
+    config = load_config("pretrained:lti-siso")
+    traj = make_family(config.system).generate(4, PREFIX + BODY - 1, generator=generator(5))
+    return load_predictor("pretrained:lti-siso"), traj.model_inputs().double()  # (4, PREFIX + BODY, 2)
+
+
+def test_the_prefix_fit_is_the_in_context_least_squares_fit_of_each_estimation_record(lti):
+    predictor, z = lti
+    body, theta = prefix_fit(z, PREFIX, predictor.cfg)
+    assert body.shape == (4, BODY, 2) and theta.shape[0] == 4
+    for b in range(4):
+        context = Record(y=z[b, :PREFIX, :1].numpy(), u=z[b, :PREFIX, 1:].numpy())
+        fitted = fitted_to_context(predictor, [context])
+        expected = np.asarray(fitted.cfg.rls_prior).reshape(theta.shape[1:])
+        np.testing.assert_allclose(theta[b].numpy(), expected, rtol=1e-7, atol=1e-9)
+        norm = context_normalization([context])
+        units = norm.inputs(z[b : b + 1, PREFIX:])[0]
+        np.testing.assert_allclose(body[b].numpy(), units.numpy(), rtol=1e-12, atol=1e-12)
+
+
+def test_a_training_window_is_a_window_of_the_fit_reading(lti):
+    """The network's predictions with each record's coefficients (training) equal those of the class model
+    fitted to that record's prefix (in context), the free run's missing outputs included."""
+    predictor, z = lti
+    body, theta = prefix_fit(z, PREFIX, predictor.cfg)
+    y = body[..., :1].clone()
+    y[:, 60:] = float("nan")  # a free run from step 60: the feature fills the outputs in
+    inputs = masked_inputs(torch.cat([y, body[..., 1:]], dim=-1), 1).float()
+    model = predictor.model
+    with torch.no_grad():
+        trained = model._outputs(inputs, fitted=theta)[0]
+        for b in range(4):
+            context = Record(y=z[b, :PREFIX, :1].numpy(), u=z[b, :PREFIX, 1:].numpy())
+            in_context = fitted_to_context(predictor, [context]).model(inputs[b : b + 1])
+            np.testing.assert_allclose(trained[b].numpy(), in_context[0].numpy(), rtol=1e-4, atol=1e-5)
+    assert torch.isfinite(trained).all()
+
+
+def _config(**train) -> RunConfig:
+    source = load_config("pretrained:lti-siso")
+    keys = {"steps": 2, "batch_size": 3, "horizon": 99, "simulate_after": 40, "num_source_systems": 0}
+    model = dataclasses.replace(source.model, context=100)
+    return dataclasses.replace(
+        source, model=model, train=dataclasses.replace(source.train, **{**keys, **train})
+    )
+
+
+def test_batches_hold_each_systems_coefficients_and_are_seeded():
+    config = _config(context_prefix=300)
+    first, second = (TrainingData(config, torch.device("cpu")).batch() for _ in range(2))
+    inputs, targets, fitted = first
+    assert inputs.shape == (3, 99, 3) and targets.shape == (3, 99, 1)
+    assert fitted.shape == (3, 31, 1) and fitted.dtype == torch.float64
+    for a, b in zip(first, second, strict=True):
+        torch.testing.assert_close(a, b, equal_nan=True)
+    val = validation_batch(config, torch.device("cpu"))
+    assert len(val) == 3 and val[2].shape[0] == val[0].shape[0]
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"context_prefix": 30}, "cannot fit the feature.s 31 coefficients"),
+        ({"context_prefix": -1}, "train.context_prefix"),
+    ],
+)
+def test_a_prefix_that_cannot_serve_is_one_line(change, message):
+    with pytest.raises(MopError, match=message):
+        check_context_prefix(_config(**change))
+
+
+def test_a_prefix_needs_a_class_model_and_a_simulated_family():
+    config = _config(context_prefix=300)
+    plain = dataclasses.replace(
+        config, model=dataclasses.replace(config.model, record_norm="none", residual_scale="none")
+    )
+    with pytest.raises(MopError, match="record_norm=causal"):
+        check_context_prefix(plain)
+    recorded = dataclasses.replace(config, data=DataConfig(path="x.npz"))
+    with pytest.raises(MopError, match="recorded file has its own"):
+        check_context_prefix(recorded)
+
+
+def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, monkeypatch):
+    """A class model trained with estimation prefixes: the batches' coefficients travel with the seeded
+    generator, so a run stopped and resumed ends with the weights of one that was not."""
+    config = _config(context_prefix=150, steps=6, checkpoint_every=2, keep_best=False)
+    config = dataclasses.replace(config, model=dataclasses.replace(config.model, width=8, num_layers=1))
+    a = mt.train(config, tmp_path / "a", progress=False)
+    restore = sigint_during_step(monkeypatch, 4)
+    with pytest.raises(MopError, match="stopped by SIGINT at step 4"):
+        mt.train(config, tmp_path / "c", progress=False)
+    restore()
+    c = mt.train(config, tmp_path / "c", progress=False)
+    wa, wc = (load_tensors(run / "model.safetensors")[0] for run in (a, c))
+    assert all(torch.equal(wa[k], wc[k]) for k in wa)
+    torch.manual_seed(config.train.seed)
+    start = build_model(config.model).state_dict()
+    assert any(not torch.equal(wa[k], start[k]) for k in wa)  # it did train
