@@ -15,6 +15,7 @@ from mop.errors import MopError
 from mop.incontext import context_normalization, fitted_to_context
 from mop.missing import masked_inputs
 from mop.models.registry import build_model
+from mop.recipe.finetune import with_fine_tuning
 from mop.record import Record
 from mop.runs import load_config, load_predictor
 from mop.systems import generator, make_family
@@ -128,3 +129,11 @@ def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, monkey
     torch.manual_seed(config.train.seed)
     start = build_model(config.model).state_dict()
     assert any(not torch.equal(wa[k], start[k]) for k in wa)  # it did train
+
+
+def test_a_fine_tune_of_a_model_trained_with_prefixes_reads_its_record_as_the_estimation_record():
+    source = _config(context_prefix=300)
+    run = dataclasses.replace(source, data=DataConfig(path="est.csv"))
+    tuned = with_fine_tuning(run, source, "pretrained:x")
+    assert tuned.train.context_prefix == 0 and tuned.train.init == "pretrained:x"
+    check_context_prefix(tuned)  # no refusal: the record's own feature fit serves (with_record_prior)

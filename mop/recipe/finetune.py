@@ -60,6 +60,7 @@ def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConf
         lr_schedule="constant",
         keep_best=True,
         simulate_after=FINE_TUNE_SIMULATE_AFTER if source.train.simulate_after else 0,
+        context_prefix=0,  # the record is its own estimation record (with_record_prior fits on it)
     )
     data, model = config.data, config.model
     if data is not None and source.data is not None and source.data.fitted:
