@@ -94,6 +94,7 @@ def test_batches_hold_each_systems_coefficients_and_are_seeded():
     [
         ({"context_prefix": 30}, "cannot fit the feature.s 31 coefficients"),
         ({"context_prefix": -1}, "train.context_prefix"),
+        ({"context_prefix": 300, "target": "optimal", "simulate_after": 0}, "use train.target=outputs"),
     ],
 )
 def test_a_prefix_that_cannot_serve_is_one_line(change, message):

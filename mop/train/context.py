@@ -34,7 +34,7 @@ LEAST_SQUARES_RIDGE = 1e-6  # least_squares_coefficients' ridge, times the pairs
 def check_context_prefix(config: RunConfig) -> None:
     """One-line MopError where train.context_prefix cannot serve the run: it needs a simulated family and a
     class model (model.record_norm = "causal") whose feature is an ARX / NARX fitted in context (rls_order >
-    0, no coefficients of its own), and more steps than the feature's regressors."""
+    0, no coefficients of its own), the outputs as targets, and more steps than the feature's regressors."""
     n, model = config.train.context_prefix, config.model
     check_int("train.context_prefix", n, 0)
     if n == 0:
@@ -43,6 +43,11 @@ def check_context_prefix(config: RunConfig) -> None:
         raise MopError(
             "train.context_prefix draws each training system's estimation record before its window; a "
             "recorded file has its own: train on it without the prefix"
+        )
+    if config.train.target != "outputs":
+        raise MopError(
+            "train.context_prefix trains against each window's outputs in its estimation record's units; "
+            "use train.target=outputs"
         )
     if model.record_norm != "causal" or model.rls_order == 0 or model.rls_prior != "none":
         raise MopError(

@@ -67,7 +67,7 @@ def simulated_batch(family, num_systems: int, config: RunConfig, generator: torc
         m = config.model.output_dim
         return z[:, :-1].float().contiguous(), z[:, 1:, :m].float().contiguous(), fitted
     y = traj.y
-    if cfg.target == "optimal":  # (B, N + T + 1, m): the Kalman filter's predictions of y_t
+    if cfg.target == "optimal":  # (B, T + 1, m): the Kalman filter's predictions of y_t
         y = kalman_means(family_systems(family, traj.params, 0), traj.y, traj.u)
     z, y = in_model_units(z, y, config.model)
     return z[:, :-1].float().contiguous(), y[:, 1:].float().contiguous()
@@ -81,7 +81,6 @@ class TrainingData:
         check_context_prefix(config)
         self.config = config
         self.cfg = config.train
-        self.model = config.model
         self.masked = config.model.observation_mask
         self.generator = torch.Generator(device=device).manual_seed(self.cfg.seed)
         self.pool: tuple | None = None
