@@ -173,6 +173,21 @@ def sigint_during_step(monkeypatch, step: int):
     return lambda: monkeypatch.setattr(mt.TrainingData, "batch", batch)
 
 
+def interrupted_and_resumed(config, out_dir: Path, monkeypatch, step: int = 4) -> Path:
+    """Train `config` into out_dir with a SIGINT during training step `step` (the run stops there, with the
+    one-line message), then again to the end (a resume from its checkpoint); the run directory."""
+    import pytest
+
+    import mop.train as mt
+    from mop.errors import MopError
+
+    restore = sigint_during_step(monkeypatch, step)
+    with pytest.raises(MopError, match=f"stopped by SIGINT at step {step}"):
+        mt.train(config, out_dir, progress=False)
+    restore()
+    return mt.train(config, out_dir, progress=False)
+
+
 def authors_linear_systems(num_systems, seed, n=10, m=5, horizon=50, noise_std=0.1, bound=50.0):
     """The authors' linear generator, one system at a time in numpy (DESIGN.md): A ~ U[0,1]^(n x n) scaled to
     spectral radius 0.95; C ~ U[0,1]^(m x n) redrawn until (A, C) is observable; x_0 ~ N(0, I);

@@ -21,7 +21,7 @@ from mop.runs import load_config, load_predictor
 from mop.systems import generator, make_family
 from mop.train import TrainingData, validation_batch
 from mop.train.context import check_context_prefix, prefix_fit
-from tests.reference import sigint_during_step
+from tests.reference import interrupted_and_resumed
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -120,11 +120,7 @@ def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, monkey
     config = _config(context_prefix=150, steps=6, checkpoint_every=2, keep_best=False)
     config = dataclasses.replace(config, model=dataclasses.replace(config.model, width=8, num_layers=1))
     a = mt.train(config, tmp_path / "a", progress=False)
-    restore = sigint_during_step(monkeypatch, 4)
-    with pytest.raises(MopError, match="stopped by SIGINT at step 4"):
-        mt.train(config, tmp_path / "c", progress=False)
-    restore()
-    c = mt.train(config, tmp_path / "c", progress=False)
+    c = interrupted_and_resumed(config, tmp_path / "c", monkeypatch)
     wa, wc = (load_tensors(run / "model.safetensors")[0] for run in (a, c))
     assert all(torch.equal(wa[k], wc[k]) for k in wa)
     torch.manual_seed(config.train.seed)

@@ -17,7 +17,7 @@ from mop.missing import drop_mask, drop_outputs, masked_inputs
 from mop.models.heads import prediction_loss
 from mop.runs import load_predictor
 from mop.train.data import with_drop_outs
-from tests.reference import linear_traj, sigint_during_step
+from tests.reference import interrupted_and_resumed, linear_traj
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -148,11 +148,7 @@ def test_masked_model_streams_and_forecasts_with_gaps(masked_run):
 def test_resume_with_drop_outs_equals_uninterrupted(tmp_path, monkeypatch):
     config = apply_overrides(RunConfig(), [*TINY, *DROPS])
     a = mt.train(config, tmp_path / "a", progress=False)
-    restore = sigint_during_step(monkeypatch, 4)
-    with pytest.raises(MopError, match="stopped by SIGINT at step 4"):
-        mt.train(config, tmp_path / "b", progress=False)
-    restore()
-    b = mt.train(config, tmp_path / "b", progress=False)
+    b = interrupted_and_resumed(config, tmp_path / "b", monkeypatch)
     wa, wb = load_tensors(a / "model.safetensors")[0], load_tensors(b / "model.safetensors")[0]
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
 
