@@ -8,7 +8,7 @@ import torch
 
 from mop.config import ModelConfig
 from mop.errors import MopError
-from mop.models.features import RESIDUAL_FLOOR, residual_scale
+from mop.models.features import RESIDUAL_FLOOR, residual_from, residual_scale, residual_update
 from tests.test_recordnorm import tiny, trained_like
 
 
@@ -34,6 +34,29 @@ def test_residual_scale_is_the_weighted_mean_of_the_measured_errors(mode, lam):
                 if mode == "measured" and not seen[b, t, j]:
                     want[b, t, j] = std[b, t, j]
     np.testing.assert_allclose(got.numpy(), want, rtol=1e-12)
+
+
+@pytest.mark.parametrize("lam", [0.5, 0.95])
+def test_the_whole_window_at_once_equals_the_step_recursion_on_long_records(lam):
+    """residual_scale (every position at once) against residual_update / residual_from stepped through
+    3000 positions, as the stream steps them: long enough that lam^-k overflows float64 at lam = 0.5
+    (2^3000), with gaps, a gap from the start, and an output whose errors are all 0."""
+    g = torch.Generator().manual_seed(0)
+    B, T, m = 3, 3000, 2
+    y, base = torch.randn(B, T, m, generator=g, dtype=torch.float64), torch.randn(B, T, m, generator=g)
+    std = torch.rand(B, T, m, generator=g, dtype=torch.float64) + 0.5
+    seen = torch.rand(B, T, m, generator=g) > 0.2
+    seen[1, :700] = False  # nothing measured for 700 steps
+    base[2, :-1, 1] = y[2, 1:, 1].float()  # output 1 of system 2: every error 0 (up to float32 rounding)
+    y = torch.where(seen, y, torch.full_like(y, float("nan")))
+    got = residual_scale(y, base, seen, std, "measured", lam)
+    v, n = torch.zeros(B, m, dtype=torch.float64), torch.zeros(B, m, dtype=torch.float64)
+    want = []
+    for t in range(T):
+        if t > 0:
+            v, n = residual_update(v, n, y[:, t], base[:, t - 1].double(), seen[:, t], lam)
+        want.append(residual_from(v, n, std[:, t], seen[:, t]))
+    torch.testing.assert_close(got, torch.stack(want, 1), rtol=1e-10, atol=0)
 
 
 def _noise_free_arx_record(T: int = 200) -> torch.Tensor:
