@@ -148,12 +148,41 @@ def test_particle_filter_knowing_the_plant_beats_the_last_value():
 
 @pytest.mark.parametrize(
     "knob, value",
-    [("input", "sine"), ("noise_std", -1.0), ("x0", "full"), ("bandwidth", 0.7), ("input_amplitude", 0.0)],
+    [
+        ("input", "sine"),
+        ("noise_std", -1.0),
+        ("x0", "full"),
+        ("bandwidth", 0.7),
+        ("input_amplitude", 0.0),
+        ("sensor_saturation", 1.0),
+    ],
 )
 def test_bad_knobs_are_refused_in_one_line_naming_the_value(knob, value):
     with pytest.raises(MopError, match=f"system.{knob}") as err:
         SystemConfig(family="cascaded-tanks", **{knob: value})
     assert str(value) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_saturating_sensor_reads_the_same_plant_clipped_at_its_top():
+    """system.sensor_saturation = 0.2: the plants are those drawn without it (its top S is drawn last), S is
+    within [0.8 H, H], and the output is the unsaturated one clipped at S, flat there on some plants."""
+    B, T = 40, 600
+    plain = make_family(SystemConfig(family="cascaded-tanks", input_amplitude=1.0), torch.float64)
+    saturating = make_family(
+        SystemConfig(family="cascaded-tanks", input_amplitude=1.0, sensor_saturation=0.2), torch.float64
+    )
+    params, same = saturating.sample(B, generator=generator(3)), plain.sample(B, generator=generator(3))
+    for name in (*PHYSICS, "u_op", "amplitude", "bandwidth", "noise_std", "x0_mean"):
+        torch.testing.assert_close(getattr(params, name), getattr(same, name), rtol=0, atol=0)
+    assert torch.isinf(same.sensor_top).all()
+    H, S = params.max_level, params.sensor_top
+    assert ((S >= 0.8 * H) & (S <= H)).all() and (S < H).all()
+    clipped = saturating.simulate(params, T, generator=generator(4))
+    free = plain.simulate(params, T, generator=generator(4))
+    torch.testing.assert_close(clipped.x, free.x, rtol=0, atol=0)
+    torch.testing.assert_close(clipped.y, torch.minimum(free.y, S[:, None, None]), rtol=0, atol=0)
+    at_top = (clipped.y[..., 0] == S[:, None]).double().mean(1)  # (B,) share of samples at the top
+    assert 5 <= int((at_top > 0.01).sum()) < B
 
 
 def test_steady_start_is_at_rest_under_the_operating_input():

@@ -9,6 +9,8 @@ the reservoir. Levels h_i are in the sensors' units (V, 0..10 as in the benchmar
     A1 dh1/dt = k_p u - a1 sqrt(h1)                     (+ overflow: h1 <= H, the excess spills)
     A2 dh2/dt = a1 sqrt(h1) - a2 sqrt(h2) + rho spill   (h2 <= H, its excess leaves the plant)
     y_t = h2(t Ts) + v_t,   v_t ~ N(0, sigma_v^2),   state x = (h1, h2),   Ts = 4 s (the benchmark's).
+    With system.sensor_saturation = s > 0 the level sensor saturates below the rim: y_t = min(h2 + v_t, S),
+    S = H (1 - U(0, s)) per system, flat and noise-free at S as the benchmark's records are at 10 V.
 
 Discretised by SUBSTEPS = 2 classical Runge-Kutta (RK4) steps of dt = Ts / 2 = 2 s per sample, u held
 over the sample; after each substep the levels are clipped to [0, H], the upper tank's excess volume
@@ -33,13 +35,15 @@ per tank ("random"), or x_0 = m0 ("steady": P0 = 1e-8 I).
 Where this differs from the real benchmark: there one plant gives both records (here every system is drawn
 anew); the pump's flow is taken linear in u and the sensor linear in the level (the real characteristics are
 not published with the data); the share rho of the overflow reaching the lower tank is unknown there; the
-noise here is white and Gaussian; its records are 1024 samples of one multisine design (estimation and
+noise here is white and Gaussian; its sensor reads every level unless system.sensor_saturation is set (the
+real records sit exactly at 10 V for 4.6% of the estimation record and 3.6% of the test); its records are 1024 samples of one multisine design (estimation and
 validation realisations), ours have the record's length and a per-system band and amplitude.
 
 The filters (EKF, UKF, particle filter) are given f, its Jacobian (chained through the RK4 stages;
 d sqrt(h)/dh uses h >= 1e-3 so it stays finite at an empty tank, the clip's derivative is 1 inside (0, H) and
 0 outside), C = [0, 1], Q = max(q^2, 1e-8) I, R = sigma_v^2 (+ 1e-8), (m0, P0) and the clip to [0, H] as the
-state projection.
+state projection. They are not given the sensor's saturation (their output is linear): where it bites
+(system.sensor_saturation > 0, an output at S) they are misspecified.
 """
 
 from __future__ import annotations
@@ -194,7 +198,9 @@ class CascadedTanksConfig(SystemConfig):
     u_op (per system U(0.25, 1) times it); bandwidth: largest multisine frequency (cycles per sample) or
     prbs switching probability; noise_std: largest measurement-noise std (V, per system U(0.2, 1) times
     it); process_noise_std: std of w_t per tank (V per sample); x0: "random" or "steady"; x0_spread: the
-    relative std of x_0 about the equilibrium ("random")."""
+    relative std of x_0 about the equilibrium ("random"); sensor_saturation: the largest share of the tank's
+    height above the level sensor's top (per system U(0, sensor_saturation) of H; 0: the sensor reads every
+    level)."""
 
     family: str = "cascaded-tanks"
     input: str = "multisine"
@@ -204,6 +210,7 @@ class CascadedTanksConfig(SystemConfig):
     process_noise_std: float = 0.01
     x0: str = "random"
     x0_spread: float = 0.3
+    sensor_saturation: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -220,12 +227,17 @@ class CascadedTanksConfig(SystemConfig):
         )
         check(self.x0 in ("random", "steady"), f"system.x0 must be 'random' or 'steady', got {self.x0!r}")
         check(0 <= self.x0_spread <= 1, f"system.x0_spread must be in [0, 1], got {self.x0_spread}")
+        check(
+            0 <= self.sensor_saturation < 1,
+            f"system.sensor_saturation must be in [0, 1), got {self.sensor_saturation}",
+        )
 
 
 @dataclass(frozen=True)
 class CascadedTanksParams(SystemParams):
     """The physics (PHYSICS: area1, area2, outflow1, outflow2, pump, max_level, overflow_to_lower, each (B,));
-    the input's operating point u_op, amplitude and bandwidth (B,); noise_std (B,); C (B, 1, 2); Q (B, 2, 2);
+    the input's operating point u_op, amplitude and bandwidth (B,); noise_std (B,); sensor_top S (B,) (inf:
+    no saturation); C (B, 1, 2); Q (B, 2, 2);
     R (B, 1, 1); x0_mean (B, 2); P0 (B, 2, 2). The tanks' helpers (tank_step, ...) take the physics as a dict
     (params.as_dict())."""
 
@@ -240,6 +252,7 @@ class CascadedTanksParams(SystemParams):
     amplitude: Tensor
     bandwidth: Tensor
     noise_std: Tensor
+    sensor_top: Tensor
     C: Tensor
     Q: Tensor
     R: Tensor
@@ -270,6 +283,9 @@ class CascadedTanksFamily(SystemFamily):
         p["Q"] = max(cfg.process_noise_std**2, JITTER) * eye.expand(B, 2, 2).clone()
         p["R"] = (p["noise_std"] ** 2 + JITTER)[:, None, None]
         p["x0_mean"], p["P0"] = m0, torch.diag_embed((spread * m0) ** 2 + JITTER)
+        p["sensor_top"] = torch.full_like(m0[:, 0], math.inf)
+        if cfg.sensor_saturation > 0:  # drawn last: the other draws stay those of a family without it
+            p["sensor_top"] = p["max_level"] * (1 - uniform((B,), 0, cfg.sensor_saturation, generator))
         return CascadedTanksParams(**p)
 
     def simulate(
@@ -284,8 +300,11 @@ class CascadedTanksFamily(SystemFamily):
         spread = (cfg.x0_spread if cfg.x0 == "random" else 0.0) * p["x0_mean"]
         x0 = clip_levels(p["x0_mean"] + spread * normal((B, 2), generator), p["max_level"])
         x = simulate_levels(x0, u, p, w)  # (B, T+1, 2)
+        y = x[..., 1:] + v
+        if cfg.sensor_saturation > 0:
+            y = torch.minimum(y, p["sensor_top"][:, None, None])
         return Trajectories(
-            y=(x[..., 1:] + v).to(self.dtype),
+            y=y.to(self.dtype),
             u=u.to(self.dtype),
             x=x.to(self.dtype),
             params=params,
