@@ -86,16 +86,14 @@ def simulate_all(predictor, data: Data, context: int, family: str = "", params=N
 DIVERGENCE_FACTOR = 100.0  # a simulation farther than this many output ranges from them has diverged
 
 
-def divergence_step(y: np.ndarray, sim: np.ndarray) -> int | None:
-    """The first row j of a free-run simulation sim (T', m) that is non-finite or farther than
-    DIVERGENCE_FACTOR times the measured range of y (T, m) outside that range, per channel; None where
+def divergence_step(y: np.ndarray, sim: np.ndarray, factor: float = DIVERGENCE_FACTOR) -> int | None:
+    """The first row j of a free-run simulation sim (T', m) that is non-finite or farther than `factor`
+    (DIVERGENCE_FACTOR) times the measured range of y (T, m) outside that range, per channel; None where
     it stays. A diverged simulation is scored as diverged (RMSE inf), never over its finite steps."""
     with np.errstate(invalid="ignore"):
         lo, hi = np.nanmin(y, axis=0), np.nanmax(y, axis=0)  # (m,)
         span = np.maximum(hi - lo, np.finfo(float).tiny)
-        bad = (
-            ~np.isfinite(sim) | (sim < lo - DIVERGENCE_FACTOR * span) | (sim > hi + DIVERGENCE_FACTOR * span)
-        )
+        bad = ~np.isfinite(sim) | (sim < lo - factor * span) | (sim > hi + factor * span)
     rows = np.flatnonzero(bad.any(axis=-1))
     return int(rows[0]) if len(rows) else None
 

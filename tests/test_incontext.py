@@ -178,8 +178,37 @@ def test_a_reading_that_diverges_on_the_test_gives_way_to_the_next_best(lti, mon
     done = simulate_with_context(model, test, 50, [context])
     ranked = sorted(done.held_out, key=done.held_out.get)
     assert done.diverged == (plain.reading,) and done.reading == ranked[1]
-    assert plain.reading in reading_line(done) and "diverged" in reading_line(done)
+    assert plain.reading in reading_line(done) and "strayed" in reading_line(done)
     np.testing.assert_array_equal(done.simulation, real(model, test, 50, [context], ranked[1])[0])
+
+
+@pytest.mark.parametrize("beyond", [0.5, 1.5])
+def test_a_reading_that_strays_beyond_the_measured_outputs_gives_way(lti, monkeypatch, beyond):
+    """The chosen reading's simulation of the test replaced by a constant `beyond` x STRAY_FACTOR ranges
+    above every output measured before it (finite, far inside DIVERGENCE_FACTOR): at 1.5 it gives way to
+    the next best by held-out score, at 0.5 it is kept."""
+    import mop.incontext as incontext
+
+    model, records = lti
+    context, test = records[2][:800], records[2][800:]
+    plain = simulate_with_context(model, test, 50, [context])
+    seen = np.concatenate([context.y, test.y[:50]])
+    top = seen.max() + beyond * incontext.STRAY_FACTOR * (seen.max() - seen.min())
+    real = incontext._read
+
+    def high(predictor, record, init, ctx, reading, fitted=None):
+        sim, steps = real(predictor, record, init, ctx, reading, fitted)
+        return (np.full_like(sim, top) if record is test and reading == plain.reading else sim), steps
+
+    monkeypatch.setattr(incontext, "_read", high)
+    done = simulate_with_context(model, test, 50, [context])
+    ranked = sorted(done.held_out, key=lambda r: (done.held_out[r], list(done.held_out).index(r)))
+    assert ranked[0] == plain.reading
+    if beyond > 1:
+        assert done.diverged == (plain.reading,) and done.reading == ranked[1]
+    else:
+        assert done.diverged == () and done.reading == plain.reading
+        np.testing.assert_array_equal(done.simulation, np.full_like(done.simulation, top))
 
 
 def test_a_single_output_model_reads_each_output_of_a_record_on_its_own(lti):

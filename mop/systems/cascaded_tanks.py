@@ -36,8 +36,9 @@ Where this differs from the real benchmark: there one plant gives both records (
 anew); the pump's flow is taken linear in u and the sensor linear in the level (the real characteristics are
 not published with the data); the share rho of the overflow reaching the lower tank is unknown there; the
 noise here is white and Gaussian; its sensor reads every level unless system.sensor_saturation is set (the
-real records sit exactly at 10 V for 4.6% of the estimation record and 3.6% of the test); its records are 1024 samples of one multisine design (estimation and
-validation realisations), ours have the record's length and a per-system band and amplitude.
+real records sit exactly at 10 V for 4.6% of the estimation record and 3.6% of the test); its records are
+1024 samples of one multisine design (estimation and validation realisations), ours have the record's
+length and a per-system band and amplitude.
 
 The filters (EKF, UKF, particle filter) are given f, its Jacobian (chained through the RK4 stages;
 d sqrt(h)/dh uses h >= 1e-3 so it stays finite at an empty tank, the clip's derivative is 1 inside (0, H) and
