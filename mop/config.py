@@ -285,6 +285,9 @@ class TrainConfig:
     # N > 0: every training system's first N steps are its estimation record, on which the class model's
     # feature is fitted before the window the network reads (mop.train.context); 0: none
     context_prefix: int = 0
+    # with context_prefix: the share of training batches that read their estimation record's fit; the others
+    # read their windows alone, the feature identified from each window's own outputs (as without a record)
+    context_prefix_share: float = 1.0
 
     @property
     def drops_outputs(self) -> bool:
@@ -307,6 +310,10 @@ class TrainConfig:
             check_int(f"train.{name}", getattr(self, name), 1)
         check_int("train.simulate_after", self.simulate_after, 0, self.horizon, " (at most train.horizon)")
         check_int("train.context_prefix", self.context_prefix, 0)
+        check(
+            isinstance(self.context_prefix_share, (int, float)) and 0 < self.context_prefix_share <= 1,
+            f"train.context_prefix_share must be in (0, 1], got {self.context_prefix_share!r}",
+        )
         check(
             self.num_source_systems >= 0,
             f"train.num_source_systems must be >= 0, got {self.num_source_systems}",

@@ -89,11 +89,28 @@ def test_batches_hold_each_systems_coefficients_and_are_seeded():
     assert len(val) == 3 and val[2].shape[0] == val[0].shape[0]
 
 
+def test_a_share_of_the_batches_reads_the_estimation_record_the_rest_their_windows_alone():
+    """train.context_prefix_share = 0.5: over 40 seeded batches the share carrying coefficients is within
+    the binomial's 3-sigma band of 20 (+-9.5), the same seed draws the same kinds, and a batch without
+    coefficients runs through the loss as a record without an estimation record."""
+    config = _config(context_prefix=300, context_prefix_share=0.5, batch_size=2)
+    kinds = []
+    for _ in range(2):
+        data = TrainingData(config, torch.device("cpu"))
+        kinds.append([len(data.batch()) == 3 for _ in range(40)])
+    assert kinds[0] == kinds[1] and 11 <= sum(kinds[0]) <= 29
+    data = TrainingData(config, torch.device("cpu"))
+    plain = next(b for b in iter(data.batch, None) if len(b) == 2)
+    model = build_model(dataclasses.replace(config.model, input_dim=3, output_dim=1))
+    assert torch.isfinite(model.loss(*plain))
+
+
 @pytest.mark.parametrize(
     "change, message",
     [
         ({"context_prefix": 30}, "cannot fit the feature.s 31 coefficients"),
         ({"context_prefix": -1}, "train.context_prefix"),
+        ({"context_prefix": 300, "context_prefix_share": 0.0}, "train.context_prefix_share"),
         ({"context_prefix": 300, "target": "optimal", "simulate_after": 0}, "use train.target=outputs"),
     ],
 )

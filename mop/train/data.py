@@ -101,10 +101,15 @@ class TrainingData:
             self.pool = simulated_batch(self.family, self.cfg.num_source_systems, config, self.generator)
 
     def batch(self) -> tuple[Tensor, ...]:
-        """(inputs (B, T, d_in), targets (B, T, m)[, fitted (B, d, m)]); with a model that has an observation
-        mask, targets hold NaN where an output is missing (dropped here, or missing in the data) and inputs
-        the mask layout."""
+        """(inputs (B, T, d_in), targets (B, T, m)[, fitted (B, d, m)]); with train.context_prefix_share < 1
+        that share of the batches carries fitted, the others not (drawn per batch); with a model that has an
+        observation mask, targets hold NaN where an output is missing (dropped here, or missing in the data)
+        and inputs the mask layout."""
         inputs, targets, *fitted = self._clean_batch()
+        share = self.cfg.context_prefix_share
+        if fitted and share < 1:  # this batch reads its windows alone (no estimation record's fit)
+            if torch.rand((), generator=self.generator, device=self.generator.device) >= share:
+                fitted = []
         if self.masked:
             inputs, targets = with_drop_outs(inputs, targets, self.cfg, self.generator)
         return (inputs, targets, *fitted)
