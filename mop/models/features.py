@@ -410,7 +410,7 @@ def residual_scale(
     (1 - decay) e_s^2 decay^(k_t - k_s) (e_s = y_s - base_{s-1}) and n_t = 1 - decay^(k_t), the sum taken
     by logcumsumexp so that decay^(-k_s) never overflows (the step-by-step loop cost ~85 us a position,
     most of a 2 x 64 class model's forward on 81 inputs). Equal to residual_update step by step to float64
-    rounding (tests/test_features.py)."""
+    rounding (tests/test_residual_scale.py)."""
     y, base = y.double(), base.double()
     measured = torch.isfinite(y) if seen is None else seen & torch.isfinite(y)
     measured = torch.cat([torch.zeros_like(measured[:, :1]), measured[:, 1:]], dim=1)  # y_0: no update
