@@ -231,7 +231,7 @@ class ModelConfig:
 TRAIN_CHOICES: dict[str, tuple[str, ...]] = {
     "lr_schedule": ("constant", "cosine"),
     "precision": ("auto", "fp32", "bf16"),
-    "compile": ("auto", "on", "off"),
+    "compile": ("auto", "on", "off", "graphs"),
     "target": ("outputs", "optimal"),
 }
 
@@ -263,7 +263,7 @@ class TrainConfig:
     seed: int = 0  # training seed: initial weights, systems drawn, batches
     device: str = "auto"  # "auto", "cpu", "cuda", "cuda:1", ...
     precision: str = "auto"  # "auto" (bf16 on GPU, fp32 on CPU), "fp32", "bf16"
-    compile: str = "auto"  # "auto", "on", "off"
+    compile: str = "auto"  # "auto", "on", "off", "graphs" (on, with CUDA graphs: mode reduce-overhead)
     log_every: int = 50  # steps between logged training losses (the run's log, the progress bar)
     checkpoint_every: int = 1000  # steps between checkpoints (validation loss, state to resume from)
     deterministic: bool = False  # torch.use_deterministic_algorithms (slower on GPU)

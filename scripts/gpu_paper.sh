@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The paper preset measured on one CUDA GPU, in one command:
-#   1. `mop bench train` on the paper configuration: mop's trainer beside the plain Hugging Face GPT-2 loop;
-#   2. `mop reproduce linear --preset paper` (12 x 256, batch 64, M = 20000, N = 1000), train.steps=STEPS;
+#   1. `mop bench train` on the paper configuration: mop's trainer beside the plain Hugging Face GPT-2 loop,
+#      phase by phase, and again with CUDA graphs (--compile graphs);
+#   2. `mop reproduce linear --preset paper --without gru` (12 x 256, batch 64, M = 20000, N = 1000),
+#      train.steps=STEPS;
 #   3. eval.json, report.md, the figure and timings.json written to OUT.
 #
 # Usage: OUT=docs/results/paper/linear bash scripts/gpu_paper.sh [STEPS]   (STEPS: 10000, the paper's)
@@ -14,6 +16,7 @@ PY=${PYTHON:-python3}
 WORK=${WORK:-/tmp/mop_gpu_paper}
 DEVICE=${DEVICE:-cuda}  # DEVICE=cpu BENCH_ARGS="--steps 2 --warmup 1" checks the script on a CPU
 BENCH_ARGS=${BENCH_ARGS:-}
+TRAIN_ARGS=${TRAIN_ARGS:-}  # e.g. TRAIN_ARGS=train.compile=graphs
 mkdir -p "$OUT" "$WORK"
 export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 log="$OUT/log.txt"
@@ -29,17 +32,24 @@ torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'no GPU')"
 cat "$OUT/env.txt"
 
 t0=$(now)
-echo "== mop bench train (paper configuration, compile auto)" | tee -a "$log"
-if ! "$PY" -m mop bench train --device "$DEVICE" $BENCH_ARGS --json >"$OUT/bench.json" 2>>"$log"; then
+echo "== mop bench train (paper configuration, compile auto, phase by phase)" | tee -a "$log"
+if ! "$PY" -m mop bench train --device "$DEVICE" $BENCH_ARGS --phases --json >"$OUT/bench.json" 2>>"$log"; then
   echo "== compiled bench failed; again with --compile off" | tee -a "$log"
-  "$PY" -m mop bench train --device "$DEVICE" $BENCH_ARGS --compile off --json >"$OUT/bench.json" 2>>"$log"
+  "$PY" -m mop bench train --device "$DEVICE" $BENCH_ARGS --compile off --phases --json >"$OUT/bench.json" \
+    2>>"$log"
 fi
 cat "$OUT/bench.json"
+echo "== mop bench train --compile graphs (CUDA graphs), mop only" | tee -a "$log"
+"$PY" -m mop bench train --device "$DEVICE" $BENCH_ARGS --compile graphs --phases --skip-hf --json \
+  >"$OUT/bench_graphs.json" 2>>"$log"
+cat "$OUT/bench_graphs.json"
 t1=$(now)
 
-echo "== mop reproduce linear --preset paper train.steps=$STEPS" | tee -a "$log"
-"$PY" -m mop reproduce linear --preset paper --out "$WORK/linear" --runs "$WORK/runs" \
-  "train.steps=$STEPS" "train.device=$DEVICE" >>"$log" 2>&1
+# REPRODUCE_ARGS: the paper preset also trains the GRU baseline (~6 min on an H200); leave it out by default
+REPRODUCE_ARGS=${REPRODUCE_ARGS---without gru}
+echo "== mop reproduce linear --preset paper $REPRODUCE_ARGS train.steps=$STEPS $TRAIN_ARGS" | tee -a "$log"
+"$PY" -m mop reproduce linear --preset paper $REPRODUCE_ARGS --out "$WORK/linear" --runs "$WORK/runs" \
+  "train.steps=$STEPS" "train.device=$DEVICE" $TRAIN_ARGS >>"$log" 2>&1
 rc=$?
 t2=$(now)
 tail -5 "$log"
@@ -57,6 +67,7 @@ timings = {
     "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none (CPU)",
     "torch": torch.__version__,
     "bench_train": json.loads(pathlib.Path(out, "bench.json").read_text() or "{}"),
+    "bench_train_graphs": json.loads(pathlib.Path(out, "bench_graphs.json").read_text() or "{}"),
     "bench_wall_s": float(t1) - float(t0),
     "reproduce_wall_s": float(t2) - float(t1),
     "reproduce_rc": int(rc),

@@ -36,9 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-size", type=int, default=64, help="batch size (64)")
     parser.add_argument(
         "--compile",
-        choices=("auto", "on", "off"),
+        choices=("auto", "on", "off", "graphs"),
         default="auto",
-        help="torch.compile for mop (auto: on for CUDA)",
+        help="torch.compile for mop (auto: on for CUDA; graphs: on, with CUDA graphs)",
     )
     parser.add_argument(
         "--precision",
@@ -47,6 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="mop's autocast (auto: bf16 on CUDA, fp32 on CPU); the HF loop stays fp32 as the authors ran it",
     )
     parser.add_argument("--skip-hf", action="store_true", help="time mop only")
+    parser.add_argument(
+        "--phases",
+        action="store_true",
+        help="also time mop's step phase by phase (batch, forward, backward, clip, optimizer), the device "
+        "synchronised after each: where a launch-bound step spends its time",
+    )
 
 
 def _time(step, device: torch.device, warmup: int, steps: int) -> float:
@@ -74,6 +80,55 @@ def mop_step(config: RunConfig, device: torch.device):
     loss_fn = mt.maybe_compile(mt.LossModule(model), config.train, device)
     data = mt.TrainingData(config, device)
     return lambda: mt.train_step(model, loss_fn, optimizer, *data.batch(), config.train, device)
+
+
+PHASES = ("batch", "forward", "backward", "clip", "optimizer")
+
+
+def mop_phases(config: RunConfig, device: torch.device, warmup: int, steps: int) -> dict[str, float]:
+    """Mean milliseconds of each phase of mop's training step (PHASES), the device synchronised after each
+    phase, so phases do not overlap as they do in an unsynchronised step: their sum is at least the step."""
+    return phased_training(config, device, warmup, steps)[0]
+
+
+def phased_training(
+    config: RunConfig, device: torch.device, warmup: int, steps: int
+) -> tuple[dict[str, float], nn.Module]:
+    """warmup + steps steps of mop.train.train_step taken phase by phase: (mean ms per phase over the last
+    `steps`, the trained model). The same updates as train_step (tests/test_bench_train.py)."""
+    config = mt.resolve_config(config)
+    torch.manual_seed(0)
+    model = build_model(config.model).to(device).train()
+    optimizer = mt.make_optimizer(model, config.train, device)
+    loss_fn = mt.maybe_compile(mt.LossModule(model), config.train, device)
+    data = mt.TrainingData(config, device)
+    cfg = config.train
+    totals = dict.fromkeys(PHASES, 0.0)
+
+    def timed(name: str, fn, count: bool):
+        start = time.perf_counter()
+        out = fn()
+        _sync(device)
+        if count:
+            totals[name] += time.perf_counter() - start
+        return out
+
+    for i in range(warmup + steps):
+        count = i >= warmup
+        batch = timed("batch", data.batch, count)
+        if cfg.compile == "graphs":
+            torch.compiler.cudagraph_mark_step_begin()
+
+        def forward(batch=batch):
+            with mt.autocast(cfg, device):
+                return loss_fn(*batch)
+
+        loss = timed("forward", forward, count)
+        optimizer.zero_grad(set_to_none=True)
+        timed("backward", loss.backward, count)
+        timed("clip", lambda: torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip), count)
+        timed("optimizer", optimizer.step, count)
+    return {name: 1000 * total / steps for name, total in totals.items()}, model
 
 
 class HFModel(nn.Module):
@@ -144,6 +199,8 @@ def run(args: argparse.Namespace) -> int:
         "warmup": warmup,
         "ms_per_step": _time(mop_step(config, device), device, warmup, steps),
     }
+    if args.phases:
+        result["mop_phases_ms"] = mop_phases(config, device, warmup, steps)
     if not args.skip_hf:
         result["hf_gpt2_ms_per_step"] = _time(hf_step(config, device), device, warmup, steps)
         result["speedup"] = result["hf_gpt2_ms_per_step"] / result["ms_per_step"]
@@ -155,6 +212,8 @@ def run(args: argparse.Namespace) -> int:
             f"{steps} timed steps after {warmup} warm-up"
         )
         print(f"mop      {result['ms_per_step']:9.1f} ms/step")
+        for name, ms in result.get("mop_phases_ms", {}).items():
+            print(f"  {name:<10} {ms:9.2f} ms (synchronised after each phase)")
         if "speedup" in result:
             print(f"hf gpt2  {result['hf_gpt2_ms_per_step']:9.1f} ms/step   speedup {result['speedup']:.2f}x")
     return 0

@@ -46,7 +46,12 @@ COMPILE_MIN_STEPS_CPU = 500  # compiling takes ~1 min on 2 cores, then halves th
 
 
 def maybe_compile(model: nn.Module, cfg: TrainConfig, device: torch.device) -> nn.Module:
-    """torch.compile for compile=on, and for auto on CUDA or on CPU runs long enough to repay compiling."""
+    """torch.compile for compile=on, and for auto on CUDA or on CPU runs long enough to repay compiling.
+    compile=graphs: mode "reduce-overhead", which on CUDA replays the compiled loss and its backward as CUDA
+    graphs (one launch instead of hundreds: the paper's step is launch-bound on a GPU, docs/results/paper.md);
+    elsewhere the same as on."""
+    if cfg.compile == "graphs":
+        return torch.compile(model, mode="reduce-overhead")
     auto = device.type == "cuda" or cfg.steps >= COMPILE_MIN_STEPS_CPU
     if cfg.compile == "on" or (cfg.compile == "auto" and auto):
         return torch.compile(model)
@@ -76,6 +81,8 @@ def train_step(
 ) -> Tensor:
     """One AdamW step, loss over all positions of inputs (B, T, d_in), targets (B, T, m); detached loss.
     fitted (B, d, m)|None: each record's feature coefficients (train.context_prefix, mop.train.context)."""
+    if cfg.compile == "graphs":  # a new iteration: the CUDA graphs may reuse the last step's buffers
+        torch.compiler.cudagraph_mark_step_begin()
     with autocast(cfg, device):
         loss = loss_fn(inputs, targets) if fitted is None else loss_fn(inputs, targets, fitted)
     optimizer.zero_grad(set_to_none=True)
