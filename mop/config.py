@@ -162,6 +162,7 @@ class ModelConfig:
     rls_prior_weights: list[float] | None = FeatureConfig.rls_prior_weights
     rls_prior_noise: float = FeatureConfig.rls_prior_noise
     rls_fixed: bool = FeatureConfig.rls_fixed
+    rls_fill_range: list[float] | None = FeatureConfig.rls_fill_range
     rls_p0: float = FeatureConfig.rls_p0
     output_units: list[float] | None = FeatureConfig.output_units
     input_units: list[float] | None = FeatureConfig.input_units

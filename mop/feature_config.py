@@ -68,6 +68,10 @@ class FeatureConfig:
     # (the records recipe's long ARX, mop.identify.long_arx: its recursion with P_0 = 1e-3 I cost 0.14 of a
     # 0.17 s training step at ARX(40, 40), batch 64 x 80)
     rls_fixed: bool = False
+    # [low_1..low_m, high_1..high_m]: the outputs measured before the record (an estimation record read in
+    # context), in the units of a listed rls_prior; the feature's free run is held within their range and
+    # the record's own, widened as fill_bounds widens it (mop.filters.rls). None: the record's own alone
+    rls_fill_range: list[float] | None = None
     # without a listed rls_prior, the feature's P_0 = rls_p0 I, i.e. a ridge 1 / rls_p0 towards 0 (1: the
     # paper's RLS); larger: closer to least squares, for data a model identifies exactly (no noise)
     rls_p0: float = 1.0
@@ -109,6 +113,12 @@ class FeatureConfig:
         check(
             not (self.rls_fixed and (self.rls_prior_cov is not None or self.rls_prior_weights is not None)),
             "model.rls_fixed sets P_0 = 0: drop model.rls_prior_cov / rls_prior_weights",
+        )
+        check(
+            self.rls_fill_range is None
+            or (isinstance(self.rls_fill_range, list) and len(self.rls_fill_range) % 2 == 0),
+            "model.rls_fill_range lists each output's low then each one's high, got "
+            f"{self.rls_fill_range!r:.60}",
         )
         check_int("model.rls_order", self.rls_order, 0, 40, " (0 = off)")
         check_int("model.arx_order", self.arx_order, 0, 40, " (0 = output-only RLS)")

@@ -174,16 +174,19 @@ def fitted_to_context(
     which then stays at its fit (model.rls_fixed, as the records recipe's and a fine-tune's long ARX): from
     P_0 = I the test's first outputs would move its many coefficients (a three-output ARX(40, 40) has 161 an
     output) away from the fit over the whole context; on the F-16's three accelerations that simulated the
-    context's held-out end at 9.3 m/s^2 against 1.15 for the model's own orders)."""
+    context's held-out end at 9.3 m/s^2 against 1.15 for the model's own orders). The feature's free run is
+    held within the range of the context's outputs and the record's (model.rls_fill_range), not the
+    record's alone."""
     cfg, norm = predictor.cfg, context_normalization(context)
     if orders is not None:
         cfg = dataclasses.replace(cfg, rls_order=orders[0], arx_order=orders[1])
-    theta = least_squares_coefficients(
-        _normalised(context), cfg.output_dim, cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes
-    )
+    parts, m = _normalised(context), cfg.output_dim
+    theta = least_squares_coefficients(parts, m, cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes)
+    outputs = np.concatenate([a[:, :m] for a in parts])  # the context's outputs, in the fit's units
     fitted = dataclasses.replace(
         cfg,
         rls_prior=[float(v) for v in theta.reshape(-1)],
+        rls_fill_range=[*map(float, outputs.min(0)), *map(float, outputs.max(0))],
         rls_prior_cov=None,
         rls_p0=1.0,
         rls_fixed=orders is not None,

@@ -83,3 +83,30 @@ def test_rows_before_the_first_and_a_record_at_rest_set_no_bounds():
     y[0, :15, 0] = 1.5
     low, high = fill_bounds(y)
     assert torch.isinf(low).all() and torch.isinf(high).all()
+
+
+def test_a_known_range_widens_the_bounds_from_step_zero():
+    """known_range: the outputs measured before the record count as seen from step 0 (closed form)."""
+    y = measured_then_missing(measured=3)  # 3 measured: alone, fewer than FILL_MIN_SEEN
+    known = torch.tensor([[-4.0], [6.0]], dtype=torch.float64)
+    low, high = fill_bounds(y, known_range=known)
+    seen = y[0, :3, 0]
+    lo, hi = min(float(seen.min()), -4.0), max(float(seen.max()), 6.0)
+    span = FILL_MARGIN * (hi - lo)
+    np.testing.assert_allclose(low[0, :, 0].numpy(), lo - span)
+    np.testing.assert_allclose(high[0, :, 0].numpy(), hi + span)
+    inside = torch.tensor([[0.0], [0.5]], dtype=torch.float64)  # within the record's own range: no change
+    y = measured_then_missing(measured=15)
+    torch.testing.assert_close(fill_bounds(y, known_range=inside)[0][:, 14:], fill_bounds(y)[0][:, 14:])
+
+
+def test_the_free_run_is_held_within_the_known_range_not_the_records_own():
+    """The bounded free run of the unstable AR(1) reaches the known range's bound, beyond the record's."""
+    y = measured_then_missing()
+    prior = (torch.tensor([[UNSTABLE]], dtype=torch.float64), 1e-12)
+    known = torch.tensor([[-30.0], [30.0]], dtype=torch.float64)
+    got = arx_predict(y, None, 1, 1, prior=prior, bounded=0, known_range=known)[0, :, 0].numpy()
+    lo, hi = -30.0, 30.0
+    expect = free_run(y[0, :, 0].numpy(), UNSTABLE, lo - 2 * (hi - lo), hi + 2 * (hi - lo))
+    np.testing.assert_allclose(got[11:], expect[11:], rtol=1e-9, atol=1e-9)
+    assert np.abs(got).max() > 100  # beyond the record's own bounds (its span is under 2)

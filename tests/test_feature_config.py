@@ -22,7 +22,8 @@ SAVED_ORDER = (
     *("arch", "num_layers", "num_heads", "width", "context", "input_dim", "output_dim", "readout"),
     *("dropout", "position", "input_scale", "record_norm", "residual_scale", "record_moments"),
     *("record_prior_steps", "residual_decay", "rls_order", "arx_order", "rls_offset", "rls_cubes"),
-    *("rls_prior", "rls_prior_cov", "rls_prior_weights", "rls_prior_noise", "rls_fixed", "rls_p0"),
+    *("rls_prior", "rls_prior_cov", "rls_prior_weights", "rls_prior_noise", "rls_fixed", "rls_fill_range"),
+    "rls_p0",
     "output_units",
     *("input_units", "features", "observation_mask", "forecast_mode", "horizons", "horizon_loss", "gap_loss"),
 )
@@ -31,12 +32,20 @@ SAVED_DEFAULTS = {
     **{"input_scale": "none", "record_norm": "none", "residual_scale": "none", "record_moments": "measured"},
     **{"record_prior_steps": 0, "residual_decay": 0.5, "rls_order": 0, "arx_order": 0, "rls_offset": False},
     **{"rls_cubes": 0, "rls_prior": "none", "rls_prior_cov": None, "rls_prior_weights": None},
-    **{"rls_prior_noise": 0.0, "rls_fixed": False, "rls_p0": 1.0, "output_units": None, "input_units": None},
+    **{
+        "rls_prior_noise": 0.0,
+        "rls_fixed": False,
+        "rls_fill_range": None,
+        "rls_p0": 1.0,
+        "output_units": None,
+        "input_units": None,
+    },
     **{"features": "given", "observation_mask": False},
 }
 # (front-end settings, a word of the message both refuse them with)
 BAD_FRONT_ENDS = [
     ({"rls_p0": 0.0}, "rls_p0"),
+    ({"rls_fill_range": [0.0]}, "rls_fill_range"),
     ({"rls_prior_weights": [1.0]}, "rls_prior_noise"),
     ({"output_units": [-1.0]}, "output_units"),
     ({"residual_decay": 1.0}, "residual_decay"),

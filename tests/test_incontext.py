@@ -296,3 +296,31 @@ def test_a_long_reading_stays_at_the_fit_over_the_whole_context():
         theta = fit_narx([((context.y - my) / sy, (context.u - mu) / su)], 20, 20, 0)
         ref = simulate_narx(theta, (test.y - my) / sy, (test.u - mu) / su, 20, 20, 0, 50) * sy + my
         np.testing.assert_allclose(sim, ref, atol=0.001 * float(test.y.std()))
+
+
+def test_the_fitted_feature_simulates_beyond_the_tests_first_outputs_as_the_arx_does(lti):
+    """A test whose first 50 outputs sit near one level, then an input step that moves the plant across the
+    range the context has shown: the fit reading at gain 0 is the least-squares ARX(2, 2) of the context
+    simulated (numpy, mop.identify.cubic) to 1e-3 of the outputs' std. Held within the test's first outputs'
+    range alone (before model.rls_fill_range), the feature stopped at a fraction of the step (a cascaded
+    tanks' record: held at 7.3 V while the level rose to 10 V)."""
+    model, _ = lti
+    rng = np.random.default_rng(5)
+    a1, a2, b1, b2 = 1.5, -0.6, 0.3, 0.2  # y_t = a1 y_{t-1} + a2 y_{t-2} + b1 u_{t-1} + b2 u_{t-2} + 1 + e_t
+
+    def plant(u):
+        y = np.zeros(len(u))
+        for t in range(2, len(u)):
+            y[t] = a1 * y[t - 1] + a2 * y[t - 2] + b1 * u[t - 1] + b2 * u[t - 2] + 1 + 0.01 * rng.normal()
+        return y[:, None]
+
+    u_ctx = np.repeat(rng.uniform(-2, 2, 60), 20)[:, None]  # steps across the range
+    u_test = np.concatenate([np.full(200, -1.5), np.full(400, 1.8)])[:, None]
+    u_test = u_test + 0.05 * rng.normal(size=(600, 1))
+    context, test = Record(y=plant(u_ctx[:, 0]), u=u_ctx), Record(y=plant(u_test[:, 0]), u=u_test)
+    sim = simulate_all(fitted_to_context(model, [context], 0.0, orders=(2, 2)), [test.pair], 50)[0]
+    my, sy, mu, su = context.y.mean(0), context.y.std(0), context.u.mean(0), context.u.std(0)
+    theta = fit_narx([((context.y - my) / sy, (context.u - mu) / su)], 2, 2, 0)
+    ref = simulate_narx(theta, (test.y - my) / sy, (test.u - mu) / su, 2, 2, 0, 50) * sy + my
+    assert np.ptp(test.y[200:]) > 5 * np.ptp(test.y[:50])  # the step leaves the first outputs' range
+    np.testing.assert_allclose(sim, ref, atol=1e-3 * float(test.y.std()))

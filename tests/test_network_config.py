@@ -29,6 +29,7 @@ MODEL_KEYS = (
     "arch num_layers num_heads width context input_dim output_dim readout dropout position "
     "input_scale record_norm residual_scale record_moments record_prior_steps residual_decay rls_order "
     "arx_order rls_offset rls_cubes rls_prior rls_prior_cov rls_prior_weights rls_prior_noise rls_fixed "
+    "rls_fill_range "
     "rls_p0 output_units input_units features observation_mask forecast_mode horizons horizon_loss gap_loss"
 ).split()
 READOUT_KEYS = ("forecast_mode", "horizons", "horizon_loss", "gap_loss")

@@ -81,6 +81,7 @@ def _arx_run(
     updates_from: int | None = None,
     bounded: int | None = None,
     cubes: int = 0,
+    known_range: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """(yhat (B, T, m), phi (B, T, d), {t: theta (B, d, m) used for yhat_t, t >= r + 1}).
 
@@ -95,7 +96,7 @@ def _arx_run(
     r = p if u is None else max(p, q)
     if torch.isnan(y).any():
         extra = known_regressors(y, u, q, offset)
-        return _rls_run_gaps(y, p, extra, r, prior, updates_from, bounded, cubes)
+        return _rls_run_gaps(y, p, extra, r, prior, updates_from, bounded, cubes, known_range)
     return rls_loop(y, arx_regressors(y, u, p, q, offset, cubes), r, prior, updates_from)
 
 
@@ -109,6 +110,7 @@ def arx_predict(
     updates_from: int | None = None,
     bounded: int | None = None,
     cubes: int = 0,
+    known_range: Tensor | None = None,
 ) -> Tensor:
     """One-step ARX(p, q) predictions yhat (B, T, m) for y (B, T, m), u (B, T, k) or None; offset: with a
     constant regressor (an intercept); prior: theta_0 (d, m) and P_0 of the recursion (rls_loop);
@@ -116,8 +118,9 @@ def arx_predict(
     index, None: not bounded): where outputs are missing, the predictions that read filled-in ones are held
     within the range of the outputs measured from that row on, widened by twice its span
     (mop.filters.rls._rls_run_gaps); cubes: with the cubes of the first `cubes` output lags
-    (arx_regressors)."""
-    return _arx_run(y, u, p, q, offset, prior, updates_from, bounded, cubes)[0]
+    (arx_regressors); known_range (2, m): the outputs' range measured before the record, within which the
+    bounded predictions are held too (mop.filters.rls.fill_bounds)."""
+    return _arx_run(y, u, p, q, offset, prior, updates_from, bounded, cubes, known_range)[0]
 
 
 def arx_forecast(

@@ -128,6 +128,7 @@ def _rls_run_gaps(
     updates_from: int | None = None,
     bounded: int | None = None,
     cubes: int = 0,
+    known_range: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, Tensor]]:
     """_rls_run for y (B, T, m) with NaN where an output is missing; cubes: the output regressors followed
     by the cubes of the first `cubes` lags (mop.filters.arx.arx_regressors), of the filled outputs alike.
@@ -145,7 +146,8 @@ def _rls_run_gaps(
     channel has 10 of them and s > 0 (fill_bounds). An ARX fitted on a few steps can be unstable, and its
     free run then leaves every range the record has shown (pretrained:wiener-hammerstein simulating a record
     after 50 steps reached 1e13, then NaN); the baselines keep the plain recursion (bounded=None), the
-    learned models' features bound it.
+    learned models' features bound it. known_range (2, m): the least and greatest outputs measured before
+    the record (fill_bounds).
 
     Every pair that updates is made of measured values, so the fit is one recursion over regressors built
     in advance (steps where no system updates, a simulated tail, are skipped), and the filling is a second
@@ -202,7 +204,7 @@ def _rls_run_gaps(
     # the steps whose prediction reads a filled-in output: y~_{t-1} (t <= start) or phi_{t-1} (t > start)
     reads = torch.where(idx[None, :-1] < start, missing[:, :-1], in_phi[:, :-1])  # for t = 1 .. T-1
     redo = torch.cat([reads.new_zeros(B, 1), reads], 1) > 0  # (B, T)
-    low, high = (None, None) if bounded is None else fill_bounds(y, bounded)
+    low, high = (None, None) if bounded is None else fill_bounds(y, bounded, known_range)
     for t in torch.nonzero(redo.any(0)).flatten().tolist():
         if t <= start:
             pred = filled[:, t - 1]
@@ -230,16 +232,25 @@ FILL_MARGIN = 2.0
 FILL_MIN_SEEN = 10
 
 
-def fill_bounds(y: Tensor, first: int = 0) -> tuple[Tensor, Tensor]:
+def fill_bounds(y: Tensor, first: int = 0, known_range: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """(low, high) (B, T, m) for y (B, T, m) with NaN where missing: lo_t - w s_t and hi_t + w s_t, lo_t and
     hi_t the least and greatest measured y_s, first <= s <= t, per channel, s_t = hi_t - lo_t, w =
     FILL_MARGIN; -inf and inf while the channel has fewer than FILL_MIN_SEEN such outputs or s_t = 0 (a
-    record at rest says nothing of its range)."""
+    record at rest says nothing of its range). known_range (2, m): the least and greatest outputs measured
+    before the record (an estimation record read in context), counted as seen from step 0: a test whose
+    first outputs span a fraction of the plant's range is otherwise held within a few of their spans (the
+    cascaded tanks' fitted ARX, from 50 test outputs near 3.9 V, held at 7.3 V while the level rose to
+    10 V)."""
     seen = ~torch.isnan(y)
     seen[:, :first] = False
     hi = torch.where(seen, y, -torch.inf).cummax(dim=1).values
     lo = torch.where(seen, y, torch.inf).cummin(dim=1).values
-    known = (seen.cumsum(dim=1) >= FILL_MIN_SEEN) & (hi > lo)
+    count = seen.cumsum(dim=1)
+    if known_range is not None:
+        known_range = known_range.to(y)
+        lo, hi = torch.minimum(lo, known_range[0]), torch.maximum(hi, known_range[1])
+        count = count + FILL_MIN_SEEN
+    known = (count >= FILL_MIN_SEEN) & (hi > lo)
     span = torch.where(known, FILL_MARGIN * (hi - lo), torch.zeros_like(hi))
     return torch.where(known, lo - span, -torch.inf), torch.where(known, hi + span, torch.inf)
 

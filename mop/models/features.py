@@ -220,6 +220,7 @@ def rls_next(
     updates_from: int | None = None,
     bounds_from: int = 0,
     cubes: int = 0,
+    known_range: Tensor | None = None,
 ) -> Tensor:
     """r (B, T, m): r[:, t] is the RLS-AR(order) prediction of y_{t+1} from y_0..y_t, for y (B, T, m); with
     u (B, T, k) and input_order q > 0 the ARX(order, q) prediction from y_0..y_t and u_0..u_t; offset: with
@@ -228,14 +229,15 @@ def rls_next(
     y_s whose pair updates the fit (mop.filters.arx.arx_predict; default max(order, q)). Where y is missing
     (NaN) the recursion fills it with its own predictions held within the range of the outputs measured
     from row bounds_from on, widened by twice its span (arx_predict's bounded): a free run from an unstable
-    fit stays finite. With u = None, q = 1 and no offset or prior it is the paper's matrix RLS
+    fit stays finite (known_range (2, m): and within the range of outputs measured before the record,
+    model.rls_fill_range). With u = None, q = 1 and no offset or prior it is the paper's matrix RLS
     (mop.filters.rls.rls_predict)."""
     pad = lambda a: torch.cat([a, a.new_zeros(a.shape[0], 1, a.shape[2])], dim=1).double()  # noqa: E731
     u_lags = pad(u) if input_order > 0 else None  # the pad rows are never read
     if isinstance(prior, MixturePrior):  # complete outputs, no offset (check_features)
         return mixture_predict(pad(y), u_lags, order, input_order, prior)[:, 1:].to(y.dtype)
     q = max(input_order, 1)
-    r = arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from, bounded=bounds_from, cubes=cubes)
+    r = arx_predict(pad(y), u_lags, order, q, offset, prior, updates_from, bounds_from, cubes, known_range)
     return r[:, 1:].to(y.dtype)  # (B, T, m)
 
 
@@ -363,8 +365,16 @@ def fitted_start(ys: Tensor, us: Tensor | None, cfg: ModelConfig, prior: Prior |
         updates_from=2 * r,
         bounds_from=r,
         cubes=cfg.rls_cubes,
+        known_range=fill_range(cfg),
     )
     return rs[:, r:]
+
+
+def fill_range(cfg: ModelConfig) -> Tensor | None:
+    """model.rls_fill_range as (2, m) float64 (lows, highs), or None."""
+    if cfg.rls_fill_range is None:
+        return None
+    return torch.tensor(cfg.rls_fill_range, dtype=torch.float64).reshape(2, cfg.output_dim)
 
 
 def _record_assemble(

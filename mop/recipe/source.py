@@ -23,7 +23,15 @@ from mop.pretrained import resolve_run_dir
 from mop.runs import load_config, retrain_hint
 
 # the feature's starting coefficients: data the run fits (model.rls_prior=fit), no weights of the network
-PRIOR_KEYS = ("rls_prior", "rls_prior_cov", "rls_p0", "rls_prior_weights", "rls_prior_noise", "rls_fixed")
+PRIOR_KEYS = (
+    "rls_prior",
+    "rls_prior_cov",
+    "rls_p0",
+    "rls_prior_weights",
+    "rls_prior_noise",
+    "rls_fixed",
+    "rls_fill_range",
+)
 # how the training loss weighs positions: a choice of the fine-tune, no part of the network
 LOSS_KEYS = ("gap_loss", "horizon_loss")
 # record_norm's start from the estimation record's moments: data the fine-tune knows, no weights
