@@ -72,13 +72,18 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def mop_step(config: RunConfig, device: torch.device):
+def _mop_parts(config: RunConfig, device: torch.device):
+    """(resolved config, model, optimizer, loss_fn, data) of mop's trainer, seeded as every run here."""
     config = mt.resolve_config(config)
     torch.manual_seed(0)
     model = build_model(config.model).to(device).train()
     optimizer = mt.make_optimizer(model, config.train, device)
     loss_fn = mt.maybe_compile(mt.LossModule(model), config.train, device)
-    data = mt.TrainingData(config, device)
+    return config, model, optimizer, loss_fn, mt.TrainingData(config, device)
+
+
+def mop_step(config: RunConfig, device: torch.device):
+    config, model, optimizer, loss_fn, data = _mop_parts(config, device)
     return lambda: mt.train_step(model, loss_fn, optimizer, *data.batch(), config.train, device)
 
 
@@ -96,12 +101,7 @@ def phased_training(
 ) -> tuple[dict[str, float], nn.Module]:
     """warmup + steps steps of mop.train.train_step taken phase by phase: (mean ms per phase over the last
     `steps`, the trained model). The same updates as train_step (tests/test_bench_train.py)."""
-    config = mt.resolve_config(config)
-    torch.manual_seed(0)
-    model = build_model(config.model).to(device).train()
-    optimizer = mt.make_optimizer(model, config.train, device)
-    loss_fn = mt.maybe_compile(mt.LossModule(model), config.train, device)
-    data = mt.TrainingData(config, device)
+    config, model, optimizer, loss_fn, data = _mop_parts(config, device)
     cfg = config.train
     totals = dict.fromkeys(PHASES, 0.0)
 
