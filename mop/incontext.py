@@ -166,7 +166,6 @@ def fitted_to_context(
     context: Sequence[Record],
     gain: float = 1.0,
     orders: tuple[int, int] | None = None,
-    context_range: bool | None = None,
 ):
     """The class model with its feature's coefficients fitted by least squares on every context record
     (in context_normalization's units) and its correction times `gain` (see the module docstring): a new
@@ -175,9 +174,9 @@ def fitted_to_context(
     which then stays at its fit (model.rls_fixed, as the records recipe's and a fine-tune's long ARX): from
     P_0 = I the test's first outputs would move its many coefficients (a three-output ARX(40, 40) has 161 an
     output) away from the fit over the whole context; on the F-16's three accelerations that simulated the
-    context's held-out end at 9.3 m/s^2 against 1.15 for the model's own orders). context_range (default:
-    at gain 0): the feature's free run is held within the range of the context's outputs and the record's
-    (model.rls_fill_range), not the record's alone. At gain 0 the reading is the fitted ARX / NARX itself,
+    context's held-out end at 9.3 m/s^2 against 1.15 for the model's own orders). At gain 0 the feature's
+    free run is held within the range of the context's outputs and the record's (with_context_range), not
+    the record's alone. At gain 0 the reading is the fitted ARX / NARX itself,
     and the record's first outputs may span a fraction of the plant's range (the real cascaded tanks: held
     at 7.3 V while the level rose to 10 V; test RMSE 0.853 V, the same fit unbounded 0.630). With the
     network's correction the feature stays bounded as the class model was trained, by its window's outputs:
@@ -186,24 +185,38 @@ def fitted_to_context(
     cfg, norm = predictor.cfg, context_normalization(context)
     if orders is not None:
         cfg = dataclasses.replace(cfg, rls_order=orders[0], arx_order=orders[1])
-    parts, m = _normalised(context), cfg.output_dim
-    theta = least_squares_coefficients(parts, m, cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes)
-    outputs = np.concatenate([a[:, :m] for a in parts])  # the context's outputs, in the fit's units
-    bounds = [*map(float, outputs.min(0)), *map(float, outputs.max(0))]
+    theta = least_squares_coefficients(
+        _normalised(context), cfg.output_dim, cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes
+    )
     fitted = dataclasses.replace(
         cfg,
         rls_prior=[float(v) for v in theta.reshape(-1)],
-        rls_fill_range=bounds if (gain == 0 if context_range is None else context_range) else None,
         rls_prior_cov=None,
         rls_p0=1.0,
         rls_fixed=orders is not None,
         record_prior_steps=RECORD_PRIOR_STEPS,
     )
+    done = _rebuilt(predictor, fitted, norm)
+    return with_context_range(done, context) if gain == 0 else with_gain(done, gain)
+
+
+def with_context_range(fitted: LearnedPredictor, context: Sequence[Record]) -> LearnedPredictor:
+    """A predictor fitted to `context` (fitted_to_context, gain 0 or 1) at gain 0, its feature's free run
+    held within the context's outputs too (model.rls_fill_range, in the fit's units)."""
+    m = fitted.cfg.output_dim
+    outputs = np.concatenate([a[:, :m] for a in _normalised(context)])
+    bounds = [*map(float, outputs.min(0)), *map(float, outputs.max(0))]
+    cfg = dataclasses.replace(fitted.cfg, rls_fill_range=bounds)
+    return with_gain(_rebuilt(fitted, cfg, fitted.normalization), 0.0)
+
+
+def _rebuilt(predictor: LearnedPredictor, cfg, normalization) -> LearnedPredictor:
+    """predictor's weights in a model built from cfg (its architecture's), on the same device and dtype."""
     weights = next(predictor.model.parameters())
-    model = build_model(fitted).to(device=weights.device, dtype=weights.dtype)
+    model = build_model(cfg).to(device=weights.device, dtype=weights.dtype)
     model.load_state_dict(predictor.model.state_dict())
-    return with_gain(
-        LearnedPredictor(model.eval(), name=predictor.name, mode=predictor.mode, normalization=norm), gain
+    return LearnedPredictor(
+        model.eval(), name=predictor.name, mode=predictor.mode, normalization=normalization
     )
 
 
@@ -244,18 +257,18 @@ def _window(predictor, test: Record, init: int, source: Record) -> tuple[np.ndar
 def _read(
     predictor, test: Record, init: int, context: Sequence[Record], reading: str, fitted=None
 ) -> tuple[np.ndarray, int]:
-    """(simulation of test from init, context steps read) for one reading; fitted: {(orders, gain == 0): the
-    predictor fitted to this context at gain 1 (fitted_to_context)}, filled in as they are made."""
+    """(simulation of test from init, context steps read) for one reading; fitted: {orders: the predictor
+    fitted to this context at gain 1 (fitted_to_context)}, filled in as they are made."""
     if reading == "none":
         return _simulate(predictor, test, init), 0
     if reading == "window":
         return _window(predictor, test, init, context[-1])
     fitted = {} if fitted is None else fitted
     orders, gain = reading_orders(reading), float(reading.rpartition(" ")[2])
-    key = (orders, gain == 0)  # at gain 0 the feature alone, held within the context's range too
-    if key not in fitted:
-        fitted[key] = fitted_to_context(predictor, context, orders=orders, context_range=gain == 0)
-    return _simulate(with_gain(fitted[key], gain), test, init), sum(len(r) for r in context)
+    if orders not in fitted:
+        fitted[orders] = fitted_to_context(predictor, context, orders=orders)
+    read = with_context_range(fitted[orders], context) if gain == 0 else with_gain(fitted[orders], gain)
+    return _simulate(read, test, init), sum(len(r) for r in context)
 
 
 def reading_orders(reading: str) -> tuple[int, int] | None:
