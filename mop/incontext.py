@@ -18,9 +18,11 @@ model has read the context records. There are three readings:
   starts at step 0, mop.recipe.finetune.with_record_prior), and its network's correction scaled by a gain
   g in GAINS (0: the fitted feature alone, 1: the class model as trained; mop.recipe.shrink). So the model's
   context is the whole estimation record, not its last C steps, with no training. Where the context is long
-  enough to support a longer linear ARX than the model's own (long_orders: the records recipe's rule,
+  enough to support a longer linear ARX than the model's own (context_orders: the records recipe's rule,
   mop.identify.long_arx), the readings "fit ARX(P, P) gain G" fit that one instead (the network reads the
-  feature's prediction, whatever its orders).
+  feature's prediction, whatever its orders); where it is too short for that, "fit ARX(p, q) gain G" read
+  it with the orders `mop fit arx` picks on it (on the real cascaded tanks ARX(2, 10) where the class
+  models' own is ARX(10, 10)).
 
 Which reading: each is measured on the context itself before the test is touched. The last context
 record's last H steps (H = min(len / 4, 2000)) are simulated from their first `init` outputs after the
@@ -57,7 +59,9 @@ import torch
 
 from mop.errors import MopError
 from mop.filters.arx import least_squares_coefficients
+from mop.identify.arx import ARX
 from mop.identify.long_arx import choose_long_orders
+from mop.identify.select import fit as fit_identifier
 from mop.models.normalization import Normalization
 from mop.models.predictor import LearnedPredictor
 from mop.models.registry import build_model
@@ -72,6 +76,10 @@ HELD_OUT_MAX = 2000  # the held-out end of the context: at most this many steps,
 # gives way to the next best (the test itself left them by at most 0.08 ranges on 40 held-out Duffing
 # oscillators; the readings that gave way 0.8-48)
 STRAY_FACTOR = 0.5
+# the orders `mop fit arx` picks are searched on contexts up to this many steps: its grid of 100 fits and
+# free runs took about 1 s on the cascaded tanks' 1024 steps and 268 s on the F-16's 294,912 (whose context
+# supports the longer ARX anyway)
+SEARCH_MAX_STEPS = 20000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,18 +154,27 @@ def _normalised(context: Sequence[Record]) -> list[np.ndarray]:
     return [norm.inputs(torch.from_numpy(joined(r).astype(np.float64))[None])[0].numpy() for r in context]
 
 
-def long_orders(predictor, context: Sequence[Record]) -> tuple[int, int] | None:
-    """(P, P): a longer ARX than the class model's own linear ARX(p, q) feature where the context is long
-    enough and it simulates the held-out end of the context records better (the records recipe's rule,
-    mop.identify.long_arx.choose_long_orders, P at most half the model's context); None otherwise (a cubic
-    feature, a feature without inputs, a short context)."""
+def context_orders(predictor, context: Sequence[Record]) -> tuple[int, int] | None:
+    """Other orders (p, q) for the class model's linear ARX feature, read from the context:
+    - where the context is long enough for a longer ARX(P, P), that one if it simulates the held-out end of
+      the context records better (the records recipe's rule, mop.identify.long_arx.choose_long_orders, P at
+      most half the model's context);
+    - where it is too short for any (and at most SEARCH_MAX_STEPS steps), the orders `mop fit arx` picks on
+      it (mop.identify.select.fit: its grid up to ARX(10, 10), scored by simulating each record's last 20%).
+    None where those are the model's own, and for a cubic feature or one without inputs."""
     cfg = getattr(predictor, "cfg", None)
     if not fits_context(predictor) or cfg.rls_cubes or cfg.arx_order == 0:
         return None
     m = cfg.output_dim
     parts = [(a[:, :m], a[:, m:]) for a in _normalised(context)]
     orders = (cfg.rls_order, cfg.arx_order)
-    p, q, _ = choose_long_orders(parts, *orders, max_order=cfg.context // 2)
+    p, q, scores = choose_long_orders(parts, *orders, max_order=cfg.context // 2)
+    if not scores and sum(len(r) for r in context) <= SEARCH_MAX_STEPS:
+        try:
+            found = fit_identifier(ARX.kind, [r.pair for r in context], source="the context").orders
+        except MopError:  # too short for the grid, or every order diverged: the model's own
+            return None
+        p, q = found["p"], found["q"]
     return None if (p, q) == orders else (p, q)
 
 
@@ -170,7 +187,7 @@ def fitted_to_context(
     """The class model with its feature's coefficients fitted by least squares on every context record
     (in context_normalization's units) and its correction times `gain` (see the module docstring): a new
     LearnedPredictor in the data's units; the predictor given is not changed. orders: the feature's (p, q)
-    instead of the model's own (long_orders; its input is the feature's prediction whatever its orders),
+    instead of the model's own (context_orders; its input is the feature's prediction whatever its orders),
     which then stays at its fit (model.rls_fixed, as the records recipe's and a fine-tune's long ARX): from
     P_0 = I the test's first outputs would move its many coefficients (a three-output ARX(40, 40) has 161 an
     output) away from the fit over the whole context; on the F-16's three accelerations that simulated the
@@ -186,7 +203,12 @@ def fitted_to_context(
     if orders is not None:
         cfg = dataclasses.replace(cfg, rls_order=orders[0], arx_order=orders[1])
     theta = least_squares_coefficients(
-        _normalised(context), cfg.output_dim, cfg.rls_order, cfg.arx_order, cfg.rls_offset, cfg.rls_cubes
+        _normalised(context),
+        cfg.output_dim,
+        cfg.rls_order,
+        cfg.arx_order,
+        cfg.rls_offset,
+        cfg.rls_cubes,
     )
     fitted = dataclasses.replace(
         cfg,
@@ -271,6 +293,18 @@ def _read(
     return _simulate(read, test, init), sum(len(r) for r in context)
 
 
+def _with_orders(reading: str, orders: tuple[int, int] | None) -> str:
+    """A "fit ARX(P, Q) gain G" reading with the orders `orders` instead (None: the model's own, "fit gain
+    G"); other readings as they are. The held-out check chooses how to read the context (its orders read
+    on the context before the held-out end); the test is read that way from the whole context: the orders
+    too (on the real cascaded tanks `mop fit arx` picks ARX(1, 9) on the first 768 steps, ARX(2, 10) on all
+    1024; test 0.6377 against 0.6143 V)."""
+    if reading_orders(reading) is None:
+        return reading
+    gain = reading.rpartition(" ")[2]
+    return f"fit gain {gain}" if orders is None else f"fit ARX({orders[0]}, {orders[1]}) gain {gain}"
+
+
 def reading_orders(reading: str) -> tuple[int, int] | None:
     """The feature's orders a "fit ARX(P, Q) gain G" reading names; None for "fit gain G" (the model's)."""
     found = re.match(r"fit ARX\((\d+), (\d+)\)", reading)
@@ -278,8 +312,8 @@ def reading_orders(reading: str) -> tuple[int, int] | None:
 
 
 def readings(predictor, orders: tuple[int, int] | None = None) -> list[str]:
-    """The readings a predictor can take, in their order of preference on ties; orders: long_orders's, whose
-    "fit ARX(P, P) gain G" readings come last."""
+    """The readings a predictor can take, in their order of preference on ties; orders: context_orders's,
+    whose "fit ARX(p, q) gain G" readings come last."""
     fit = [f"fit gain {g:g}" for g in GAINS] if fits_context(predictor) else []
     named = [] if orders is None or not fit else [f"fit ARX({orders[0]}, {orders[1]})"]
     long = [f"{name} gain {g:g}" for name in named for g in GAINS]
@@ -305,9 +339,12 @@ def simulate_with_context(
         end = source[len(source) - h :]
         before = [*context[:-1], source[: len(source) - h]]
         fitted = {}
-        for reading in readings(predictor, long_orders(predictor, before)):
+        for reading in readings(predictor, context_orders(predictor, before)):
             scores[reading] = _rmse(end.y, _read(predictor, end, init, before, reading, fitted)[0])
     ranked = sorted(scores, key=lambda r: (scores[r], list(scores).index(r))) or ["none"]
+    if any(reading_orders(r) is not None for r in ranked):  # orders read on the whole context, as its fit
+        whole = context_orders(predictor, context)
+        ranked = list(dict.fromkeys(_with_orders(r, whole) for r in ranked))
     seen = np.concatenate([*(r.y for r in context), test.y[:init]])  # the outputs measured before the run
     dropped, fitted, sims = [], {}, {}
     for reading in ranked:

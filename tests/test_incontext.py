@@ -10,7 +10,17 @@ import pytest
 from mop.cli import main
 from mop.errors import MopError
 from mop.identify.cubic import fit_narx, simulate_narx
-from mop.incontext import context_limit, fitted_to_context, reading_line, readings, simulate_with_context
+from mop.identify.select import fit
+from mop.incontext import (
+    _with_orders,
+    context_limit,
+    context_orders,
+    fitted_to_context,
+    reading_line,
+    reading_orders,
+    readings,
+    simulate_with_context,
+)
 from mop.predictors import make_predictor
 from mop.record import Record
 from mop.records import simulate_all
@@ -129,23 +139,27 @@ def test_fit_reading_at_gain_zero_is_the_least_squares_arx_of_the_whole_context(
 
 @pytest.mark.parametrize("noise_std", [0.0, 0.1])
 def test_a_context_longer_than_the_model_is_read_whole(lti, noise_std):
-    """8 systems, a context of 2400 steps: the chosen reading is the one with the lowest held-out score, its
-    simulation is exactly that reading's, and on average it simulates the test no worse than the last
-    window alone (noise-free, measured: RMSE 0.000107 against 0.000120, the ARX exact either way); with
-    measurement noise (std 0.1) every system reads the context as the feature's fit, below the window
-    (measured 0.1004 against 0.1060, both over the noise floor of about 0.1)."""
+    """8 systems, a context of 2400 steps: the chosen reading is the one with the lowest held-out score (its
+    orders, if it names any, read again on the whole context), its simulation is exactly that reading's,
+    and on average it simulates the test no worse than the last window alone (noise-free, measured: RMSE
+    0.000107 against 0.000120, the ARX exact either way); with measurement noise (std 0.1) every system
+    reads the context as the feature's fit, below the window (measured 0.1004 against 0.1060, both over the
+    noise floor of about 0.1)."""
     model, _ = lti
     chosen, window = [], []
     for context, test in long_records(noise_std):
         done = simulate_with_context(model, test, 50, [context])
-        assert done.reading == min(done.held_out, key=done.held_out.get)
+        best = min(done.held_out, key=done.held_out.get)
+        assert done.reading == _with_orders(best, context_orders(model, [context]))
         y = test.y[50:]
         chosen.append(np.sqrt(np.mean((done.simulation - y) ** 2)))
         by_window = simulate_with_context(model, test, 50, [context], choose=False).simulation
         window.append(np.sqrt(np.mean((by_window - y) ** 2)))
         if done.reading.startswith("fit"):
             gain = float(done.reading.rpartition(" ")[2])
-            again = simulate_all(fitted_to_context(model, [context], gain), [test.pair], 50)[0]
+            orders = reading_orders(done.reading)
+            again = fitted_to_context(model, [context], gain, orders=orders)
+            again = simulate_all(again, [test.pair], 50)[0]
             np.testing.assert_array_equal(done.simulation, again)
             assert done.context_steps == 2400
         elif noise_std > 0:
@@ -324,3 +338,32 @@ def test_the_fitted_feature_simulates_beyond_the_tests_first_outputs_as_the_arx_
     ref = simulate_narx(theta, (test.y - my) / sy, (test.u - mu) / su, 2, 2, 0, 50) * sy + my
     assert np.ptp(test.y[200:]) > 5 * np.ptp(test.y[:50])  # the step leaves the first outputs' range
     np.testing.assert_allclose(sim, ref, atol=1e-3 * float(test.y.std()))
+
+
+def test_a_short_context_is_read_with_the_orders_mop_fit_arx_picks(lti):
+    """A 600-step context of an ARX(2, 2) plant, too short for a longer ARX than lti-siso's own ARX(15, 15):
+    context_orders are the orders `mop fit arx` picks on it, the fit reading at gain 0 with them simulates
+    the test as the ARX `mop fit arx` fits (mop.identify.arx: numpy's lstsq, its own simulation) to 1e-3 of
+    the outputs' std, and the chosen reading's orders are those read on the whole context (the held-out
+    check read the context before its end as ARX(2, 2))."""
+    model, _ = lti
+    rng = np.random.default_rng(11)
+
+    def plant(u):
+        y = np.zeros(len(u))
+        for t in range(2, len(u)):
+            e = 0.02 * rng.normal()
+            y[t] = 1.2 * y[t - 1] - 0.5 * y[t - 2] + 0.8 * u[t - 1] + 0.3 * u[t - 2] + 0.5 + e
+        return y[:, None]
+
+    u = rng.normal(size=1000)
+    record = Record(y=plant(u), u=u[:, None])
+    context, test = record[:600], record[600:]
+    orders = context_orders(model, [context])
+    arx = fit("arx", [context.pair])
+    assert orders == (arx.orders["p"], arx.orders["q"]) != (15, 15)
+    sim = simulate_all(fitted_to_context(model, [context], 0.0, orders=orders), [test.pair], 50)[0]
+    np.testing.assert_allclose(sim, simulate_all(arx, [test.pair], 50)[0], atol=1e-3 * float(test.y.std()))
+    done = simulate_with_context(model, test, 50, [context])  # chosen on the held-out end: ARX(2, 2) gain 1
+    assert reading_orders(done.reading) == orders  # read on the whole context: ARX(5, 1)
+    assert "fit ARX(2, 2) gain 1" in done.held_out
