@@ -70,6 +70,7 @@ from mop.recipe.finetune import RECORD_PRIOR_STEPS
 from mop.recipe.shrink import GAINS, scale_correction
 from mop.record import Record
 from mop.records import divergence_step, simulate_all, simulation_rmse
+from mop.train.context import LEAST_SQUARES_RIDGE
 
 HELD_OUT_MAX = 2000  # the held-out end of the context: at most this many steps, at most a quarter of it
 # a reading whose simulation of the test leaves the measured outputs by more than this many of their ranges
@@ -80,6 +81,13 @@ STRAY_FACTOR = 0.5
 # free runs took about 1 s on the cascaded tanks' 1024 steps and 268 s on the F-16's 294,912 (whose context
 # supports the longer ARX anyway)
 SEARCH_MAX_STEPS = 20000
+# `mop fit arx`'s largest orders: a "fit ARX(p, q)" reading of orders up to these is the ARX it fits (the
+# longer ARX starts at mop.identify.long_arx.LONG_ORDERS[0] = 15), fitted as it fits them: the minimum-norm
+# least squares, not the ridge of the class models' own fits (relative 1e-6). On the real cascaded tanks the
+# ten nearly collinear input lags of ARX(2, 10) simulated the test at 0.6299 V with that ridge, 0.6143 V
+# without (`mop fit arx`'s). The longer ARX keeps the ridge: without it, on the F-16's long context,
+# ARX(40, 40) diverged on Level 6
+SEARCH_MAX_ORDER = 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,7 +179,8 @@ def context_orders(predictor, context: Sequence[Record]) -> tuple[int, int] | No
     p, q, scores = choose_long_orders(parts, *orders, max_order=cfg.context // 2)
     if not scores and sum(len(r) for r in context) <= SEARCH_MAX_STEPS:
         try:
-            found = fit_identifier(ARX.kind, [r.pair for r in context], source="the context").orders
+            pairs = [r.pair for r in context]
+            found = fit_identifier(ARX.kind, pairs, max_order=SEARCH_MAX_ORDER, source="the context").orders
         except MopError:  # too short for the grid, or every order diverged: the model's own
             return None
         p, q = found["p"], found["q"]
@@ -202,6 +211,7 @@ def fitted_to_context(
     cfg, norm = predictor.cfg, context_normalization(context)
     if orders is not None:
         cfg = dataclasses.replace(cfg, rls_order=orders[0], arx_order=orders[1])
+    searched = orders is not None and max(orders) <= SEARCH_MAX_ORDER  # `mop fit arx`'s orders, its fit
     theta = least_squares_coefficients(
         _normalised(context),
         cfg.output_dim,
@@ -209,6 +219,7 @@ def fitted_to_context(
         cfg.arx_order,
         cfg.rls_offset,
         cfg.rls_cubes,
+        ridge=0.0 if searched else LEAST_SQUARES_RIDGE,
     )
     fitted = dataclasses.replace(
         cfg,

@@ -56,7 +56,8 @@ def least_squares_coefficients(
     """theta (d, m) of the ARX(p, q) [with c = cubes cubed output lags, an intercept] by least squares over
     every record (L_i, m + k) (outputs then inputs): the pairs (phi_{s-1}, y_s), s >= max(p, q), phi as
     arx_regressors, the rows the RLS / ARX feature of a model regresses on; a ridge of ridge * (pairs) for
-    collinear regressors. MopError where an output is missing."""
+    collinear regressors, or with ridge 0 the minimum-norm least squares (numpy's lstsq, as `mop fit arx`'s
+    mop.identify.arx.fit_theta). MopError where an output is missing."""
     r, rows, targets = max(p, q), [], []
     for a in records:
         z = torch.from_numpy(np.asarray(a, dtype=np.float64))[None]  # (1, L, m + k)
@@ -67,6 +68,8 @@ def least_squares_coefficients(
     phi, target = torch.cat(rows).numpy(), torch.cat(targets).numpy()
     if np.isnan(target).any():
         raise MopError("a least-squares ARX fit needs complete outputs; fill the gaps")
+    if ridge == 0:
+        return np.linalg.lstsq(phi, target, rcond=None)[0]
     gram = phi.T @ phi + ridge * len(phi) * np.eye(phi.shape[1])
     return np.linalg.solve(gram, phi.T @ target)
 
