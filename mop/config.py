@@ -12,7 +12,7 @@ import typing
 from typing import Any, TypeVar
 
 from mop.errors import MopError, check, check_choice, check_int  # noqa: F401  (check: re-exported)
-from mop.feature_config import FEATURE_CONFIG_KEYS, FeatureConfig
+from mop.feature_config import FEATURE_CHOICES, FEATURE_CONFIG_KEYS, FeatureConfig
 from mop.identity import identity
 from mop.network_config import NETWORK_KEYS, NetworkConfig, network_config_class
 from mop.systems.base import SystemConfig, config_class
@@ -94,6 +94,8 @@ def apply_settings(config: T, settings: dict[str, Any]) -> T:
             raise MopError(f"unknown config key {key!r}; known keys here: {', '.join(node)}")
         if leaf == "family" and value != node["family"]:
             _change_family(node, value)
+        if value is None and path == ["model"] and "none" in FEATURE_CHOICES.get(leaf, ()):
+            value = "none"  # model.record_norm=none: the choice named "none", which parse_value reads as null
         node[leaf] = value
     base = SystemConfig if isinstance(config, SystemConfig) else type(config)
     return from_dict(base, data)

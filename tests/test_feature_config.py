@@ -104,3 +104,17 @@ def test_a_read_out_knob_stays_model_configs_and_an_override_reaches_the_front_e
     config = apply_overrides(RunConfig(), ["model.rls_order=3", "model.arx_order=2", "model.rls_offset=true"])
     assert config.model.front_end == FeatureConfig(rls_order=3, arx_order=2, rls_offset=True)
     assert to_dict(config)["model"]["rls_order"] == 3  # saved flat, as before
+
+
+def test_a_front_end_choice_named_none_is_that_choice_on_the_command_line():
+    """model.residual_scale=none is the choice "none" (the command line reads `none` as null, which these
+    string keys do not take); a key that takes null keeps it (model.rls_prior_cov=none)."""
+    feature = ["model.record_norm=causal", "model.rls_order=2", "model.arx_order=2"]
+    start = apply_overrides(RunConfig(), [*feature, "model.residual_scale=running"])
+    assert start.model.residual_scale == "running"
+    config = apply_overrides(
+        start, ["model.residual_scale=none", "model.input_scale=None", "model.rls_prior_cov=none"]
+    )
+    assert config.model.residual_scale == config.model.input_scale == "none"
+    assert apply_overrides(config, ["model.record_norm=NONE"]).model.record_norm == "none"
+    assert config.model.rls_prior_cov is None
