@@ -19,6 +19,7 @@ import hashlib
 import json
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -130,9 +131,16 @@ def save_model(path: str | Path, model: nn.Module) -> None:
     save_tensors(path, model.state_dict(), {"format": "pt"})
 
 
-def load_model_weights(path: str | Path, model: nn.Module, retrain: str = "") -> None:
+def load_model_weights(
+    path: str | Path,
+    model: nn.Module,
+    retrain: str = "",
+    adapt: Callable[[dict[str, Tensor]], dict[str, Tensor]] | None = None,
+) -> None:
+    """Load a model.safetensors into `model`; adapt (optional) maps the stored tensors first (a fine-tune
+    that drops a read-in channel: mop.recipe.source.load_init)."""
     tensors, _ = load_tensors(path, retrain=retrain)
-    _load_state(model, tensors, path)
+    _load_state(model, adapt(tensors) if adapt is not None else tensors, path)
 
 
 def _load_state(model: nn.Module, tensors: dict[str, Tensor], path: str | Path) -> None:

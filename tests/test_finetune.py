@@ -250,3 +250,50 @@ def test_a_cubic_class_model_fine_tunes_with_its_own_lags(tmp_path):
     assert (m.rls_order, m.arx_order, m.rls_cubes) == (10, 10, 10) and m.rls_prior == "fit"
     linear = training_config(None, data=est, init="pretrained:cascaded-tanks").model
     assert (linear.rls_order, linear.arx_order) != (10, 10)  # the linear class takes mop fit arx's orders
+
+
+def test_a_fine_tune_may_drop_the_residual_scale_and_simulate_by_rollout(tmp_path, capsys):
+    """A fine-tune of a model with a residual scale (model.residual_scale, record_norm) may drop it and
+    simulate by feeding its predictions back (model.forecast_mode=rollout): step 0 holds every source
+    weight, the read-in without the columns of log(c_t / std_t(y)), the last output_dim (at lr 1e-30 the
+    weights stay those); adding a residual scale to a source without one is still refused."""
+    first = record(tmp_path / "a.npz", 0)
+    src = tmp_path / "src"
+    own = [
+        "model.record_norm=causal",
+        "model.features=given",
+        "model.rls_order=2",
+        "model.arx_order=2",
+        "model.observation_mask=true",
+        "model.forecast_mode=gap",
+    ]
+    argv = ["train", "--data", first, "--out", str(src), "--no-progress", "train.steps=1", *SMALL, *own]
+    assert main([*argv, "model.residual_scale=running"]) == 0
+    tuned = ["train", "--data", first, "--init", str(src), "--no-progress", "train.steps=1", "train.lr=1e-30"]
+    drop = ["model.residual_scale=none", "model.forecast_mode=rollout"]
+    assert main([*tuned, "--out", str(tmp_path / "ft"), *drop]) == 0
+    saved = json.loads((tmp_path / "ft" / "config.json").read_text())["model"]
+    before = json.loads((src / "config.json").read_text())["model"]
+    assert (before["residual_scale"], before["forecast_mode"]) == ("running", "gap")
+    # config.json leaves defaults out: none and rollout
+    assert (
+        saved.get("residual_scale", "none") == "none" and saved.get("forecast_mode", "rollout") == "rollout"
+    )
+    a, b = weights(src), weights(tmp_path / "ft")
+    assert a.keys() == b.keys()
+    m = 1
+    assert b["read_in.weight"].shape[1] == a["read_in.weight"].shape[1] - m
+    torch.testing.assert_close(b["read_in.weight"], a["read_in.weight"][:, :-m], rtol=0, atol=1e-12)
+    # the held-out check after training may keep the correction at a gain g < 1: the read-out times g
+    kept = json.loads((tmp_path / "ft" / "selection.json").read_text())
+    gain = kept["gain"] if kept["kept"] == "network" else 1.0
+    for k in sorted(a.keys() - {"read_in.weight"}):
+        expected = gain * a[k] if k.startswith("read_out.") else a[k]
+        torch.testing.assert_close(b[k], expected, rtol=0, atol=1e-12, msg=k)
+    plain = tmp_path / "plain"
+    assert main([*argv[:4], str(plain), *argv[5:]]) == 0
+    capsys.readouterr()
+    adding = [*tuned[:4], str(plain), *tuned[5:], "--out", str(tmp_path / "add")]
+    assert main([*adding, "model.residual_scale=running"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "model.residual_scale" in err

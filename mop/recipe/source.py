@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from torch import nn
+from torch import Tensor, nn
 
 from mop.checkpoint import load_model_weights
 from mop.config import ModelConfig, RunConfig
@@ -40,6 +40,9 @@ NORM_KEYS = ("record_prior_steps",)
 # numbers, mop.models.features.extra_input_dim) whatever its orders, so a fine-tune may identify the record
 # with other orders (those `mop fit arx` picks, say) as long as the feature stays of the source's kind
 ORDER_KEYS = ("rls_order", "arx_order", "rls_offset", "rls_cubes")
+# how a trained model simulates past its measured outputs (mop.models.forecast): the outputs read as missing
+# ("gap", a model with an observation mask) or its own predictions fed back ("rollout"); no weights
+FORECAST_KEYS = ("forecast_mode",)
 
 
 def check_init(config: RunConfig) -> None:
@@ -49,9 +52,11 @@ def check_init(config: RunConfig) -> None:
     if not config.train.init:
         return
     source = load_config(config.train.init).model
-    free = PRIOR_KEYS + LOSS_KEYS + NORM_KEYS
+    free = PRIOR_KEYS + LOSS_KEYS + NORM_KEYS + FORECAST_KEYS
     if _feature_kind(source) == _feature_kind(config.model):
         free += ORDER_KEYS
+    if drops_residual_scale(source, config.model):
+        free += ("residual_scale", "residual_decay")
     for field in dataclasses.fields(source):
         if field.name in free:
             continue
@@ -70,7 +75,31 @@ def _feature_kind(model: ModelConfig) -> str:
     return "none" if model.rls_order == 0 else "ARX" if model.arx_order > 0 else "AR"
 
 
+def drops_residual_scale(source: ModelConfig, model: ModelConfig) -> bool:
+    """Whether a fine-tune of `source` into `model` drops the residual scale (model.residual_scale = "none"
+    where the source's is "running" or "measured"; mop.models.features): its correction is then scaled by
+    the record's running std_t(y), as record_norm's is without one, and the read-in loses the m channels of
+    log(c_t / std_t(y)). The residual scale is the feature's recent one-step error; in a free run that feeds
+    the model's own predictions back (model.forecast_mode = "rollout") that error is the correction itself
+    and the scale collapses, so a fine-tune that simulates by rollout drops it."""
+    return (
+        source.record_norm == model.record_norm == "causal"
+        and source.residual_scale != "none"
+        and model.residual_scale == "none"
+    )
+
+
 def load_init(config: RunConfig, model: nn.Module) -> None:
-    """Copy train.init's weights into `model` (in place, so an optimizer built on it keeps its params)."""
+    """Copy train.init's weights into `model` (in place, so an optimizer built on it keeps its params); where
+    the run drops the source's residual scale (drops_residual_scale) the read-in's last output_dim input
+    columns, those of log(c_t / std_t(y)) (mop.models.features._record_assemble), are left out."""
     run_dir = Path(resolve_run_dir(config.train.init))
-    load_model_weights(run_dir / "model.safetensors", model, retrain=retrain_hint(run_dir))
+    source = load_config(config.train.init).model
+    adapt = None
+    if drops_residual_scale(source, config.model):
+        m = source.output_dim
+
+        def adapt(tensors: dict[str, Tensor]) -> dict[str, Tensor]:
+            return {**tensors, "read_in.weight": tensors["read_in.weight"][:, :-m].contiguous()}
+
+    load_model_weights(run_dir / "model.safetensors", model, retrain=retrain_hint(run_dir), adapt=adapt)
