@@ -81,7 +81,8 @@ def drops_residual_scale(source: ModelConfig, model: ModelConfig) -> bool:
     the record's running std_t(y), as record_norm's is without one, and the read-in loses the m channels of
     log(c_t / std_t(y)). The residual scale is the feature's recent one-step error; in a free run that feeds
     the model's own predictions back (model.forecast_mode = "rollout") that error is the correction itself
-    and the scale collapses, so a fine-tune that simulates by rollout drops it."""
+    and the scale fades, so a fine-tune that simulates by rollout may drop it. On the F-16 record this did
+    not make pretrained:lti-siso's correction help (docs/results/benchmarks.md, F-16)."""
     return (
         source.record_norm == model.record_norm == "causal"
         and source.residual_scale != "none"
