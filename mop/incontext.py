@@ -229,8 +229,13 @@ def fitted_to_context(
         rls_fixed=orders is not None,
         record_prior_steps=RECORD_PRIOR_STEPS,
     )
-    done = _rebuilt(predictor, fitted, norm)
-    return with_context_range(done, context) if gain == 0 else with_gain(done, gain)
+    return at_gain(_rebuilt(predictor, fitted, norm), context, gain)
+
+
+def at_gain(fitted: LearnedPredictor, context: Sequence[Record], gain: float) -> LearnedPredictor:
+    """A predictor fitted to `context` at gain 1, its correction times `gain`; at gain 0 (the fitted feature
+    alone) its free run also held within the context's outputs (with_context_range)."""
+    return with_context_range(fitted, context) if gain == 0 else with_gain(fitted, gain)
 
 
 def with_context_range(fitted: LearnedPredictor, context: Sequence[Record]) -> LearnedPredictor:
@@ -300,8 +305,7 @@ def _read(
     orders, gain = reading_orders(reading), float(reading.rpartition(" ")[2])
     if orders not in fitted:
         fitted[orders] = fitted_to_context(predictor, context, orders=orders)
-    read = with_context_range(fitted[orders], context) if gain == 0 else with_gain(fitted[orders], gain)
-    return _simulate(read, test, init), sum(len(r) for r in context)
+    return _simulate(at_gain(fitted[orders], context, gain), test, init), sum(len(r) for r in context)
 
 
 def _with_orders(reading: str, orders: tuple[int, int] | None) -> str:
