@@ -68,6 +68,42 @@ def test_a_training_window_is_a_window_of_the_fit_reading(lti):
     assert torch.isfinite(trained).all()
 
 
+def test_without_record_norm_a_window_is_the_records_recipes_window_of_its_estimation_record(lti):
+    """A network of the records recipe's shape (no record_norm: it reads a record in the record's global
+    units) given each system's prefix coefficients in training predicts as the same network built with those
+    coefficients as its listed model.rls_prior (the fine-tune's start on a record) reads the window in the
+    prefix's units: the feature's prior is each record's fit, P_0 as a listed prior's."""
+    predictor, z = lti
+    cfg = dataclasses.replace(
+        predictor.cfg,
+        record_norm="none",
+        residual_scale="none",
+        observation_mask=False,
+        forecast_mode="rollout",
+        input_dim=2,
+        num_layers=1,
+        width=32,
+        num_heads=2,
+        context=BODY,
+    )
+    body, theta = prefix_fit(z, PREFIX, cfg)
+    torch.manual_seed(0)
+    model = build_model(cfg).eval()
+    inputs = body.float()
+    with torch.no_grad():
+        trained = model._outputs(inputs, fitted=theta)[0]
+        for b in range(4):
+            listed = dataclasses.replace(cfg, rls_prior=theta[b].flatten().tolist(), rls_p0=1.0)
+            one = build_model(listed).eval()
+            one.load_state_dict(model.state_dict())
+            alone = one._outputs(inputs[b : b + 1])[0]
+            np.testing.assert_allclose(trained[b].numpy(), alone[0].numpy(), rtol=1e-5, atol=1e-6)
+        # the feature is the prefix's fit, not one identified in the window: without the coefficients the
+        # predictions differ
+        plain = model._outputs(inputs)[0]
+    assert (plain - trained).abs().max() > 1e-3
+
+
 def _config(**train) -> RunConfig:
     source = load_config("pretrained:lti-siso")
     keys = {"steps": 2, "batch_size": 3, "horizon": 99, "simulate_after": 40, "num_source_systems": 0}
@@ -119,13 +155,13 @@ def test_a_prefix_that_cannot_serve_is_one_line(change, message):
         check_context_prefix(_config(**change))
 
 
-def test_a_prefix_needs_a_class_model_and_a_simulated_family():
+def test_a_prefix_needs_a_feature_of_its_own_fit_and_a_simulated_family():
     config = _config(context_prefix=300)
-    plain = dataclasses.replace(
-        config, model=dataclasses.replace(config.model, record_norm="none", residual_scale="none")
+    listed = dataclasses.replace(
+        config, model=dataclasses.replace(config.model, rls_prior=[0.0] * 31, rls_p0=1.0)
     )
-    with pytest.raises(MopError, match="record_norm=causal"):
-        check_context_prefix(plain)
+    with pytest.raises(MopError, match="no model.rls_prior"):
+        check_context_prefix(listed)
     recorded = dataclasses.replace(config, data=DataConfig(path="x.npz"))
     with pytest.raises(MopError, match="recorded file has its own"):
         check_context_prefix(recorded)

@@ -297,3 +297,36 @@ def test_a_fine_tune_may_drop_the_residual_scale_and_simulate_by_rollout(tmp_pat
     assert main([*adding, "model.residual_scale=running"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "model.residual_scale" in err
+
+
+def test_a_model_trained_with_estimation_prefixes_fine_tunes_from_the_records_fit(tmp_path, capsys):
+    """A network of the records recipe's shape (no record_norm) pretrained on a class with each window read
+    after its estimation record's fit (train.context_prefix) fine-tunes as a class model does: its feature
+    starts from the record's least-squares ARX of the orders `mop fit arx` picks (the record is its own
+    estimation record); the same network pretrained without the prefix identified its feature in each
+    window, and its fine-tune keeps that."""
+    est = record(tmp_path / "est.npz", 0)
+    assert main(["fit", "arx", est, "--out", str(tmp_path / "arx")]) == 0
+    orders = json.loads((tmp_path / "arx" / "fitted.json").read_text())["orders"]
+    shape = [
+        *TINY,
+        "train.batch_size=2",
+        "train.steps=1",
+        "train.simulate_after=0",
+        "train.num_source_systems=0",
+        "model.record_norm=none",
+        "model.residual_scale=none",
+        "model.observation_mask=false",
+        "model.forecast_mode=rollout",
+        "model.rls_order=3",
+        "model.arx_order=3",
+    ]
+    runs = {}
+    for prefix in (0, 100):
+        runs[prefix] = tmp_path / f"src{prefix}"
+        argv = ["train", "class-lti-siso", "--preset", "smoke", "--out", str(runs[prefix]), "--no-progress"]
+        assert main([*argv, *shape, f"train.context_prefix={prefix}"]) == 0
+    tuned = training_config(None, data=est, init=str(runs[100])).model
+    assert tuned.rls_prior == "fit" and (tuned.rls_order, tuned.arx_order) == (orders["p"], orders["q"])
+    plain = training_config(None, data=est, init=str(runs[0])).model
+    assert plain.rls_prior == "none" and (plain.rls_order, plain.arx_order) == (3, 3)

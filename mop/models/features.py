@@ -248,7 +248,9 @@ def augment(
     fitted (B, d, m) float64|None: each record's feature coefficients fitted on its own estimation record
     (train.context_prefix, mop.train.context), the inputs in that record's normalised units: the feature
     and moments then run as those of the model given the coefficients as a listed model.rls_prior with
-    record_prior_steps = FITTED_PRIOR_STEPS (mop.incontext.fitted_to_context), one record each."""
+    record_prior_steps = FITTED_PRIOR_STEPS (mop.incontext.fitted_to_context), one record each; without
+    record_norm the feature runs as the records recipe's does on a record in its global units (a listed
+    model.rls_prior, held at it with model.rls_fixed)."""
     m, k = cfg.output_dim, input_count(cfg)
     y, seen = observed_outputs(inputs, cfg)  # (B, T, m), NaN where missing
     u = inputs[..., m : m + k] if cfg.arx_order > 0 else None
@@ -264,6 +266,8 @@ def augment(
             residual = residual_scale(y, base, seen, std[..., :m], cfg.residual_scale, cfg.residual_decay)
         return _record_assemble(inputs, mean, std, base, seen, m, residual)
     prior = feature_prior(cfg)
+    if fitted is not None:  # the inputs are in the estimation record's units, where the coefficients hold
+        prior = (fitted.double(), 0.0 if cfg.rls_fixed else PRIOR_P0)
     base = None
     if cfg.rls_order > 0:
         base = rls_next(y, cfg.rls_order, u, cfg.arx_order, cfg.rls_offset, prior, cubes=cfg.rls_cubes)

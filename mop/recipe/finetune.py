@@ -103,7 +103,7 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     fine-tuned kept gain 0.5 by its own record (RMSE 0.01024 against 0.01035 at gain 0) and simulated the
     three tests at 2.41 / 11.2 / 2.50 mV; the held-out tail kept gain 0 and 0.65 / 0.70 / 0.53 mV."""
     m, named = config.model, parse_overrides(overrides)
-    if config.data is None or m.record_norm == "none" or m.rls_order == 0 or m.rls_prior != "none":
+    if config.data is None or not reads_a_fit(source) or m.rls_order == 0 or m.rls_prior != "none":
         return config
     if any(f"model.{key}" in named for key in PRIOR_KEYS) or recorded_data(config.data).num_missing:
         return config
@@ -125,9 +125,17 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
             long = (p, q) != orders  # a long ARX stays at its fit (model.rls_fixed), as the records recipe's
             model = dataclasses.replace(model, rls_order=p, arx_order=q, rls_fixed=long)
     own_units = source.data is None or not source.data.fitted
-    if own_units and "model.record_prior_steps" not in named:
+    if m.record_norm == "causal" and own_units and "model.record_prior_steps" not in named:
         model = dataclasses.replace(model, record_prior_steps=RECORD_PRIOR_STEPS)
     return dataclasses.replace(config, model=model)
+
+
+def reads_a_fit(source: RunConfig) -> bool:
+    """Whether `source` reads a feature that can start from a record's least-squares fit: a class model
+    (model.record_norm = "causal", its ARX feature identified in context), or a model trained on simulated
+    systems with an estimation record before each window (train.context_prefix: its feature was each
+    record's fit, as the records recipe's is the record's)."""
+    return source.model.record_norm == "causal" or source.train.context_prefix > 0
 
 
 def with_refitted_orders(config: RunConfig, source: RunConfig) -> RunConfig:

@@ -32,9 +32,12 @@ LEAST_SQUARES_RIDGE = 1e-6  # least_squares_coefficients' ridge, times the pairs
 
 
 def check_context_prefix(config: RunConfig) -> None:
-    """One-line MopError where train.context_prefix cannot serve the run: it needs a simulated family and a
-    class model (model.record_norm = "causal") whose feature is an ARX / NARX fitted in context (rls_order >
-    0, no coefficients of its own), the outputs as targets, and more steps than the feature's regressors."""
+    """One-line MopError where train.context_prefix cannot serve the run: it needs a simulated family, a
+    feature that is an ARX / NARX (rls_order > 0, no coefficients of its own), the outputs as targets, and
+    more steps than the feature's regressors. With model.record_norm = "causal" the network reads the window
+    as a class model reads a test in context; without it, as the records recipe's network reads a record
+    in its global units (the estimation record's moments), the feature held at the fit with
+    model.rls_fixed: the pretraining of a fine-tune source of the records recipe's shape."""
     n, model = config.train.context_prefix, config.model
     check_int("train.context_prefix", n, 0)
     if n == 0:
@@ -49,10 +52,10 @@ def check_context_prefix(config: RunConfig) -> None:
             "train.context_prefix trains against each window's outputs in its estimation record's units; "
             "use train.target=outputs"
         )
-    if model.record_norm != "causal" or model.rls_order == 0 or model.rls_prior != "none":
+    if model.rls_order == 0 or model.rls_prior != "none":
         raise MopError(
             "train.context_prefix starts the feature from coefficients fitted on each system's estimation "
-            "record: it needs model.record_norm=causal, model.rls_order > 0 and no model.rls_prior"
+            "record: it needs model.rls_order > 0 and no model.rls_prior"
         )
     needed = max(model.rls_order, model.arx_order) + regressor_count(model)
     if n <= needed:
