@@ -15,8 +15,11 @@ from mop.benchmarks import load_benchmark, present
 from mop.benchmarks.protocol import run_test
 from mop.cli import main
 from mop.identify import fit
+from mop.identify.store import FILE as FITTED_FILE
+from mop.identify.store import load as load_fitted
 from mop.predictors import make_predictor
 from mop.record import Record, read_records
+from mop.runs import load_config, load_predictor
 
 EXCERPTS = Path(__file__).parent / "data" / "benchmarks"
 SILVERBOX_LENGTH = 131072
@@ -213,3 +216,35 @@ def test_mop_on_a_cubic_plant_reads_a_cubic_feature_and_beats_the_fitted_arx(tmp
     assert scores["mop"]["rmse"] < 0.5 * scores["arx"]["rmse"]
     report = (out / "report.md").read_text()
     assert "mop: feature: the network reads the cubic NARX" in report and "held-out simulation" in report
+
+
+def test_a_shipped_model_fine_tuned_on_the_estimation_part_is_scored_as_its_run(tmp_path):
+    """finetune:lti-siso trains `mop train --data EST --init pretrained:lti-siso` (its run directory under
+    OUT says so) and is scored by the protocol on that run's model: the run's fitted predictor, simulated
+    from the test's first 20 outputs, gives the reported RMSE."""
+    est, val = own_records(tmp_path)
+    out = tmp_path / "out"
+    argv = ["benchmark", "--est", str(est), "--test", str(val), "--init-window", "20", "--out", str(out)]
+    assert main([*argv, "--predictors", "finetune:lti-siso", "--quiet"]) == 0
+    score = json.loads((out / "results.json").read_text())["est"]["val"]["finetune:lti-siso"]["rmse"]
+    run = out / "est" / "finetune-lti-siso" / "run"
+    assert load_config(run).train.init == "pretrained:lti-siso"
+    (test,) = read_records(val)
+    fitted = load_fitted(run) if (run / FITTED_FILE).is_file() else load_predictor(run)
+    again = run_test(fitted, dataclasses.replace(test, init_window=20)).rmse
+    assert again == pytest.approx(score, rel=1e-6)
+    assert "finetune:NAME: pretrained:NAME fine-tuned" in (out / "report.md").read_text()
+
+
+def test_a_fine_tune_of_other_widths_is_refused_before_any_fit(tmp_path, capsys):
+    """In context a one-output model reads a three-output record one output at a time; a fine-tune trains on
+    the record as it is, so finetune:lti-siso on a three-output record is one line before any fit."""
+    rng = np.random.default_rng(0)
+    for name in ("est", "val"):
+        rows = "\n".join(",".join(f"{v:.6g}" for v in rng.normal(size=4)) for _ in range(200))
+        (tmp_path / f"{name}.csv").write_text("y0,y1,y2,u0\n" + rows + "\n")
+    out = tmp_path / "out"
+    argv = ["benchmark", "--est", str(tmp_path / "est.csv"), "--test", str(tmp_path / "val.csv")]
+    assert main([*argv, "--out", str(out), "--quiet", "--predictors", "arx,finetune:lti-siso"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "finetune:lti-siso reads 1 output(s)" in err and not out.exists()

@@ -12,8 +12,10 @@ import mop
 from mop.cli import main
 from mop.config import ModelConfig, RunConfig, SystemConfig, TrainConfig, from_dict
 from mop.errors import MopError
+from mop.experiments.presets import default_preset, preset_config
 from mop.recipe.finetune import FINE_TUNE_LR_FACTOR, FINE_TUNE_STEPS
 from mop.recipe.layers import training_config
+from mop.recipe.records import budget_plan
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
 from mop.train import train
@@ -326,7 +328,19 @@ def test_a_model_trained_with_estimation_prefixes_fine_tunes_from_the_records_fi
         runs[prefix] = tmp_path / f"src{prefix}"
         argv = ["train", "class-lti-siso", "--preset", "smoke", "--out", str(runs[prefix]), "--no-progress"]
         assert main([*argv, *shape, f"train.context_prefix={prefix}"]) == 0
-    tuned = training_config(None, data=est, init=str(runs[100])).model
-    assert tuned.rls_prior == "fit" and (tuned.rls_order, tuned.arx_order) == (orders["p"], orders["q"])
-    plain = training_config(None, data=est, init=str(runs[0])).model
-    assert plain.rls_prior == "none" and (plain.rls_order, plain.arx_order) == (3, 3)
+    tuned = training_config(None, data=est, init=str(runs[100]))
+    m = tuned.model
+    assert m.rls_prior == "fit" and (m.rls_order, m.arx_order) == (orders["p"], orders["q"])
+    plain = training_config(None, data=est, init=str(runs[0]))
+    assert plain.model.rls_prior == "none" and (plain.model.rls_order, plain.model.arx_order) == (3, 3)
+    # the records start trains with the records recipe's schedule: the steps its budget plans on the record
+    # (mop.recipe.budget) at the default preset's rate; the other keeps the short fine-tune
+    base = preset_config(default_preset()).train
+    for minutes in (5.0, 50.0):
+        run = training_config(None, data=est, init=str(runs[100]), budget=minutes)
+        assert run.train.steps == budget_plan(run, minutes).steps
+        assert (run.train.lr, run.train.lr_schedule) == (base.lr, base.lr_schedule)
+    assert tuned.train.steps == budget_plan(tuned, 5.0).steps != FINE_TUNE_STEPS
+    assert plain.train.steps == FINE_TUNE_STEPS and plain.train.lr != base.lr
+    with pytest.raises(MopError, match="a fine-tune .--init. has its own schedule"):
+        training_config(None, data=est, init=str(runs[0]), budget=5.0)

@@ -1,6 +1,7 @@
 """`mop benchmark [NAME ...] [--data-dir DIR] [--out OUT] [--budget MINUTES]`: the system-identification
-benchmarks' official protocol (mop.benchmarks) for mop's fitted ARX and N4SID and MOP trained on the
-estimation part (the records recipe within --budget), or the same on a user's own records with
+benchmarks' official protocol (mop.benchmarks) for mop's fitted ARX and N4SID, MOP trained on the
+estimation part (the records recipe within --budget), a shipped model in context (pretrained:NAME) or
+fine-tuned on the estimation part (finetune:NAME), or the same on a user's own records with
 `--est EST.csv --test TEST.csv [--init-window n]`.
 
 Writes OUT/results.json ({benchmark: {test: {predictor: {"rmse", "units", "diverged_at"}}}}), OUT/report.md
@@ -34,7 +35,9 @@ from mop.recipe.selection import selection_line
 from mop.record import as_pairs, read_records
 from mop.runs import load_config, load_predictor
 
-PREDICTORS = ("arx", "n4sid", "mop")  # and pretrained:NAME, a shipped model in context (mop.incontext)
+PREDICTORS = ("arx", "n4sid", "mop")  # and pretrained:NAME, a shipped model in context (mop.incontext),
+# and finetune:NAME, that model fine-tuned on the estimation part (`mop train --data --init pretrained:NAME`)
+SHIPPED_KINDS = ("pretrained:", "finetune:")
 
 EXAMPLES = """
 benchmarks: silverbox, f16 (Acceleration1, the official form), f16-3 (all three accelerations),
@@ -46,6 +49,7 @@ examples:
   mop benchmark --est est.csv --test val.csv --init-window 50   # your own records, the same protocol
   mop benchmark silverbox --predictors arx,n4sid           # the fitted linear models only (fast)
   mop benchmark silverbox --predictors arx,pretrained:lti-siso   # a shipped class model in context
+  mop benchmark f16 --predictors mop,finetune:duffing-records    # fine-tuned on the estimation part
 """
 
 
@@ -66,7 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--predictors",
         default=",".join(PREDICTORS),
-        help="comma-separated: arx, n4sid, mop, pretrained:NAME (in context)",
+        help="comma-separated: arx, n4sid, mop, pretrained:NAME (in context), finetune:NAME (pretrained:NAME "
+        "fine-tuned on the estimation part within --budget)",
     )
     parser.add_argument(
         "--est", default=None, help="your estimation record (.csv / .npz) instead of a benchmark"
@@ -125,10 +130,12 @@ class InContextModel:
 
 def check_reads(name: str, model, split: Split) -> None:
     """One-line MopError, before any fit, unless the shipped model reads the split's records: the same
-    number of inputs and of outputs, or one output (read one output at a time, mop.incontext.by_channel)."""
+    number of inputs and of outputs, or in context (pretrained:NAME) one output (read one output at a time,
+    mop.incontext.by_channel); a fine-tune (finetune:NAME) trains on the records as they are."""
     m_model, k_model = dimensions(dataclasses.asdict(model.cfg))
     m, k = split.tests[0].num_outputs, split.tests[0].num_inputs
-    if k != k_model or m_model not in (1, m):
+    widths = (m,) if name.startswith("finetune:") else (1, m)
+    if k != k_model or m_model not in widths:
         raise MopError(
             f"{name} reads {m_model} output(s) and {k_model} input(s), {split.name} has {m} and {k}; "
             + fitting_hint(m, k)
@@ -168,16 +175,22 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
         start = time.perf_counter()
         if name.startswith("pretrained:"):
             models[name] = InContextModel(load_predictor(name), split.estimation)
-        elif name == "mop":
-            learned = Learned(budget_minutes=budget, out_dir=folder / "mop", train__seed=args.seed)
+        elif name == "mop" or name.startswith("finetune:"):
+            init = None if name == "mop" else name.replace("finetune:", "pretrained:", 1)
+            learned = Learned(
+                budget_minutes=budget,
+                init=init,
+                out_dir=folder / name.replace(":", "-"),
+                train__seed=args.seed,
+            )
             models[name] = learned.fit(split.estimation).predictor_
             if getattr(learned, "selection_", {}).get("kept") == "arx":
                 warnings.append(
-                    f"{split.name}: MOP did not beat its fitted ARX on held-out data and is that ARX"
+                    f"{split.name}: {name} did not beat its fitted ARX on held-out data and is that ARX"
                 )
-            notes.append(f"mop: {feature_line(load_config(learned.run_dir_)) or 'no input feature'}")
+            notes.append(f"{name}: {feature_line(load_config(learned.run_dir_)) or 'no input feature'}")
             if getattr(learned, "selection_", None):
-                notes.append(f"mop: {selection_line(learned.selection_)}")
+                notes.append(f"{name}: {selection_line(learned.selection_)}")
         else:
             models[name] = _fitted(name, split, warnings)
         seconds[name] = time.perf_counter() - start
@@ -222,6 +235,11 @@ def _report(runs: dict, args, budget: float) -> str:
         lines.append(
             "pretrained:NAME: a shipped class model, the estimation part as its context, no training."
         )
+    if "finetune:" in args.predictors:
+        lines.append(
+            f"finetune:NAME: pretrained:NAME fine-tuned on the estimation part (`mop train --data --init`) "
+            f"within a budget of {budget:g} min, seed {args.seed}."
+        )
     lines.append("")
     for bench, run in runs.items():
         units = next(iter(next(iter(run["results"].values())).values()))["units"]
@@ -258,13 +276,17 @@ def _report(runs: dict, args, budget: float) -> str:
 
 def run(args: argparse.Namespace) -> int:
     predictors = [p.strip() for p in args.predictors.split(",") if p.strip()]
-    unknown = [p for p in predictors if p not in PREDICTORS and not p.startswith("pretrained:")]
+    unknown = [p for p in predictors if p not in PREDICTORS and not p.startswith(SHIPPED_KINDS)]
     if unknown or not predictors:
         raise MopError(
             f"--predictors: unknown {', '.join(unknown) or '(none)'}; choose from {', '.join(PREDICTORS)} "
-            "or pretrained:NAME (mop pretrained list)"
+            "or pretrained:NAME, finetune:NAME (mop pretrained list)"
         )
-    shipped = {n: load_predictor(n) for n in predictors if n.startswith("pretrained:")}  # unknown: one line
+    shipped = {  # an unknown name is one line
+        n: load_predictor(n.replace("finetune:", "pretrained:", 1))
+        for n in predictors
+        if n.startswith(SHIPPED_KINDS)
+    }
     budget = DEFAULT_BUDGET_MINUTES if args.budget is None else check_budget(args.budget)
     out = Path(args.out)
     if out.exists() and not out.is_dir():

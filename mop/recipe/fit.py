@@ -15,13 +15,13 @@ from pathlib import Path
 from mop.config import RunConfig, parse_overrides
 from mop.io import reading_once
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES
-from mop.recipe.finetune import within_budget
+from mop.recipe.finetune import records_start, within_budget
 from mop.recipe.layers import training_config
 from mop.recipe.records import budget_plan, feature_line, order_line
 from mop.recipe.selection import select_against_arx, selection_line
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
-from mop.runs import read_run_json
+from mop.runs import load_config, read_run_json
 from mop.train.data import validates_tails
 from mop.train.records import recorded_data
 
@@ -64,11 +64,14 @@ def fit_record(
     held-out choice between the network and the fitted ARX (select_against_arx).
 
     fine_tune_minutes: a fine-tune's train.steps cut to what these minutes allow at the measured time of one
-    step (within_budget; machine-dependent), unless an override sets train.steps.
+    step (within_budget; machine-dependent), unless an override sets train.steps; for a records start
+    (mop.recipe.finetune.records_start) the budget of the records recipe's plan instead.
     announce: given, it gets the lines `mop train` prints: the budget's plan, the record, its feature and
     orders before training; the loop's plan line; the held-out choice after it.
     """
     overrides = list(overrides)
+    if init is not None and records_start(load_config(init)):  # the records recipe's budget plans its steps
+        budget, fine_tune_minutes = (fine_tune_minutes if budget is None else budget), None
     with reading_once():  # the record is read once, whichever steps of the recipe look at it
         config = training_config(source, preset, data, val, overrides, init, budget)
         steps_given = "train.steps" in parse_overrides(overrides)
@@ -95,7 +98,7 @@ def record_lines(
     """What `mop train` says before training on a record: the records recipe's budget plan (where the plan
     set train.steps), the record, the feature, the orders and record_norm's prior."""
     lines = []
-    if selects(config) and init is None:
+    if selects(config) and (init is None or records_start(load_config(init))):
         plan = budget_plan(config, DEFAULT_BUDGET_MINUTES if budget is None else budget)
         if plan.steps == config.train.steps:
             lines.append(plan.line())

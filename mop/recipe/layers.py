@@ -46,8 +46,10 @@ from mop.experiments.presets import default_preset, preset_config
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.finetune import (
     record_horizon,
+    records_start,
     with_fine_tuning,
     with_record_prior,
+    with_records_schedule,
     with_refitted_orders,
 )
 from mop.recipe.records import with_recorded_features
@@ -133,7 +135,7 @@ def training_config(
         check_budget(budget)
     if budget is not None and data is None:
         raise MopError("--budget MINUTES plans training on a record: give --data FILE too (or train.steps=N)")
-    if budget is not None and init is not None:
+    if budget is not None and init is not None and not records_start(load_config(init)):
         raise MopError(
             "--budget plans the records recipe; a fine-tune (--init) has its own schedule: drop it"
         )
@@ -149,6 +151,9 @@ def training_config(
         raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
     base = load_config(init)
     config = with_fine_tuning(with_records(base, data, val), base, init)
+    if records_start(base) and config.data is not None:
+        minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
+        config = with_records_schedule(config, minutes)
     config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
     config = with_record_prior(config, list(overrides), base)
     if config.data is not None and "train.horizon" not in parse_overrides(list(overrides)):
