@@ -70,6 +70,7 @@ from mop.recipe.finetune import RECORD_PRIOR_STEPS
 from mop.recipe.shrink import GAINS, scale_correction
 from mop.record import Record
 from mop.records import divergence_step, simulate_all, simulation_rmse
+from mop.runs import load_config
 from mop.train.context import LEAST_SQUARES_RIDGE
 
 HELD_OUT_MAX = 2000  # the held-out end of the context: at most this many steps, at most a quarter of it
@@ -133,17 +134,31 @@ def check_context(test: Record, context: Sequence[Record]) -> None:
 
 
 def fits_context(predictor) -> bool:
-    """Whether the "fit" reading serves the predictor: a learned class model (record_norm "causal") whose
-    feature is an ARX / NARX identifier without coefficients of its own (model.rls_prior not a list)."""
+    """Whether the "fit" reading serves the predictor: a learned class model (record_norm "causal"), or one
+    trained with each window read after its estimation record's fit (train.context_prefix: a records start
+    such as pretrained:duffing-records, which the "fit" reading reads exactly as it trained), whose feature
+    is an ARX / NARX identifier without coefficients of its own (model.rls_prior not a list)."""
     cfg = getattr(predictor, "cfg", None)
     return (
         isinstance(predictor, LearnedPredictor)
         and cfg is not None
-        and cfg.record_norm == "causal"
+        and (cfg.record_norm == "causal" or trained_on_fits(predictor))
         and cfg.rls_order > 0
         and not isinstance(cfg.rls_prior, list)
         and hasattr(predictor.model, "read_out")
     )
+
+
+def trained_on_fits(predictor: LearnedPredictor) -> bool:
+    """Whether the run the predictor was loaded from (its source) trained each window after its estimation
+    record's least-squares fit (train.context_prefix > 0, mop.train.context)."""
+    source = getattr(predictor, "source", "")
+    if not source:
+        return False
+    try:
+        return load_config(source).train.context_prefix > 0
+    except (MopError, OSError):
+        return False
 
 
 def context_normalization(context: Sequence[Record]) -> Normalization:
@@ -227,7 +242,7 @@ def fitted_to_context(
         rls_prior_cov=None,
         rls_p0=1.0,
         rls_fixed=orders is not None,
-        record_prior_steps=RECORD_PRIOR_STEPS,
+        record_prior_steps=RECORD_PRIOR_STEPS if cfg.record_norm == "causal" else 0,
     )
     return at_gain(_rebuilt(predictor, fitted, norm), context, gain)
 

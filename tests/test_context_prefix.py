@@ -2,6 +2,7 @@
 window is exactly a window of the in-context "fit" reading (mop.incontext.fitted_to_context), whose
 estimation record is the window's prefix; bad settings are one line before any work."""
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -12,7 +13,7 @@ import mop.train as mt
 from mop.checkpoint import load_tensors
 from mop.config import DataConfig, RunConfig
 from mop.errors import MopError
-from mop.incontext import context_normalization, fitted_to_context
+from mop.incontext import context_normalization, fits_context, fitted_to_context, readings
 from mop.missing import masked_inputs
 from mop.models.registry import build_model
 from mop.recipe.finetune import with_fine_tuning
@@ -187,3 +188,26 @@ def test_a_fine_tune_of_a_model_trained_with_prefixes_reads_its_record_as_the_es
     tuned = with_fine_tuning(run, source, "pretrained:x")
     assert tuned.train.context_prefix == 0 and tuned.train.init == "pretrained:x"
     check_context_prefix(tuned)  # no refusal: the record's own feature fit serves (with_record_prior)
+
+
+def test_a_records_start_reads_an_estimation_record_in_context_as_it_trained():
+    """pretrained:duffing-records (no record_norm, trained with estimation prefixes) gets the "fit" reading:
+    fitted to a context it predicts a window read in the context's units exactly as in training, with that
+    context as the window's prefix (its 80-step context, ARX(40, 40) fitted on 400 steps). A model of the
+    same shape trained without prefixes gets no such reading."""
+    predictor = load_predictor("pretrained:duffing-records")
+    assert fits_context(predictor) and "fit gain 1" in readings(predictor)
+    config = load_config("pretrained:duffing-records")
+    traj = make_family(config.system).generate(3, PREFIX + 80 - 1, generator=generator(5))
+    z = traj.model_inputs().double()
+    body, theta = prefix_fit(z, PREFIX, predictor.cfg)
+    inputs = body.float()
+    with torch.no_grad():
+        trained = predictor.model._outputs(inputs, fitted=theta)[0]
+        for b in range(3):
+            context = Record(y=z[b, :PREFIX, :1].numpy(), u=z[b, :PREFIX, 1:].numpy())
+            in_context = fitted_to_context(predictor, [context]).model(inputs[b : b + 1])
+            np.testing.assert_allclose(trained[b].numpy(), in_context[0].numpy(), rtol=1e-4, atol=1e-5)
+    plain = copy.copy(predictor)
+    plain.source = ""  # no run to say how it trained
+    assert not fits_context(plain)

@@ -15,7 +15,6 @@ from mop.errors import MopError
 from mop.experiments.presets import default_preset, preset_config
 from mop.recipe.finetune import FINE_TUNE_LR_FACTOR, FINE_TUNE_STEPS
 from mop.recipe.layers import training_config
-from mop.recipe.records import budget_plan
 from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
 from mop.train import train
@@ -301,15 +300,14 @@ def test_a_fine_tune_may_drop_the_residual_scale_and_simulate_by_rollout(tmp_pat
     assert err.count("\n") == 1 and "model.residual_scale" in err
 
 
-def test_a_model_trained_with_estimation_prefixes_fine_tunes_from_the_records_fit(tmp_path, capsys):
+def test_a_model_trained_with_estimation_prefixes_fine_tunes_as_the_records_recipe(tmp_path, capsys):
     """A network of the records recipe's shape (no record_norm) pretrained on a class with each window read
-    after its estimation record's fit (train.context_prefix) fine-tunes as a class model does: its feature
-    starts from the record's least-squares ARX of the orders `mop fit arx` picks (the record is its own
-    estimation record); the same network pretrained without the prefix identified its feature in each
-    window, and its fine-tune keeps that."""
+    after its estimation record's fit (train.context_prefix) is a records start: its fine-tune is the
+    records recipe from its weights, the feature and the steps the recipe picks on the record from scratch
+    (orders, cubes, least-squares start; the budget's plan) at the default preset's rate. The same network
+    pretrained without the prefix identified its feature in each window: it keeps that and the short
+    fine-tune, and --budget is refused for it."""
     est = record(tmp_path / "est.npz", 0)
-    assert main(["fit", "arx", est, "--out", str(tmp_path / "arx")]) == 0
-    orders = json.loads((tmp_path / "arx" / "fitted.json").read_text())["orders"]
     shape = [
         *TINY,
         "train.batch_size=2",
@@ -328,19 +326,21 @@ def test_a_model_trained_with_estimation_prefixes_fine_tunes_from_the_records_fi
         runs[prefix] = tmp_path / f"src{prefix}"
         argv = ["train", "class-lti-siso", "--preset", "smoke", "--out", str(runs[prefix]), "--no-progress"]
         assert main([*argv, *shape, f"train.context_prefix={prefix}"]) == 0
-    tuned = training_config(None, data=est, init=str(runs[100]))
-    m = tuned.model
-    assert m.rls_prior == "fit" and (m.rls_order, m.arx_order) == (orders["p"], orders["q"])
+    scratch = training_config(None, data=est)
+    keys = ("rls_order", "arx_order", "rls_cubes", "rls_offset", "rls_prior", "rls_fixed")
+    base = preset_config(default_preset()).train
+    for minutes in (None, 50.0):
+        tuned = training_config(None, data=est, init=str(runs[100]), budget=minutes)
+        recipe = scratch if minutes is None else training_config(None, data=est, budget=minutes)
+        assert all(getattr(tuned.model, k) == getattr(recipe.model, k) for k in keys)
+        assert tuned.model.rls_prior == "fit" and tuned.train.steps == recipe.train.steps
+        assert (tuned.train.lr, tuned.train.lr_schedule) == (base.lr, base.lr_schedule)
+        assert tuned.model.width == 16 and tuned.train.init == str(runs[100])  # the source's network
+    # an override of the feature wins, started from the record's fit as a class model's
+    named = training_config(None, data=est, init=str(runs[100]), overrides=["model.rls_order=2"]).model
+    assert named.rls_order == 2 and named.rls_prior == "fit"
     plain = training_config(None, data=est, init=str(runs[0]))
     assert plain.model.rls_prior == "none" and (plain.model.rls_order, plain.model.arx_order) == (3, 3)
-    # the records start trains with the records recipe's schedule: the steps its budget plans on the record
-    # (mop.recipe.budget) at the default preset's rate; the other keeps the short fine-tune
-    base = preset_config(default_preset()).train
-    for minutes in (5.0, 50.0):
-        run = training_config(None, data=est, init=str(runs[100]), budget=minutes)
-        assert run.train.steps == budget_plan(run, minutes).steps
-        assert (run.train.lr, run.train.lr_schedule) == (base.lr, base.lr_schedule)
-    assert tuned.train.steps == budget_plan(tuned, 5.0).steps != FINE_TUNE_STEPS
     assert plain.train.steps == FINE_TUNE_STEPS and plain.train.lr != base.lr
     with pytest.raises(MopError, match="a fine-tune .--init. has its own schedule"):
         training_config(None, data=est, init=str(runs[0]), budget=5.0)

@@ -23,7 +23,8 @@ from mop.config import (
 from mop.experiments.presets import default_preset, preset_config
 from mop.models import build_model
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES
-from mop.recipe.records import budget_plan, fitted_long_orders, record_orders
+from mop.recipe.records import FEATURE_KEYS as RECIPE_FEATURE_KEYS
+from mop.recipe.records import budget_plan, fitted_long_orders, record_orders, recorded_recipe
 from mop.recipe.source import PRIOR_KEYS
 from mop.train import resolve_config, resolve_device
 from mop.train.estimate import step_seconds
@@ -136,28 +137,55 @@ def records_start(source: RunConfig) -> bool:
     """Whether `source` is a network of the records recipe's shape (no record_norm: it reads a record in
     the record's global units) pretrained on simulated systems, each window read after its estimation
     record's fit (train.context_prefix): a start for the records recipe rather than a model to nudge. Its
-    fine-tune trains with the records recipe's schedule (with_records_schedule)."""
+    fine-tune is the records recipe from its weights (with_records_recipe)."""
     return source.model.record_norm == "none" and source.train.context_prefix > 0
 
 
-def with_records_schedule(config: RunConfig, minutes: float = DEFAULT_BUDGET_MINUTES) -> RunConfig:
-    """A fine-tune of a records start (records_start) on config.data: the records recipe's schedule from
-    the source's weights, the steps `minutes` buy on the record (mop.recipe.budget, as `mop train --data
-    --budget` plans them) at the default preset's learning rate, schedule and warm-up, instead of
-    FINE_TUNE_STEPS at a tenth of the source's rate. On the F-16 (one output, seed 0) the 125-step
-    fine-tune of a duffing-class start kept the fitted ARX (held-out 0.3877 at gain 0), the records
-    recipe's 9375 steps from it the network at gain 0.75 (0.3239; tests 0.1678 / 0.2903 / 0.4232, against
-    0.2339 / 0.3474 / 0.4589 from random weights; docs/results/benchmarks.md)."""
+def with_records_recipe(
+    config: RunConfig, overrides: list[str], minutes: float = DEFAULT_BUDGET_MINUTES
+) -> RunConfig:
+    """A fine-tune of a records start (records_start) on config.data: the records recipe from the source's
+    weights. Its schedule: the steps `minutes` buy on the record (mop.recipe.budget, as `mop train --data
+    --budget` plans them on windows of the source's length) at the default preset's batch size, learning rate,
+    schedule and warm-up, instead of FINE_TUNE_STEPS at a tenth of the source's rate. Its feature, on a record
+    with inputs and complete outputs where no override names one: the records recipe's
+    (mop.recipe.records.recorded_recipe: the ARX orders, cubed lags or long ARX it picks on the training part,
+    started from their least-squares fit; the network reads the feature's prediction whatever its orders),
+    else the class model's rule (with_record_prior). On the F-16 (one output, seed 0) the 125-step fine-tune
+    of the duffing-class start kept the fitted ARX (held-out 0.3877 at gain 0); the records recipe's 9375
+    steps from it the network at gain 0.75 (0.3239; tests 0.1678 / 0.2903 / 0.4232, against 0.2339 / 0.3474 /
+    0.4589 from random weights; docs/results/benchmarks.md)."""
     base = preset_config(default_preset()).train
-    steps = budget_plan(config, minutes).steps
+    config = dataclasses.replace(config, train=dataclasses.replace(config.train, batch_size=base.batch_size))
     train = dataclasses.replace(
         config.train,
-        steps=steps,
+        steps=budget_plan(config, minutes).steps,
         lr=base.lr,
         lr_schedule=base.lr_schedule,
         warmup_steps=base.warmup_steps,
     )
-    return dataclasses.replace(config, train=train)
+    config = dataclasses.replace(config, train=train)
+    record = recorded_data(config.data)
+    named = parse_overrides(overrides)
+    if not record.input_dim or record.num_missing or any(k in named for k in RECIPE_FEATURE_KEYS):
+        return config
+    recipe = recorded_recipe(config, minutes)
+    model = dataclasses.replace(
+        config.model,
+        rls_order=recipe["model.rls_order"],
+        arx_order=recipe["model.arx_order"],
+        rls_cubes=recipe["model.rls_cubes"],
+        rls_offset=True,
+        rls_prior="fit",
+        rls_p0=1.0,
+        rls_prior_cov=None,
+        rls_fixed=bool(recipe.get("model.rls_fixed", False)),
+    )
+    horizon = recipe.get("train.horizon", train.horizon)
+    if horizon > model.context:  # the source's windows are its context: the feature regresses on less
+        horizon = train.horizon
+    train = dataclasses.replace(train, steps=recipe["train.steps"], horizon=horizon)
+    return dataclasses.replace(config, model=model, train=train)
 
 
 def reads_a_fit(source: RunConfig) -> bool:

@@ -49,7 +49,7 @@ from mop.recipe.finetune import (
     records_start,
     with_fine_tuning,
     with_record_prior,
-    with_records_schedule,
+    with_records_recipe,
     with_refitted_orders,
 )
 from mop.recipe.records import with_recorded_features
@@ -153,7 +153,7 @@ def training_config(
     config = with_fine_tuning(with_records(base, data, val), base, init)
     if records_start(base) and config.data is not None:
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        config = with_records_schedule(config, minutes)
+        config = with_records_recipe(config, list(overrides), minutes)
     config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
     config = with_record_prior(config, list(overrides), base)
     if config.data is not None and "train.horizon" not in parse_overrides(list(overrides)):
