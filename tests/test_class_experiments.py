@@ -2,6 +2,7 @@
 simulation loss and record normalisation, scored one step ahead and in free-run simulation."""
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -40,3 +41,21 @@ def test_class_experiment_runs_and_its_model_simulates_below_the_last_value(argv
     (run,) = data["runs"].values()
     config = json.loads((Path(run) / "config.json").read_text())
     assert config["model"]["record_norm"] == "causal" and config["train"]["simulate_after"] == 40
+
+
+@pytest.mark.slow
+def test_the_records_start_experiment_trains_on_estimation_prefixes_and_scores_every_predictor(tmp_path):
+    """class-duffing-records at the smoke preset: its run is the records recipe's shape (no record_norm, one
+    step ahead) trained with each window after its estimation record (train.context_prefix), and every
+    predictor of the experiment gets a finite simulation of the test systems read without one."""
+    argv = ["reproduce", "class-duffing-records", "--preset", "smoke", "--quiet", "train.steps=5"]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 0
+    data = json.loads((tmp_path / "out" / "eval.json").read_text())
+    (cond,) = data["conditions"].values()
+    sim = cond["simulation"]["rmse"]
+    assert set(sim) == set(data["predictors"])
+    assert all(math.isfinite(s["simulation_rmse"]) for s in sim.values())
+    (run,) = data["runs"].values()
+    config = json.loads((Path(run) / "config.json").read_text())
+    assert config["model"].get("record_norm", "none") == "none" and config["train"]["context_prefix"] == 200
+    assert config["model"]["width"] == 32 and config["train"].get("simulate_after", 0) == 0
