@@ -168,3 +168,11 @@ def forecast_markdown(forecast: dict) -> list[str]:
     return lines + [
         f"| {n} | " + " | ".join(f"{e:.4f}" for e in errs) + " |" for n, errs in forecast["error"].items()
     ]
+
+
+def simulation_cell(r: dict) -> str:
+    """A predictor's simulation RMSE for a table: "diverged (k systems)" where k systems' free runs left the
+    finite numbers (their mean is then inf), else the mean over systems."""
+    if r.get("diverged_systems"):
+        return f"diverged ({r['diverged_systems']} systems)"
+    return f"{r['simulation_rmse']:.4f}"

@@ -44,11 +44,21 @@ def test_class_experiment_runs_and_its_model_simulates_below_the_last_value(argv
 
 
 @pytest.mark.slow
-def test_the_records_start_experiment_trains_on_estimation_prefixes_and_scores_every_predictor(tmp_path):
-    """class-duffing-records at the smoke preset: its run is the records recipe's shape (no record_norm, one
-    step ahead) trained with each window after its estimation record (train.context_prefix), and every
-    predictor of the experiment gets a finite simulation of the test systems read without one."""
-    argv = ["reproduce", "class-duffing-records", "--preset", "smoke", "--quiet", "train.steps=5"]
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["reproduce", "class-duffing-records", "--preset", "smoke"],
+        ["reproduce", "class-cascaded-tanks-records", "--preset", "smoke"],
+    ],
+)
+def test_the_records_start_experiment_trains_on_estimation_prefixes_and_scores_every_predictor(
+    argv, tmp_path
+):
+    """A records start's experiment at the smoke preset: its run is the records recipe's shape (no
+    record_norm, one step ahead) trained with each window after its estimation record
+    (train.context_prefix), and every predictor of the experiment gets a finite simulation of the test
+    systems read without one."""
+    argv = [*argv, "--quiet", "train.steps=5"]
     assert main([*argv, "--out", str(tmp_path / "out")]) == 0
     data = json.loads((tmp_path / "out" / "eval.json").read_text())
     (cond,) = data["conditions"].values()

@@ -11,7 +11,10 @@ Measures reading these extras (coverage, matrix_power_max, slope) are registered
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import torch
 
 from mop.errors import MopError
 from mop.evaluate import windows
@@ -22,7 +25,7 @@ from mop.filters.kalman import expected_norm, optimal_covariances
 from mop.metrics import coverage, gaussian_nll, loglog_slope, matrix_power_ratio, window_mean
 from mop.predictors import Predictor, first_learned, forecast, simulate
 from mop.registry import Registry
-from mop.report import cell, forecast_markdown
+from mop.report import cell, forecast_markdown, simulation_cell
 from mop.systems.base import require_params
 
 ANALYSES: Registry = Registry(
@@ -302,7 +305,7 @@ def _simulation_table(extras: dict) -> str:
     rows = []
     for n, r in rmse.items():
         record = cell(r.get("one_step_rmse_record"))  # absent from results written before it
-        rows.append(f"| {n} | {r['one_step_rmse']:.4f} | {r['simulation_rmse']:.4f} | {record} |\n")
+        rows.append(f"| {n} | {r['one_step_rmse']:.4f} | {simulation_cell(r)} | {record} |\n")
     return head + "".join(rows)
 
 
@@ -325,11 +328,15 @@ def simulation_analysis(result, predictors: list, reference: str) -> dict:
         if not (callable(getattr(p, "simulate", None)) or callable(getattr(p, "forecast", None))):
             continue
         sim = simulate(p, result.traj, c).double()
+        per_system = ((sim - y) ** 2).mean((1, 2)).sqrt()  # (N,): NaN or inf where the free run diverged
+        diverged = int((~torch.isfinite(per_system)).sum())
         table[p.name] = {
-            "simulation_rmse": float(((sim - y) ** 2).mean((1, 2)).sqrt().mean()),
+            "simulation_rmse": float(per_system.mean()) if diverged == 0 else math.inf,
             "one_step_rmse": _one_step_from(result.errors[p.name], c, m),
             "one_step_rmse_record": _one_step_from(result.errors[p.name], min(RECORD_START, c), m),
         }
+        if diverged:  # the mean over systems is inf, not the mean over those that stayed finite
+            table[p.name]["diverged_systems"] = diverged
     return {"simulation": {"context": c, "rmse": table}}
 
 

@@ -150,6 +150,16 @@ CLASS_MODELS: tuple[ShippedModel, ...] = (
         "ARX then: its card); give it the estimation record (--context) or, better, fine-tune it on it; "
         "records other than one output and one input",
     ),
+    ShippedModel(
+        "cascaded-tanks-records",
+        "class-cascaded-tanks-records",
+        "a start for `mop train --data FILE --init`: the records recipe's 1 x 32 network on its ARX(10, 10) "
+        "feature, pretrained on two cascaded tanks as measured on the real plant (noise up to 0.02 V, low "
+        "process noise, a level sensor saturating below the rim, the pump across its range), each window "
+        "read after its estimation record's least-squares fit; fine-tuned with the records recipe's schedule",
+        "records read without their estimation record, zero-shot (its card); give it the estimation record "
+        "(--context) or fine-tune it on it; records other than one output and one input",
+    ),
 )
 CATALOG = CATALOG + CLASS_MODELS
 
