@@ -144,8 +144,8 @@ BALANCED = {"model.residual_scale": "measured", "model.gap_loss": "balanced"}
 # predictions fed back in a free run), each training window read after its system's 2000-step estimation
 # record (train.context_prefix: the feature is that record's least-squares fit, the window in its units),
 # as `mop train --data REC --init` then reads REC; a pool of 2048 systems (each an estimation record and a
-# window) keeps a step at the network's cost. On the F-16 its fine-tune simulates the tests 8-28% below
-# the records recipe from random weights (docs/results/benchmarks.md)
+# window) keeps a step at the network's cost. On the F-16 its fine-tune simulates the tests 8-26% below the
+# records recipe from random weights (three-seed means; docs/results/benchmarks.md)
 RECORDS_START = {
     "model.num_layers": 1,
     "model.width": 32,

@@ -145,7 +145,8 @@ CLASS_MODELS: tuple[ShippedModel, ...] = (
         "a start for `mop train --data FILE --init`: the records recipe's 1 x 32 network on its ARX "
         "feature, pretrained on the duffing class with each window read after its estimation record's "
         "least-squares fit, as a fine-tune reads the user's record; fine-tuned with the records recipe's "
-        "schedule and budget (on the F-16 8-28% below the records recipe from random weights)",
+        "schedule and budget (on the F-16 8-26% below the records recipe from random weights, three-seed "
+        "means)",
         "records read without their estimation record, zero-shot (it predicts worse than the least-squares "
         "ARX then: its card); give it the estimation record (--context) or, better, fine-tune it on it; "
         "records other than one output and one input",
