@@ -39,6 +39,12 @@ PREDICTORS = ("arx", "n4sid", "mop")  # and pretrained:NAME, a shipped model in 
 # and finetune:NAME, that model fine-tuned on the estimation part (`mop train --data --init pretrained:NAME`)
 SHIPPED_KINDS = ("pretrained:", "finetune:")
 
+
+def shipped_name(predictor: str) -> str:
+    """pretrained:NAME for a predictor pretrained:NAME or finetune:NAME (the shipped model it reads)."""
+    return predictor.replace("finetune:", "pretrained:", 1)
+
+
 EXAMPLES = """
 benchmarks: silverbox, f16 (Acceleration1, the official form), f16-3 (all three accelerations),
 cascaded-tanks, emps, wiener-hammerstein, ced.
@@ -176,7 +182,7 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
         if name.startswith("pretrained:"):
             models[name] = InContextModel(load_predictor(name), split.estimation)
         elif name == "mop" or name.startswith("finetune:"):
-            init = None if name == "mop" else name.replace("finetune:", "pretrained:", 1)
+            init = None if name == "mop" else shipped_name(name)
             learned = Learned(
                 budget_minutes=budget,
                 init=init,
@@ -283,9 +289,7 @@ def run(args: argparse.Namespace) -> int:
             "or pretrained:NAME, finetune:NAME (mop pretrained list)"
         )
     shipped = {  # an unknown name is one line
-        n: load_predictor(n.replace("finetune:", "pretrained:", 1))
-        for n in predictors
-        if n.startswith(SHIPPED_KINDS)
+        n: load_predictor(shipped_name(n)) for n in predictors if n.startswith(SHIPPED_KINDS)
     }
     budget = DEFAULT_BUDGET_MINUTES if args.budget is None else check_budget(args.budget)
     out = Path(args.out)
