@@ -36,8 +36,8 @@ def check_context_prefix(config: RunConfig) -> None:
     feature that is an ARX / NARX (rls_order > 0, no coefficients of its own), the outputs as targets, and
     more steps than the feature's regressors. With model.record_norm = "causal" the network reads the window
     as a class model reads a test in context; without it, as the records recipe's network reads a record
-    in its global units (the estimation record's moments), the feature held at the fit with
-    model.rls_fixed: the pretraining of a fine-tune source of the records recipe's shape."""
+    in its global units (the estimation record's moments), the feature starting from the fit (P_0 of a
+    listed prior): the pretraining of a records start (mop.recipe.finetune.records_start)."""
     n, model = config.train.context_prefix, config.model
     check_int("train.context_prefix", n, 0)
     if n == 0:
