@@ -6,10 +6,7 @@ with mop.experiments, which `mop reproduce` imports.
 """
 
 import mop.filters  # noqa: F401  (the classical predictors; imports mop.systems, the families)
-from mop.identify import is_fitted as _is_fitted
-from mop.identify import load as _load_fitted
 from mop.record import Record, read_records
-from mop.runs import load_predictor as _load_predictor
 
 __version__ = "0.1.0"
 
@@ -17,9 +14,13 @@ __version__ = "0.1.0"
 __all__ = ["Record", "load", "read_records"]
 
 
-def load(run_dir, device="cpu"):
-    """Load a predictor as `mop predict` does: a trained run directory (mop train), a shipped one,
-    `pretrained:NAME` (see mop.runs; `mop pretrained` lists them), or a fitted model's directory (mop fit)."""
-    if _is_fitted(run_dir):
-        return _load_fitted(run_dir)
-    return _load_predictor(run_dir, device=device)
+def load(run_dir, device="cpu", context=None):
+    """A saved model as an estimator with the face of mop.estimators.ARX / Learned (fit, predict, forecast,
+    simulate on a mop.Record, numpy out in the record's units): a trained run directory (mop train), a
+    shipped one, `pretrained:NAME` (`mop pretrained` lists them), or a fitted model's directory (mop fit).
+    context: records a shipped class model reads before each simulation, as `mop predict --context`.
+    Given mop.systems.base.Trajectories its predict / forecast / simulate return the predictor's tensors.
+    See mop.estimators.Loaded."""
+    from mop.estimators import load as _load  # the estimators import the recipe: loaded on first use
+
+    return _load(run_dir, device=device, context=context)

@@ -22,9 +22,11 @@ records are written to a CSV beside the run's directory, which the run's config 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
+import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,16 +36,22 @@ import numpy as np
 
 from mop.config import parse_overrides
 from mop.errors import MopError
+from mop.identify import is_fitted
 from mop.identify.arx import ARX as ArxIdentifier
+from mop.identify.linear import FittedPredictor
 from mop.identify.n4sid import N4SID as N4sidIdentifier
 from mop.identify.select import SIMULATION, fit, fit_orders
 from mop.identify.store import FILE as FITTED_FILE
 from mop.identify.store import load as load_fitted
+from mop.incontext import simulate_with_context
 from mop.predictors import Predictor
+from mop.pretrained import dimensions
 from mop.recipe.fit import fit_record
+from mop.recipe.selection import selection_line
 from mop.record import Record, as_pairs, read_records, write_records
 from mop.records import predict_all, simulate_all
 from mop.runs import load_predictor
+from mop.systems.base import Trajectories
 
 Records = Record | Sequence[Record] | str | os.PathLike | tuple[Any, Any]
 
@@ -213,8 +221,9 @@ class Learned(Estimator):
     (mop.recipe.selection): where the ARX wins, predictor_ is that ARX, as mop.load(run_dir_) gives.
     init: fine-tune a run directory or pretrained:NAME (--init).
     overrides: dotted config keys, as keyword arguments with "__" for "." (train__steps=200) or as a dict
-    (**{"train.steps": 200}). out_dir: where the run directory and the records' CSV go (default: a new
-    temporary directory). The seed is train.seed (0)."""
+    (**{"train.steps": 200}). progress: the training's progress bar and the held-out check's verdict on
+    standard error (default: where a terminal is attached). out_dir: where the run directory and the
+    records' CSV go (default: a new temporary directory). The seed is train.seed (0)."""
 
     name = "Learned"
 
@@ -224,7 +233,7 @@ class Learned(Estimator):
         init: str | None = None,
         *,
         out_dir: str | os.PathLike | None = None,
-        progress: bool = False,
+        progress: bool | None = None,
         **overrides: Any,
     ) -> None:
         super().__init__()
@@ -232,7 +241,8 @@ class Learned(Estimator):
             isinstance(budget_minutes, (int, float)) and math.isfinite(budget_minutes) and budget_minutes > 0
         ):
             raise MopError(f"Learned: budget_minutes must be a positive number, got {budget_minutes!r}")
-        self.budget_minutes, self.init, self.progress = budget_minutes, init, progress
+        self.budget_minutes, self.init = budget_minutes, init
+        self.progress = sys.stderr.isatty() if progress is None else progress
         self.out_dir = None if out_dir is None else Path(out_dir)
         self.overrides = [f"{k.replace('__', '.')}={json.dumps(v)}" for k, v in overrides.items()]
         parse_overrides(self.overrides)
@@ -263,6 +273,94 @@ class Learned(Estimator):
         self.run_dir_ = run.run_dir
         if run.selection is not None:
             self.selection_ = run.selection
+            if self.progress:
+                print(f"Learned: {selection_line(run.selection)}", file=sys.stderr)
         fitted = self.run_dir_ / FITTED_FILE
         self.predictor_ = load_fitted(fitted.parent) if fitted.is_file() else load_predictor(self.run_dir_)
         return self
+
+
+class Loaded(Estimator):
+    """A saved model as an estimator (`mop.load`): a trained run, `pretrained:NAME` or a `mop fit` folder,
+    with the face of ARX() / Learned(): predict, forecast and simulate on a Record (or a list, a file,
+    arrays), numpy out in the record's units; fit(record) trains it further on a record (a run or shipped
+    model: the fine-tune of `mop train --data FILE --init RUN`; a fitted folder: the same kind and orders
+    fitted anew).
+
+    context: records a shipped class model reads before each simulation (`mop predict --context`,
+    mop.incontext), in-context identification with no training.
+    The predictor's own face stays: given mop.systems.base.Trajectories, predict / forecast / simulate return
+    its tensors, and its attributes (model, cfg, info, ...) read through."""
+
+    def __init__(self, spec: str | os.PathLike, predictor: Predictor, context: Records | None = None) -> None:
+        super().__init__()
+        self.spec, self.predictor_ = str(spec), predictor
+        self.name = getattr(predictor, "name", self.spec)
+        cfg = getattr(predictor, "cfg", None)
+        if cfg is not None:
+            self.shape_ = dimensions(dataclasses.asdict(cfg))
+        else:
+            self.shape_ = (predictor.output_dim, predictor.input_dim)
+        self.context_ = None if context is None else as_records(context, "context")[0]
+        self.run_dir_: Path | None = None
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or "predictor_" not in self.__dict__:
+            raise AttributeError(name)
+        return getattr(self.__dict__["predictor_"], name)
+
+    def _records(self, data: Records) -> tuple[list[Record], bool]:
+        if self.context_ is not None or getattr(self.predictor_, "cfg", None) is None:
+            return super()._records(data)
+        records, one = as_records(data)  # a class model reads one output at a time (mop.incontext)
+        return records, one
+
+    def predict(self, data: Records) -> Any:
+        if isinstance(data, Trajectories):
+            return self.predictor_.predict(data)
+        return super().predict(data)
+
+    def forecast(self, data: Records, horizon: int) -> Any:
+        if isinstance(data, Trajectories):
+            return self.predictor_.forecast(data, horizon)
+        return super().forecast(data, horizon)
+
+    def simulate(self, data: Records, init: int | None = None) -> Any:
+        """As Estimator.simulate; with a context, each record is simulated after reading it (mop.incontext:
+        the reading that simulates the context's own held-out end best). Trajectories: the predictor's
+        simulate(traj, init) tensor."""
+        if isinstance(data, Trajectories):
+            return self.predictor_.simulate(data, init)
+        if self.context_ is None:
+            return super().simulate(data, init)
+        records, one = as_records(data)
+        out = []
+        for r in records:
+            c = r.init_window if init is None else init
+            done = simulate_with_context(self.predictor_, r, max(int(c), 1), self.context_)
+            full = np.full_like(r.y, np.nan)
+            full[max(int(c), 1) :] = done.simulation
+            out.append(full)
+        return out[0] if one else out
+
+    def fit(self, data: Records, **options: Any) -> Loaded:
+        """Train further on `data`: a fitted folder is fitted anew with its kind and orders; a run or shipped
+        model is fine-tuned (Learned(init=spec, **options), `mop train --data --init`)."""
+        if isinstance(self.predictor_, FittedPredictor):
+            kind, orders = self.predictor_.kind, dict(self.predictor_.orders)
+            refit = IDENTIFIED[kind]
+            est = refit.__new__(refit)
+            _Identified.__init__(est, orders, SIMULATION, int(self.predictor_.info.get("max_order", 10)))
+            self.predictor_ = est.fit(data).predictor_
+            return self
+        learned = Learned(init=self.spec, **options).fit(data)
+        self.predictor_, self.run_dir_ = learned.predictor_, learned.run_dir_
+        self.spec = str(learned.run_dir_)
+        return self
+
+
+def load(spec: str | os.PathLike, device: str = "cpu", context: Records | None = None) -> Loaded:
+    """The model at `spec` as an estimator (see Loaded): a run directory (mop train), pretrained:NAME, or a
+    `mop fit` folder; context: records a class model reads before each simulation (`--context`)."""
+    predictor = load_fitted(spec) if is_fitted(spec) else load_predictor(spec, device=device)
+    return Loaded(spec, predictor, context)

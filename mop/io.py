@@ -2,9 +2,12 @@
 
 CSV: a header, one row per (trajectory, time step): columns `trajectory, t, y0..y{m-1}[, u0..u{k-1}]`, the
 value columns read by their names in any order (`t,u0,y0` is the output y0 and the input u0).
-Trajectories may have different lengths; t runs 0..T_i within each trajectory (rows in any order). One
-record, as identification data comes, may leave out the trajectory column (`t, y0.., u0..`: one
-trajectory named after the file) or both (`y0.., u0..`: one trajectory, its rows in time order).
+Trajectories may have different lengths; t runs 0..T_i within each trajectory (rows in any order), or is time
+in seconds (`0.00, 0.01, ..`, as MATLAB's iddata or a logger writes it): uniform within a relative 1e-3,
+the same step in every trajectory, any start; that step is the records' sampling time. One record, as
+identification data comes, may leave out the trajectory column (`t, y0.., u0..`: one trajectory named after
+the file) or both (`y0.., u0..`: one trajectory, its rows in time order); every column, t and trajectory
+too, may stand anywhere in the header.
 NPZ: arrays y (B, T+1, m) and optionally u (B, T+1, k).
 Missing outputs: an empty CSV cell (or NaN) in a y column, NaN in the .npz y, marks an output channel not
 measured at that step; it stays NaN in the arrays returned (Trajectories.observed is the mask). Inputs u must
@@ -71,6 +74,16 @@ def read_npz(path: Path) -> list[tuple[np.ndarray, np.ndarray | None]]:
 
 
 def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray | None]]]:
+    """(names, [(y, u)]) of a CSV (see the module docstring)."""
+    names, data, _ = read_csv_timed(path)
+    return names, data
+
+
+TIME_TOLERANCE = 1e-3  # relative spread of the steps of a time column in seconds that still reads as uniform
+
+
+def read_csv_timed(path: Path) -> tuple[list[str], Data, float | None]:
+    """(names, [(y, u)], sampling time in seconds or None where t counts steps) of a CSV."""
     try:
         with open(path, newline="") as f:
             rows = list(csv.reader(f))
@@ -88,21 +101,26 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
             "(or, for one record, `t,y0..` or `y0..`; columns in any order)"
         )
     ycols, ucols = _value_columns(header, written, path)
-    trajs: dict[str, dict[int, list[float]]] = {}
+    times: dict[str, dict[float, list[float]]] = {}
     for n, r in enumerate(rows[1:], start=2):
         if len(r) != len(header):
             raise MopError(f"{path}: line {n} has {len(r)} columns, the header has {len(header)}")
         try:
-            t = int(r[1])
+            t = float(r[1])
+            if not math.isfinite(t):
+                raise ValueError
         except ValueError:
-            raise MopError(f"{path}: line {n}, column t: {r[1]!r} is not an integer time step") from None
+            raise MopError(
+                f"{path}: line {n}, column t: {r[1]!r} is neither a time step 0, 1, .. nor a time in seconds"
+            ) from None
         vals = [_cell(r[i], header[i], path, n) for i in (*ycols, *ucols)]  # y0.., u0.. by name
-        steps = trajs.setdefault(r[0].strip(), {})
+        steps = times.setdefault(r[0].strip(), {})
         if t in steps:
-            raise MopError(f"{path}: line {n}: trajectory {r[0]!r} has time step {t} twice")
+            raise MopError(f"{path}: line {n}: trajectory {r[0]!r} has time {r[1]!r} twice")
         steps[t] = vals
-    if not trajs:
+    if not times:
         raise MopError(f"{path}: no data rows below the header")
+    trajs, sampling_time = _as_steps(times, path)
     out = []
     m = len(ycols)
     for name, steps in trajs.items():
@@ -116,7 +134,47 @@ def read_csv(path: Path) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray |
         if np.isnan(a[:, :m]).all():
             raise MopError(f"{path}: trajectory {name!r} has no measured output (every y cell empty)")
         out.append((a[:, :m], a[:, m:] if ucols else None))
-    return list(trajs), out
+    return list(trajs), out, sampling_time
+
+
+def _as_steps(
+    times: dict[str, dict[float, list[float]]], path: Path
+) -> tuple[dict[str, dict[int, list[float]]], float | None]:
+    """({trajectory: {step: values}}, sampling time): t as written where every trajectory counts its steps
+    0, 1, .. (sampling time None); else t read as seconds, uniform within TIME_TOLERANCE, one step for all."""
+    counted = all(
+        all(float(t).is_integer() for t in steps) and sorted(steps) == list(range(len(steps)))
+        for steps in times.values()
+    )
+    if counted:
+        return {name: {int(t): v for t, v in steps.items()} for name, steps in times.items()}, None
+    dts = {}
+    for name, steps in times.items():
+        ts = np.array(sorted(steps))
+        if len(ts) < 2:
+            raise MopError(f"{path}: trajectory {name!r} has one row; need at least 2 time steps")
+        diffs = np.diff(ts)
+        dt = float(np.median(diffs))
+        if np.abs(diffs - dt).max() > TIME_TOLERANCE * dt:
+            j = int(np.abs(diffs - dt).argmax())
+            raise MopError(
+                f"{path}: trajectory {name!r}: column t is neither the steps 0..T nor uniform time in "
+                f"seconds (step {dt:.6g} s, but {diffs[j]:.6g} s after t = {ts[j]:.6g}); resample the "
+                "record or number its rows 0..T"
+            )
+        dts[name] = dt
+    dt = float(np.median(list(dts.values())))
+    odd = next((n for n, d in dts.items() if abs(d - dt) > TIME_TOLERANCE * dt), None)
+    if odd is not None:
+        raise MopError(
+            f"{path}: trajectory {odd!r} is sampled every {dts[odd]:.6g} s and others every {dt:.6g} s; "
+            "give records of one sampling time per file"
+        )
+    steps = {
+        name: {int(round((t - min(values)) / dt)): v for t, v in values.items()}
+        for name, values in times.items()
+    }
+    return steps, dt
 
 
 def _value_columns(header: list[str], written: str, path: Path) -> tuple[list[int], list[int]]:
@@ -127,8 +185,9 @@ def _value_columns(header: list[str], written: str, path: Path) -> tuple[list[in
         match = re.fullmatch(r"([yu])(\d+)", name)
         if match is None:
             raise MopError(
-                f"{path}: column {name!r} of header {written!r} is neither an output y<i> nor an input u<j>; "
-                "name the outputs y0, y1, .. and the inputs u0, u1, .."
+                f"{path}: column {name!r} of header {written!r} is neither an output y<i> nor an input u<j> "
+                "(nor t or trajectory): name the outputs y0, y1, .. and the inputs u0, u1, .. (or, for one "
+                "record, `t,y0..` or `y0..`; columns in any order, t in steps or seconds)"
             )
         kind, number = match.group(1), int(match.group(2))
         if number in found[kind]:
@@ -147,13 +206,24 @@ def _value_columns(header: list[str], written: str, path: Path) -> tuple[list[in
 
 
 def _with_trajectory_column(header: list[str], rows: list[list[str]], path: Path) -> list[list[str]]:
-    """rows in the long format: a one-record header (`t,y0..` or `y0..`, see the module docstring) gets the
-    trajectory column (the file's stem) and, without t, the time steps 0..T in row order."""
-    if header[:1] == ["t"]:
-        return [["trajectory", *rows[0]], *([path.stem, *r] for r in rows[1:])]
-    if header[:1] and re.fullmatch(r"[yu]\d+", header[0]):
-        return [["trajectory", "t", *rows[0]], *([path.stem, str(t), *r] for t, r in enumerate(rows[1:]))]
-    return rows
+    """rows in the long format `trajectory, t, values..`: the columns trajectory and t moved first wherever
+    they stand; without trajectory, one record named after the file; without t, the steps 0..T in row order
+    (within each trajectory)."""
+    where = {c: header.index(c) for c in ("trajectory", "t") if c in header}
+    values = [i for i, c in enumerate(header) if c not in where]
+    counts: dict[str, int] = {}
+    out = [["trajectory", "t", *[header[i] for i in values]]]
+    for n, r in enumerate(rows[1:], start=2):
+        if len(r) != len(header):
+            raise MopError(f"{path}: line {n} has {len(r)} columns, the header has {len(header)}")
+        name = r[where["trajectory"]] if "trajectory" in where else path.stem
+        if "t" in where:
+            t = r[where["t"]]
+        else:
+            t = str(counts.get(name, 0))
+            counts[name] = int(t) + 1
+        out.append([name, t, *[r[i] for i in values]])
+    return out
 
 
 def _cell(text: str, column: str, path: Path, line: int) -> float:
@@ -184,7 +254,7 @@ Data = list[tuple[np.ndarray, np.ndarray | None]]
 
 
 # file version (path, mtime, size) -> what read_trajectories returned, while a reading_once() block runs
-_read_once: dict[tuple, tuple[list[str], Data]] | None = None
+_read_once: dict[tuple, tuple[list[str], Data, float | None]] | None = None
 
 
 @contextlib.contextmanager
@@ -204,6 +274,13 @@ def reading_once() -> Iterator[None]:
 def read_trajectories(path: str | os.PathLike) -> tuple[list[str], Data]:
     """(names, [(y (T_i+1, m), u (T_i+1, k) | None)]) from a .csv or .npz file (read once per version of the
     file inside a reading_once() block)."""
+    names, data, _ = read_timed(path)
+    return names, data
+
+
+def read_timed(path: str | os.PathLike) -> tuple[list[str], Data, float | None]:
+    """(names, data, sampling time in seconds or None): read_trajectories with the sampling time that a CSV's
+    time column in seconds gives (None for step counts and .npz files)."""
     path = Path(path)
     if not path.is_file():
         raise MopError(f"data file {path} does not exist")
@@ -213,16 +290,16 @@ def read_trajectories(path: str | os.PathLike) -> tuple[list[str], Data]:
     key = (os.path.abspath(path), stat.st_mtime_ns, stat.st_size)
     if key not in _read_once:
         _read_once[key] = _read_file(path)
-    names, data = _read_once[key]
-    return list(names), [(y.copy(), None if u is None else u.copy()) for y, u in data]
+    names, data, dt = _read_once[key]
+    return list(names), [(y.copy(), None if u is None else u.copy()) for y, u in data], dt
 
 
-def _read_file(path: Path) -> tuple[list[str], Data]:
+def _read_file(path: Path) -> tuple[list[str], Data, float | None]:
     if path.suffix == ".npz":
         data = read_npz(path)
-        return [str(i) for i in range(len(data))], data
+        return [str(i) for i in range(len(data))], data, None
     if path.suffix == ".csv":
-        return read_csv(path)
+        return read_csv_timed(path)
     raise MopError(f"{path}: unknown data format {path.suffix!r}; use .csv or .npz")
 
 

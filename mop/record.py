@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import hashlib
 import math
 import os
 from collections.abc import Sequence
@@ -22,7 +23,7 @@ import numpy as np
 
 from mop.atomic import atomic_path
 from mop.errors import MopError
-from mop.io import read_trajectories
+from mop.io import read_timed
 
 Pair = tuple[np.ndarray, np.ndarray | None]  # (y (T, m), u (T, k) | None): the arrays mop's functions take
 
@@ -143,9 +144,22 @@ def from_pairs(pairs: Sequence[Pair], names: Sequence[str] | None = None, **fiel
 
 
 def read_records(path: str | os.PathLike, sampling_time: float | None = None) -> list[Record]:
-    """The records of a .csv or .npz file (mop.io's formats), read once."""
-    names, pairs = read_trajectories(path)
-    return from_pairs(pairs, names, sampling_time=sampling_time)
+    """The records of a .csv or .npz file (mop.io's formats), read once; sampling_time: the given one, else
+    the one a CSV's time column in seconds gives, else None."""
+    names, pairs, dt = read_timed(path)
+    return from_pairs(pairs, names, sampling_time=dt if sampling_time is None else sampling_time)
+
+
+def fingerprint(pairs: Sequence[tuple[np.ndarray, np.ndarray | None]]) -> str:
+    """A SHA-256 digest of records' values (y, u) as float64, shapes included: the same samples give the same
+    digest whatever file they were read from, so a model can tell its own training record when it sees it."""
+    digest = hashlib.sha256()
+    for y, u in pairs:
+        for a in (y, np.zeros((len(y), 0)) if u is None else u):
+            a = np.ascontiguousarray(a, dtype=np.float64)
+            digest.update(str(a.shape).encode())
+            digest.update(a.tobytes())
+    return digest.hexdigest()
 
 
 def write_records(records: Sequence[Record], path: str | os.PathLike) -> Path:

@@ -17,6 +17,7 @@ averaged over the channels:
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import torch
@@ -74,7 +75,10 @@ def predict_all(predictor, data: Data, steps: int | None = None, family: str = "
 
 def simulate_all(predictor, data: Data, context: int, family: str = "", params=None) -> list[np.ndarray]:
     """[(T_i+1-C, m)] free-run simulations after C outputs, in the order of data, computed in batches (see
-    batches: sim[:, j] predicts y_{C+j} from y_<C and u_<C+j, so the kept j <= T_i - C never read padding)."""
+    batches: sim[:, j] predicts y_{C+j} from y_<C and u_<C+j, so the kept j <= T_i - C never read padding).
+    A simulation reads no output after its context, so a missing one there (NaN) is no reason to refuse: it
+    is handed to the predictor as 0 (never read) and left out of the score (simulation_rmse)."""
+    data = [(np.where(np.arange(len(y))[:, None] >= context, np.nan_to_num(y), y), u) for y, u in data]
     out: list[np.ndarray | None] = [None] * len(data)
     for idx, traj in batches(data, family, params):
         sim = simulate(predictor, traj, context).double().cpu().numpy()
@@ -131,14 +135,17 @@ def scores(y: list[np.ndarray] | np.ndarray, yhat: list[np.ndarray] | np.ndarray
     y = np.concatenate(y) if isinstance(y, list) else y
     yhat = np.concatenate(yhat) if isinstance(yhat, list) else yhat
     e = y - yhat  # (T, m)
-    rmse = np.sqrt(np.nanmean(e**2, axis=0))  # (m,)
-    spread = np.sqrt(np.nanmean((y - np.nanmean(y, axis=0)) ** 2, axis=0))  # (m,) population std
+    with warnings.catch_warnings():  # no prediction at all (a blank column) scores NaN, without a warning
+        warnings.simplefilter("ignore", RuntimeWarning)
+        rmse = np.sqrt(np.nanmean(e**2, axis=0))  # (m,)
+        spread = np.sqrt(np.nanmean((y - np.nanmean(y, axis=0)) ** 2, axis=0))  # (m,) population std
+        total = float(np.sqrt(np.nanmean(e**2)))
     with np.errstate(divide="ignore", invalid="ignore"):
         nrmse = np.where(spread > 0, rmse / spread, np.nan)
     norms = observed_norms(e)
     return Scores(
         steps=len(norms),
-        rmse=float(np.sqrt(np.nanmean(e**2))),
+        rmse=total,
         nrmse=float(np.mean(nrmse)),
         fit=float(100 * (1 - np.mean(nrmse))),
         mean_norm=float(norms.mean()) if len(norms) else float("nan"),

@@ -125,7 +125,7 @@ def test_a_network_that_beats_the_arx_is_kept(tmp_path, capsys):
     chosen = json.loads((run / SELECTION_FILE).read_text())
     assert chosen["kept"] == "network" and chosen["network_rmse"] < chosen["arx_rmse"]
     assert not (run / "fitted.json").exists()
-    assert type(mop.load(run)).__name__ == "LearnedPredictor"
+    assert type(mop.load(run).predictor_).__name__ == "LearnedPredictor"
 
 
 def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predicts(tmp_path, capsys):

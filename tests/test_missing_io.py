@@ -34,7 +34,7 @@ def test_empty_cells_and_nan_read_as_missing(tmp_path):
         ("a,1,abc,3,0", "line 3, column y0: 'abc' is not a number"),
         ("a,1,1,3,", "line 3, column u0: the input is missing"),
         ("a,1,1,3,NaN", "line 3, column u0: the input is missing"),
-        ("a,x,1,3,0", "line 3, column t: 'x' is not an integer"),
+        ("a,x,1,3,0", "line 3, column t: 'x' is neither a time step"),
     ],
 )
 def test_bad_cells_name_line_and_column(tmp_path, row, message):

@@ -12,17 +12,26 @@ and every predictor's simulation beside the measured output (OUT/BENCH/TEST_PRED
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import math
 import time
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from mop.atomic import atomic_path, write_json
 from mop.benchmarks import BENCHMARKS, Split, load_benchmark, present
-from mop.benchmarks.protocol import CITATION, PUBLISHED, TestScore, run_test, score_test, test_figure
+from mop.benchmarks.protocol import (
+    CITATION,
+    PUBLISHED,
+    STATE_OF_THE_ART,
+    TestScore,
+    run_test,
+    score_test,
+    test_figure,
+)
+from mop.commands.predict import write_simulation
 from mop.errors import MopError
 from mop.estimators import Learned
 from mop.identify import fit
@@ -160,20 +169,43 @@ def _fitted(kind: str, split: Split, warnings: list[str]):
 
 
 def _write_simulation(path: Path, test, score: TestScore) -> None:
-    """The simulation beside the measured output, one row per scored step."""
-    n = max(test.init_window, 1)
-    m = test.num_outputs
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["t", *[f"y{i}" for i in range(m)], *[f"ysim{i}" for i in range(m)]])
-        for j, sim in enumerate(score.simulation):
-            w.writerow([n + j, *[f"{v:.7g}" for v in test.y[n + j]], *[f"{v:.7g}" for v in sim]])
+    """The simulation beside the measured output, one row per scored step, in `mop predict --simulate`'s
+    layout (trajectory, t, y0.., ysim0..)."""
+    write_simulation(path, [test.name], [score.simulation], max(test.init_window, 1), [test.y])
+
+
+def leaks(split: Split) -> list[str]:
+    """A warning for each test record that is (or holds) an estimation record: the same samples scored as
+    a test say nothing about a model fitted on them."""
+    out = []
+    for test in split.tests:
+        for est in split.estimation:
+            if est.num_outputs == test.num_outputs and contains(est, test):
+                out.append(
+                    f"test {test.name!r} holds the estimation record {est.name!r}: its score measures the "
+                    "fit on the data it was fitted on, not a prediction; give a test record the fit never saw"
+                )
+                break
+    return out
+
+
+def contains(a, b) -> bool:
+    """Whether records a and b share a stretch of 20 samples (or all of the shorter): the same outputs and
+    inputs, bit for bit, at some offset."""
+    short, long_ = (a, b) if len(a) <= len(b) else (b, a)
+    n = min(20, len(short))
+    key = np.concatenate([np.nan_to_num(short.y[:n]), short.u[:n] if short.u is not None else short.y[:0]], 1)
+    whole = np.concatenate([np.nan_to_num(long_.y), long_.u if long_.u is not None else long_.y[:, :0]], 1)
+    first = np.flatnonzero((whole == key[0]).all(axis=1))
+    return any(i + n <= len(whole) and np.array_equal(whole[i : i + n], key) for i in first[:1000])
 
 
 def _run_split(split: Split, args, predictors: list[str], budget: float, out: Path, bar) -> dict:
     folder = out / split.name
     folder.mkdir(parents=True, exist_ok=True)
-    warnings: list[str] = []
+    warnings: list[str] = leaks(split)
+    for w in warnings:
+        print(f"warning: {split.name}: {w}")
     notes: list[str] = []  # what each predictor turned out to be (MOP's feature and held-out choice)
     models, seconds = {}, {}
     for name in predictors:
@@ -218,11 +250,32 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
                     f"{split.name} {test.name}: {name}'s simulation diverged at step {score.diverged_at}"
                 )
             bar.update(1)
-        test_figure(test, {k: s.simulation for k, s in scores.items()}, split.units, folder, test.name)
+        shown, scale = shown_units(split)
+        test_figure(test, {k: s.simulation for k, s in scores.items()}, shown, folder, test.name, scale)
         results[test.name] = {
-            k: {"rmse": s.rmse, "units": split.units, "diverged_at": s.diverged_at} for k, s in scores.items()
+            k: {
+                "rmse": s.rmse,
+                "units": split.units,
+                "n": max(test.init_window, 1),
+                "diverged_at": s.diverged_at,
+            }
+            for k, s in scores.items()
         }
-    return {"results": results, "seconds": seconds, "warnings": warnings, "notes": notes}
+    return {
+        "results": results,
+        "seconds": seconds,
+        "warnings": warnings,
+        "notes": notes,
+        "shown": shown_units(split),
+    }
+
+
+def shown_units(split: Split) -> tuple[str, float]:
+    """(units, scale) of a split's tables and figures: the field's (mV, mm) for a benchmark, the outputs'
+    own for a user's records ("" where unknown)."""
+    if split.name in BENCHMARKS.names():
+        return BENCHMARKS.get(split.name).shown_units()
+    return split.units, 1.0
 
 
 def _fmt(x: float, scale: float) -> str:
@@ -230,11 +283,21 @@ def _fmt(x: float, scale: float) -> str:
 
 
 def _report(runs: dict, args, budget: float) -> str:
-    lines = ["# Benchmarks: free-run simulation RMSE on the official tests", ""]
-    lines.append(
-        "Protocol: fitted on the estimation part only; on each test the first n measured outputs initialize "
-        "and the rest is simulated from the input alone; RMSE of y[n:] in the output's units."
-    )
+    own = args.est is not None
+    if own:
+        lines = ["# Your records: free-run simulation RMSE on the test records", ""]
+        lines.append(
+            f"Protocol: fitted on {args.est} only; on each test record the first {args.init_window} measured "
+            "outputs initialize and the rest is simulated from the input alone; RMSE of y[n:] in the "
+            "outputs' units."
+        )
+    else:
+        lines = ["# Benchmarks: free-run simulation RMSE on the official tests", ""]
+        lines.append(
+            "Protocol (the official loader's): fitted on the estimation part only; on each test the first n "
+            "measured outputs initialize (n per test below) and the rest is simulated from the input alone; "
+            "RMSE of y[n:]. The F-16 has no official n; 50 is mop's choice."
+        )
     if "mop" in args.predictors.split(","):
         lines.append(f"MOP: the records recipe within a budget of {budget:g} min, seed {args.seed}.")
     if "pretrained:" in args.predictors:
@@ -248,21 +311,23 @@ def _report(runs: dict, args, budget: float) -> str:
         )
     lines.append("")
     for bench, run in runs.items():
-        units = next(iter(next(iter(run["results"].values())).values()))["units"]
-        scale, shown = (
-            (1e3, "mV") if units == "V" and bench in ("silverbox", "wiener-hammerstein") else (1, units)
-        )
+        shown, scale = run["shown"]
         published = PUBLISHED.get(bench, {})
+        best = STATE_OF_THE_ART.get(bench, {})
         predictors = list(next(iter(run["results"].values())))
         pub_names = sorted({k for t in published.values() for k in t})
-        lines += [f"## {bench} ({shown})", ""]
-        lines.append("| test | " + " | ".join([*predictors, *[f"{p} (published)" for p in pub_names]]) + " |")
-        lines.append("|---" * (1 + len(predictors) + len(pub_names)) + "|")
+        extra = [f"{p} (published)" for p in pub_names] + (["state of the art"] if best else [])
+        lines += [f"## {bench}" + (f" ({shown})" if shown else ""), ""]
+        lines.append("| test | n | " + " | ".join([*predictors, *extra]) + " |")
+        lines.append("|---" * (2 + len(predictors) + len(extra)) + "|")
         for test, scores in run["results"].items():
+            n = next(iter(scores.values()))["n"]
             cells = [_fmt(scores[p]["rmse"], scale) for p in predictors]
             known = published.get(test, {})
             cells += [_fmt(known[p], scale) if p in known else "-" for p in pub_names]
-            lines.append(f"| {test} | " + " | ".join(cells) + " |")
+            if best:
+                cells.append(_fmt(best[test][0], scale) if test in best else "-")
+            lines.append(f"| {test} | {n} | " + " | ".join(cells) + " |")
         lines.append("")
         lines.append(
             "Fitting / training time: " + ", ".join(f"{k} {v:.0f} s" for k, v in run["seconds"].items())
@@ -271,6 +336,8 @@ def _report(runs: dict, args, budget: float) -> str:
             lines.append(f"- {note}")
         for w in run["warnings"]:
             lines.append(f"- warning: {w}")
+        for test, (value, method) in best.items():
+            lines.append(f"- state of the art on {test}: {_fmt(value, scale)} {shown}, {method}")
         lines.append("")
         for test in run["results"]:
             lines.append(f"![{bench} {test}]({bench}/{test}.png)")

@@ -14,8 +14,9 @@ prediction; see mop.predictors.forecast): NPZ yhat (B, T+1, K, m) with NaN where
 `trajectory,t,j,yhat0..` with one row per (t, j), t + j <= T. Prints per-trajectory RMSE and mean ||e|| over
 t >= 1 (one-step), or with --steps the mean ||y_{t+j} - forecast[t, j]|| per horizon k = j + 1 over t >= 1.
 With --simulate C: free-run simulation (mop.predictors.simulate), y_C..y_T predicted from y_0..y_{C-1} and the
-inputs alone: NPZ ysim (B, T+1-C, m), CSV `trajectory,t,ysim0..` for t >= C; prints the simulation RMSE beside
-the one-step RMSE over the same steps t >= C.
+inputs alone: NPZ ysim (B, T+1-C, m), CSV `trajectory,t,y0..,ysim0..` for t >= C (the layout `mop benchmark`
+writes too) and a figure beside it (OUT.png: simulated against measured, the RMSE in the legend); prints
+the simulation RMSE beside the one-step RMSE over the same steps t >= C.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from mop.errors import MopError
 from mop.identify import is_fitted
 from mop.identify import load as load_fitted
 from mop.incontext import check_context, reading_line, simulate_with_context
-from mop.io import read_system, read_trajectories
+from mop.io import read_system, read_timed
 from mop.memory import check_allocation
 from mop.predictors import (
     PREDICTORS,
@@ -43,9 +44,9 @@ from mop.predictors import (
     needs_system,
 )
 from mop.pretrained import is_pretrained
-from mop.record import Record, read_records
+from mop.record import Record, fingerprint, read_records
 from mop.records import DIVERGENCE_FACTOR, divergence_step, observed_norms, predict_all, scores, simulate_all
-from mop.runs import load_predictor
+from mop.runs import load_config, load_predictor
 from mop.systems import FAMILIES
 from mop.systems.base import (
     LINEAR_MODEL_ARRAYS,
@@ -96,23 +97,49 @@ def model_free() -> list[str]:
     ]
 
 
+BASELINE = "baseline:"  # baseline:NAME names a registered predictor even where a folder NAME exists
+
+
 def resolve_predictor(spec: str, stream: bool = False):
-    """(predictor, needs_system) for a fitted model (mop fit), a run directory, pretrained:NAME or a
-    registered (non-learned) name."""
-    if is_fitted(spec):
-        return load_fitted(spec), False
-    if is_pretrained(spec) or Path(spec).is_dir():
-        return load_predictor(spec, mode="stream" if stream else "window"), False
-    names = PREDICTORS.names()
-    if spec not in names:
+    """(predictor, needs_system, what) for a fitted model (mop fit), a run directory, pretrained:NAME or a
+    registered (non-learned) name, with `what` one line saying which of these ran.
+
+    A bare name that is both a folder here and a registered predictor (`arx` after `mop fit arx --out arx`)
+    is refused in one line, never resolved silently: `./arx` names the folder, `baseline:arx` the registered
+    predictor."""
+    registered = spec.removeprefix(BASELINE)
+    if spec.startswith(BASELINE) or (not Path(spec).exists() and not is_pretrained(spec)):
+        return _registered(registered)
+    if spec in PREDICTORS.names() and Path(spec).is_dir() and "/" not in spec and "\\" not in spec:
         raise MopError(
-            f"{spec!r}: run directory {spec} does not exist and no predictor is registered under that name; "
+            f"{spec!r} is both the folder ./{spec} and the registered predictor {spec}; give ./{spec} for "
+            f"the folder or {BASELINE}{spec} for the registered one"
+        )
+    if is_fitted(spec):
+        fitted = load_fitted(spec)
+        return fitted, False, f"predictor: the model fitted by `mop fit` in {spec} ({fitted.name})"
+    if is_pretrained(spec) or Path(spec).is_dir():
+        loaded = load_predictor(spec, mode="stream" if stream else "window")
+        kind = "the shipped model" if is_pretrained(spec) else "the trained run"
+        return loaded, False, f"predictor: {kind} {spec}"
+    return _registered(registered)
+
+
+def _registered(name: str):
+    names = PREDICTORS.names()
+    if name not in names:
+        raise MopError(
+            f"{name!r}: run directory {name} does not exist and no predictor is registered under that name; "
             f"give a run directory, pretrained:NAME (mop pretrained lists them) or one of: "
             f"{', '.join(sorted(names))}"
         )
-    if is_learned(spec):
-        raise MopError(f"{spec} is a learned predictor: give its run directory (mop train --out DIR)")
-    return make_predictor(spec), needs_system(spec)
+    if is_learned(name):
+        raise MopError(f"{name} is a learned predictor: give its run directory (mop train --out DIR)")
+    return (
+        make_predictor(name),
+        needs_system(name),
+        f"predictor: the registered online predictor {name}, not a model fitted with `mop fit`",
+    )
 
 
 def system_of(name: str, data_path: Path, num: int, has_inputs: bool = False) -> tuple[str, SystemParams]:
@@ -174,12 +201,17 @@ def write_simulation(
     m = sims[0].shape[-1]
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["trajectory", "t", *[f"ysim{i}" for i in range(m)], *[f"y{i}" for i in range(m)]])
+        w.writerow(SIMULATION_COLUMNS(m))
         for name, p, y in zip(names, sims, measured, strict=True):
             for j, row in enumerate(p):
                 w.writerow(
-                    [name, context + j, *[f"{v:.7g}" for v in row], *[f"{v:.7g}" for v in y[context + j]]]
+                    [name, context + j, *[f"{v:.7g}" for v in y[context + j]], *[f"{v:.7g}" for v in row]]
                 )
+
+
+def SIMULATION_COLUMNS(m: int) -> list[str]:  # noqa: N802  (one layout for mop predict and mop benchmark)
+    """The columns of a simulation CSV: trajectory, t, the measured y0.. and the simulated ysim0..."""
+    return ["trajectory", "t", *[f"y{i}" for i in range(m)], *[f"ysim{i}" for i in range(m)]]
 
 
 SIMULATION_HEADER = ("trajectory", "steps", "1-step rmse", "fit %", "sim rmse", "sim nrmse", "sim fit %")
@@ -302,6 +334,59 @@ def simulated_in_context(predictor, names, data, init: int, path: str) -> list[n
     return sims
 
 
+FIGURES = 4  # records drawn by mop predict --simulate (the first ones of the file)
+
+
+def simulation_figures(
+    out: Path, predictor: str, names, data, sims, context: int, sampling_time: float | None
+) -> list[Path]:
+    """OUT.png (one record) or OUT_NAME.png (the first FIGURES records): the simulation against the measured
+    output, drawn as `mop benchmark` draws a test (mop.benchmarks.protocol.test_figure), the RMSE in the
+    legend, time in seconds where the record gives its sampling time."""
+    from mop.benchmarks.protocol import test_figure  # matplotlib: imported only where a figure is drawn
+
+    label = predictor.removeprefix("pretrained:").removeprefix("baseline:").rstrip("/") or "predictor"
+    label = Path(label).name or label
+    written = []
+    for i, (name, (y, u), sim) in enumerate(zip(names, data, sims, strict=True)):
+        if i == FIGURES:
+            break
+        record = Record(y=y, u=u, name=name, sampling_time=sampling_time, init_window=context)
+        stem = out.stem if len(names) == 1 else f"{out.stem}_{re.sub(r'[^A-Za-z0-9._-]+', '-', name)}"
+        written.append(test_figure(record, {label: sim}, "", out.parent, stem)[0])
+    return written
+
+
+def leak_warning(spec: str, predictor, data) -> str | None:
+    """A warning where DATA holds the very samples the model was fitted or trained on (its fingerprint, or
+    its run's training file): scores there measure the fit, not a prediction."""
+    digest = fingerprint(data)
+    info = getattr(predictor, "info", None)
+    trained = isinstance(info, dict) and info.get("fingerprint") == digest
+    if not trained and not is_pretrained(spec) and Path(spec, "config.json").is_file():
+        data_config = load_config(spec).data
+        path = Path(data_config.path if data_config is not None and data_config.path else "")
+        if path.is_file() and path.suffix in (".csv", ".npz"):
+            trained = fingerprint(read_timed(path)[1]) == digest
+    if not trained:
+        return None
+    return (
+        f"warning: these are the records {spec} was fitted on: the scores below measure the fit on its own "
+        "data, not a prediction; score a record it never saw"
+    )
+
+
+def one_step_beside_simulation(predictor, data, family: str, params) -> list[np.ndarray]:
+    """The one-step predictions shown beside a simulation of records with gaps; NaN (a blank column) where
+    the predictor cannot read the gaps one step ahead (a fixed linear model), which the simulation does not
+    need: it reads no output after its context."""
+    try:
+        return predict_all(predictor, data, None, family, params)
+    except MopError as err:
+        print(f"one-step column left blank: {err}")
+        return [np.full_like(y, np.nan) for y, _ in data]
+
+
 def default_output(data_path: Path, predictor: str) -> Path:
     """DATA_<predictor>_pred.csv beside the data: named after the predictor (a run or fitted directory's
     name, a shipped model's NAME, a baseline's name), so predicting one record with several predictors keeps
@@ -331,15 +416,25 @@ def run(args: argparse.Namespace) -> int:
         raise MopError("give --steps or --simulate, not both")
     if args.context is not None and args.simulate is None:
         raise MopError("--context FILE is read before a simulation: give --simulate C too")
-    predictor, knows_system = resolve_predictor(args.predictor, args.stream)
-    names, data = read_trajectories(data_path)
+    predictor, knows_system, what = resolve_predictor(args.predictor, args.stream)
+    print(what)
+    names, data, sampling_time = read_timed(data_path)
     check_predict_size(data, args.steps)
+    leak = leak_warning(args.predictor, predictor, data)
+    if leak:
+        print(leak)
     context = None if args.simulate is None else simulation_context(args.simulate, data)
     has_inputs = data[0][1] is not None
     family, params = (
         system_of(args.predictor, data_path, len(data), has_inputs) if knows_system else ("", None)
     )
-    yhat = predict_all(predictor, data, args.steps, family, params)
+    if context is not None and any(np.isnan(y).any() for y, _ in data):
+        yhat = one_step_beside_simulation(predictor, data, family, params)
+        gaps = sum(int(np.isnan(y[context:]).any(axis=-1).sum()) for y, _ in data)
+        if gaps:
+            print(f"{gaps} step(s) after the context have missing outputs: simulated, left out of the scores")
+    else:
+        yhat = predict_all(predictor, data, args.steps, family, params)
     if context is not None:
         if args.context is not None:
             sims = simulated_in_context(predictor, names, data, context, args.context)
@@ -347,7 +442,8 @@ def run(args: argparse.Namespace) -> int:
             sims = simulate_all(predictor, data, context, family, params)
         print_simulation_errors(names, data, yhat, sims, context)
         write_simulation(out, names, sims, context, [y for y, _ in data])
-        print(f"wrote {out}")
+        figures = simulation_figures(out, args.predictor, names, data, sims, context, sampling_time)
+        print(f"wrote {out}" + (f" and {', '.join(str(f) for f in figures)}" if figures else ""))
         return 0
     if args.steps is None:
         print_errors(names, data, yhat)

@@ -103,9 +103,12 @@ class LinearModel:
         return {k: getattr(self, k).tolist() for k in ("A", "B", "C", "K", "b", "d", "x0")}
 
 
-def arrays_of(traj: Trajectories, m: int, k: int, who: str) -> tuple[np.ndarray, np.ndarray]:
+def arrays_of(
+    traj: Trajectories, m: int, k: int, who: str, read: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(y (B, T+1, m), u (B, T+1, k)) float64 numpy of traj; MopError if the dimensions differ from the fit's
-    or an output is missing (a fixed linear model reads every output)."""
+    or an output it reads is missing (a fixed linear model reads every output): all of them, or only the
+    first `read` (a simulation reads its context; what it simulates may have gaps, left out of its score)."""
     y = traj.y.detach().cpu().double().numpy()
     u = np.zeros((*y.shape[:2], 0)) if traj.u is None else traj.u.detach().cpu().double().numpy()
     if y.shape[-1] != m or u.shape[-1] != k:
@@ -113,9 +116,12 @@ def arrays_of(traj: Trajectories, m: int, k: int, who: str) -> tuple[np.ndarray,
             f"{who} was fitted on {m} output(s) and {k} input(s); these data have {y.shape[-1]} and "
             f"{u.shape[-1]}: give data with the estimation record's columns"
         )
-    if np.isnan(y).any():
+    seen = y if read is None else y[:, :read]
+    if np.isnan(seen).any():
+        where = "" if read is None else f" among the {read} it reads before simulating"
         raise MopError(
-            f"{who} needs every output, and these data have {int(np.isnan(y).sum())} missing; fill the gaps"
+            f"{who} needs every output it reads, and these data have {int(np.isnan(seen).sum())} missing"
+            f"{where}; fill the gaps"
         )
     return y, u
 
@@ -139,8 +145,8 @@ class FittedPredictor:
     def __post_init__(self) -> None:
         self.name = self.name or f"fitted-{self.kind}"
 
-    def _arrays(self, traj: Trajectories) -> tuple[np.ndarray, np.ndarray]:
-        return arrays_of(traj, self.output_dim, self.input_dim, self.name)
+    def _arrays(self, traj: Trajectories, read: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        return arrays_of(traj, self.output_dim, self.input_dim, self.name, read)
 
     def states(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(B, T+1, n): the predictor states over the record. lag_state (ARX): the lags before the record's
@@ -191,8 +197,9 @@ class FittedPredictor:
         return self.model.fit_state(y[:, s : s + L], u[:, s : s + L], self.model.x0), s
 
     def simulate(self, traj: Trajectories, context: int) -> Tensor:
-        """(B, T+1-c, m): out[:, j] predicts y_{c+j} from y_<c and the inputs (c = context >= 0)."""
-        y, u = self._arrays(traj)
+        """(B, T+1-c, m): out[:, j] predicts y_{c+j} from y_<c and the inputs (c = context >= 0); outputs
+        after the context may be missing (NaN): they are not read."""
+        y, u = self._arrays(traj, read=max(context, 1))
         T1 = y.shape[1]
         if not 0 <= context < T1:
             raise MopError(f"simulation context must be in [0, T = {T1 - 1}], got {context}")

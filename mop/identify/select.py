@@ -20,7 +20,7 @@ import torch
 
 from mop.errors import MopError
 from mop.identify.linear import IDENTIFIERS, Arrays, FittedPredictor
-from mop.record import Record, RecordsLike, to_records
+from mop.record import Record, RecordsLike, fingerprint, to_records
 from mop.systems.base import Trajectories
 
 HOLDOUT = 0.2
@@ -120,6 +120,7 @@ def fit(
     est = [(y[: holdout_cut(len(y))], u[: holdout_cut(len(y))]) for y, u in record]
     check_length(kind, identifier, record, est, max_order, source)
     info = {"estimation": Path(source).name, "select": select, "max_order": max_order, "holdout": HOLDOUT}
+    info["fingerprint"] = fingerprint(record)  # mop predict warns when it is asked to score this record
     candidates = identifier.candidates(max_order, record[0][1].shape[1])
     grid = identifier.fit_grid(est, candidates, info, max_order)
     scores = [score(p, record, select) for p in grid]
@@ -159,6 +160,7 @@ def fit_orders(
         steps = sum(len(y) for y, _ in record)
         raise MopError(f"{source}: {steps} steps are too few to fit {kind} {orders}; lower the orders")
     info = {"estimation": Path(source).name, "select": "given", "max_order": largest}
+    info["fingerprint"] = fingerprint(record)
     fitted = identifier.fit_grid(record, [orders], info, largest)[0]
     fitted.info[POLE_RADIUS] = pole_radius(fitted.model.A)
     return fitted
