@@ -76,9 +76,8 @@ def predict_all(predictor, data: Data, steps: int | None = None, family: str = "
 def simulate_all(predictor, data: Data, context: int, family: str = "", params=None) -> list[np.ndarray]:
     """[(T_i+1-C, m)] free-run simulations after C outputs, in the order of data, computed in batches (see
     batches: sim[:, j] predicts y_{C+j} from y_<C and u_<C+j, so the kept j <= T_i - C never read padding).
-    A simulation reads no output after its context, so a missing one there (NaN) is no reason to refuse: it
-    is handed to the predictor as 0 (never read) and left out of the score (simulation_rmse)."""
-    data = [(np.where(np.arange(len(y))[:, None] >= context, np.nan_to_num(y), y), u) for y, u in data]
+    A simulation reads no output after its context, so a missing one there (NaN) is no reason to refuse; it
+    is left out of the score (simulation_rmse)."""
     out: list[np.ndarray | None] = [None] * len(data)
     for idx, traj in batches(data, family, params):
         sim = simulate(predictor, traj, context).double().cpu().numpy()

@@ -161,3 +161,12 @@ def test_a_learned_model_trained_without_gaps_simulates_a_record_with_gaps_after
     np.testing.assert_array_equal(
         model.simulate(Record(y=gappy, u=val.u), init=20), model.simulate(val, init=20)
     )
+    write_records([Record(y=gappy, u=val.u, name="val")], records / "gaps.csv")
+    assert (
+        main(["predict", "pretrained:duffing-records", "gaps.csv", "--simulate", "20", "--out", "s.csv"]) == 0
+    )
+    np.testing.assert_allclose(
+        np.genfromtxt("s.csv", delimiter=",", names=True)["ysim0"],
+        model.simulate(val, init=20)[20:, 0],
+        atol=1e-6,
+    )
