@@ -78,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     previous files whole and remove their temporaries) and running out of memory."""
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(_command(argv)).parse_args(argv)
+    args._argv = argv  # the command line as given, for the provenance of what a command writes
     warnings.showwarning = _show_warning
     try:
         return int(importlib.import_module(args._module).run(args) or 0)

@@ -119,7 +119,8 @@ def test_figure(
         ys = sim[:, 0] * scale
         end = len(ys) if step is None else step
         err = y[:end] - ys[:end]
-        label = f"{name} (RMSE {'diverged' if step is not None else f'{rmse * scale:.4g}{unit}'})"
+        shown = "diverged" if step is not None else f"{rmse * scale:.4g}" + (f" {units}" if units else "")
+        label = f"{name} (RMSE {shown})"
         (line,) = axes[0].plot(t[:end], ys[:end], lw=0.5, label=label)
         axes[1].plot(t[:end], err, lw=0.5, label=name)
         if end:

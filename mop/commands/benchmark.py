@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 import time
 from pathlib import Path
 
@@ -347,6 +348,35 @@ def _report(runs: dict, args, budget: float) -> str:
     return "\n".join(lines)
 
 
+PROVENANCE = "provenance"  # results.json's key of what produced it (never a benchmark's name)
+
+
+def provenance(argv: list[str]) -> dict[str, str]:
+    """What produced a results file: the command line, mop's commit (where run from a git checkout), the
+    machine and the date, so a results page can name them."""
+    import platform
+    import shlex
+    import subprocess
+    from datetime import datetime, timezone
+
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=Path(__file__).resolve().parent,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return {
+        "command": "mop " + shlex.join(argv),
+        "commit": commit or "unknown",
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}",
+        "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    }
+
+
 def run(args: argparse.Namespace) -> int:
     predictors = [p.strip() for p in args.predictors.split(",") if p.strip()]
     unknown = [p for p in predictors if p not in PREDICTORS and not p.startswith(SHIPPED_KINDS)]
@@ -371,7 +401,10 @@ def run(args: argparse.Namespace) -> int:
     with tqdm(total=total, disable=args.quiet, desc="benchmark", unit="task") as bar:
         for split in splits:
             runs[split.name] = _run_split(split, args, predictors, budget, out, bar)
-    write_json(out / "results.json", {b: r["results"] for b, r in runs.items()})
+    write_json(
+        out / "results.json",
+        {**{b: r["results"] for b, r in runs.items()}, PROVENANCE: provenance(getattr(args, "_argv", []))},
+    )
     report = _report(runs, args, budget)
     with atomic_path(out / "report.md") as tmp:
         Path(tmp).write_text(report)
