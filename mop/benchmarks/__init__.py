@@ -193,7 +193,7 @@ def _wiener_hammerstein(folder: Path) -> Split:
     )
     data = whole[5200:184000]
     est = dataclasses.replace(data[:100000], name="estimation")
-    test = dataclasses.replace(data[100000:], name="test", init_window=5)
+    test = dataclasses.replace(data[100000:], name="test", init_window=50)
     return Split("wiener-hammerstein", [est], [test], "V")
 
 
