@@ -195,9 +195,86 @@ GENERATORS = {
     "<!-- mop:changelog -->": changelog,
 }
 
+# The reference pages are also read as plain files (on GitHub, from the README's links), where neither this
+# hook nor mkdocstrings runs. So their generated text is committed: `python docs/hooks.py` writes it and
+# tests/test_docs_tutorials.py checks that it is current.
+#   <!-- mop:cli --> ... <!-- /mop:cli -->   (and knobs): the generated text between the two markers;
+#   after each `::: NAME` directive, <!-- mop:doc NAME --> ... <!-- /mop:doc -->: NAME's signature and
+#   docstring as plain text, which the site drops (mkdocstrings renders the directive there).
+COMMITTED = {"cli": cli_reference, "knobs": knobs_reference}
+REFERENCE_PAGES = sorted((ROOT / "docs" / "reference").glob("*.md"))
+DOC_REGION = re.compile(r"\n<!-- mop:doc (\S+) -->\n.*?<!-- /mop:doc -->\n", re.S)
+
+
+def _object(name: str):
+    module, _, attr = name, "", ""
+    while True:
+        try:
+            obj = importlib.import_module(module)
+            break
+        except ModuleNotFoundError:
+            module, _, last = module.rpartition(".")
+            attr = f"{last}.{attr}" if attr else last
+    for part in filter(None, attr.split(".")):
+        obj = getattr(obj, part)
+    return obj
+
+
+def doc_text(name: str) -> str:
+    """NAME's signature (where it has one) and docstring, as a plain-text block."""
+    import inspect
+
+    obj = _object(name)
+    head = name
+    if callable(obj) and not inspect.ismodule(obj):
+        try:
+            signature = str(inspect.signature(obj))
+            head = name if signature == "(*args, **kwargs)" else f"{name}{signature}"
+        except (TypeError, ValueError):
+            pass
+    own = obj.__dict__.get("__doc__") if inspect.isclass(obj) else obj.__doc__  # not an inherited one
+    doc = inspect.cleandoc(own) if own else ""
+    return f"```text\n{head}\n\n{doc}\n```\n"
+
+
+def committed_text(markdown: str) -> str:
+    """The page with its committed regions generated anew (see COMMITTED)."""
+    for key, make in COMMITTED.items():
+        begin, end = f"<!-- mop:{key} -->", f"<!-- /mop:{key} -->"
+        if begin in markdown:
+            head, rest = markdown.split(begin, 1)
+            tail = rest.split(end, 1)[1] if end in rest else rest
+            markdown = f"{head}{begin}\n{make().strip()}\n{end}{tail}"
+    markdown = DOC_REGION.sub("\n", markdown)
+    lines, out, i = markdown.split("\n"), [], 0
+    while i < len(lines):
+        out.append(lines[i])
+        if lines[i].startswith("::: "):
+            name = lines[i][4:].strip()
+            i += 1
+            while i < len(lines) and lines[i].startswith("    "):
+                out.append(lines[i])
+                i += 1
+            out += ["", f"<!-- mop:doc {name} -->", doc_text(name).rstrip(), "<!-- /mop:doc -->"]
+            continue
+        i += 1
+    return re.sub(r"(<!-- /mop:doc -->)\n\n+", r"\1\n\n", "\n".join(out))
+
 
 def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001 (MkDocs' hook signature)
+    markdown = DOC_REGION.sub("\n", markdown)  # the site renders the ::: directives themselves
+    for key, make in COMMITTED.items():
+        begin, end = f"<!-- mop:{key} -->", f"<!-- /mop:{key} -->"
+        if begin in markdown and end in markdown:
+            head, rest = markdown.split(begin, 1)
+            markdown = f"{head}{begin}\n{make().strip()}\n{end}{rest.split(end, 1)[1]}"
     for marker, make in GENERATORS.items():
-        if marker in markdown:
+        key = marker[len("<!-- mop:") : -len(" -->")]
+        if marker in markdown and key not in COMMITTED:
             markdown = markdown.replace(marker, make())
     return markdown
+
+
+if __name__ == "__main__":  # write the committed regions of the reference pages
+    for path in REFERENCE_PAGES:
+        path.write_text(committed_text(path.read_text()))

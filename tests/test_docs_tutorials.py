@@ -134,3 +134,15 @@ def test_readme_is_a_front_page():
     assert "mop reproduce linear" in head and "bash scripts/test.sh" in head
     for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", "\n".join(lines)):
         assert (ROOT / target).exists(), f"README links to {target}, which does not exist"
+
+
+def test_reference_pages_hold_their_generated_text_as_plain_files():
+    """docs/reference/*.md read as plain files (on GitHub, from the README's links) hold the generated
+    text, current with the code: `python docs/hooks.py` wrote it, and writing it again changes nothing."""
+    hooks = _hooks()
+    assert hooks.REFERENCE_PAGES
+    for page in hooks.REFERENCE_PAGES:
+        text = page.read_text()
+        assert hooks.committed_text(text) == text, f"{page.name} is stale: run `python docs/hooks.py`"
+    cli = (ROOT / "docs" / "reference" / "cli.md").read_text()
+    assert "usage: mop predict" in cli and "<!-- /mop:cli -->" in cli

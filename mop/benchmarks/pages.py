@@ -1,0 +1,110 @@
+"""Results pages whose tables are what `mop benchmark` wrote: each table of a page is generated from the
+results files it names, so a page cannot show a number that its committed files do not hold.
+
+A table is a marker comment followed by the table, which `render` writes and tests/test_results_pages.py
+checks, for every page under docs/results:
+
+    <!-- results-table: cascaded-tanks data/tanks-seed0.json data/tanks-seed1.json -->
+    | predictor | test (n = 5) |
+    |---|---|
+    | arx | 0.6269 |
+    ...
+
+Each file is a results.json of `mop benchmark` copied beside the page (paths relative to the page), with
+its provenance (command, commit, machine, date). A row is one predictor of one file, labelled with the seed
+of the file's command where MOP trained; then the best published baseline and the state of the art
+(mop.benchmarks.protocol) where known. Values are in the units the field publishes (mV, mm: Benchmark.shown).
+`python -m mop.benchmarks.pages PAGE.md` rewrites every table of a page from its files.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shlex
+import sys
+from pathlib import Path
+
+from mop.benchmarks import BENCHMARKS
+from mop.benchmarks.protocol import PUBLISHED, STATE_OF_THE_ART
+from mop.errors import MopError
+
+MARKER = re.compile(r"^<!-- results-table: (\S+) (.+?) -->$")
+LEARNED = ("mop", "finetune:")  # predictors whose result depends on the training seed
+
+
+def _seed(command: str) -> int | None:
+    words = shlex.split(command)
+    return int(words[words.index("--seed") + 1]) if "--seed" in words else 0
+
+
+def _cell(rmse: float, scale: float) -> str:
+    return "diverged" if math.isinf(rmse) else f"{rmse * scale:.4g}"
+
+
+def render(bench: str, files: list[Path]) -> list[str]:
+    """The table's lines for benchmark `bench` from its results files (see the module docstring)."""
+    units, scale = BENCHMARKS.get(bench).shown_units()
+    rows, tests = [], None
+    for path in files:
+        if not path.is_file():
+            raise MopError(f"results table: {path} does not exist; copy the results.json of `mop benchmark`")
+        data = json.loads(path.read_text())
+        if bench not in data:
+            raise MopError(f"results table: {path} holds no results of {bench}")
+        results, seed = data[bench], _seed(data["provenance"]["command"])
+        order = list(results)
+        if tests is None:
+            tests = {t: next(iter(results[t].values()))["n"] for t in order}
+        for predictor in results[order[0]]:
+            label = f"{predictor}, seed {seed}" if predictor.startswith(LEARNED) else predictor
+            cells = [_cell(results[t][predictor]["rmse"], scale) for t in tests]
+            rows.append(f"| {label} | " + " | ".join(cells) + " |")
+    published = PUBLISHED.get(bench, {})
+    if published:
+        cells = []
+        for t in tests:
+            known = published.get(t, {})
+            low = min(known.values(), default=None)
+            names = ", ".join(k for k, v in known.items() if v == low)
+            cells.append("-" if low is None else f"{_cell(low, scale)} ({names})")
+        rows.append("| best published baseline (Champneys et al. 2024) | " + " | ".join(cells) + " |")
+    sota = STATE_OF_THE_ART.get(bench, {})
+    if sota:
+        cells = [_cell(sota[t][0], scale) if t in sota else "-" for t in tests]
+        rows.append("| state of the art (black box) | " + " | ".join(cells) + " |")
+    header = "| predictor (" + units + ") | " + " | ".join(f"{t} (n = {n})" for t, n in tests.items()) + " |"
+    return [header, "|---" * (1 + len(tests)) + "|", *rows]
+
+
+def tables(page: Path) -> list[tuple[int, str, list[Path], list[str]]]:
+    """[(line of the marker, benchmark, files, the table's lines as written)] of a page; every table of the
+    page, marked or not (an unmarked one has benchmark "")."""
+    lines = page.read_text().splitlines()
+    found, i = [], 0
+    while i < len(lines):
+        if lines[i].startswith("|"):
+            start = i
+            while i < len(lines) and lines[i].startswith("|"):
+                i += 1
+            marker = MARKER.match(lines[start - 1]) if start else None
+            bench, files = ("", []) if marker is None else (marker.group(1), marker.group(2).split())
+            found.append((start - 1, bench, [page.parent / f for f in files], lines[start:i]))
+            continue
+        i += 1
+    return found
+
+
+def rewrite(page: Path) -> None:
+    """Every marked table of `page` rendered again from its files."""
+    lines = page.read_text().splitlines()
+    for marker, bench, files, table in reversed(tables(page)):
+        if bench:
+            lines[marker + 1 : marker + 1 + len(table)] = render(bench, files)
+    page.write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    for name in sys.argv[1:]:
+        rewrite(Path(name))
