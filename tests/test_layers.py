@@ -107,7 +107,24 @@ def import_graph() -> tuple[dict[str, set[str]], list[str]]:
                 parent = ".".join(parts[:i])
                 if parent in modules and parent != module and not module.startswith(parent + "."):
                     graph[module].add(parent)
+    graph["mop"] |= set(lazy_imports())
     return graph, late
+
+
+def lazy_imports() -> list[str]:
+    """The modules mop/__init__.py loads on first use of an attribute (its LAZY mapping, PEP 562): edges of
+    the package like any import."""
+    tree = ast.parse((PACKAGE / "__init__.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "LAZY" for t in node.targets):
+            return [v.value for v in node.value.values]
+    return []
+
+
+def test_lazy_attributes_are_counted_as_imports():
+    import mop
+
+    assert lazy_imports() == list(mop.LAZY.values()) and "mop.estimators" in import_graph()[0]["mop"]
 
 
 def cycles(graph: dict[str, set[str]]) -> list[list[str]]:

@@ -4,6 +4,7 @@ are simulated and left out of its score, every simulation gets its figure, leaka
 gives the estimators' face on a Record."""
 
 import csv
+import warnings
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ import torch
 
 import mop
 from mop.cli import main
-from mop.errors import MopError
+from mop.errors import MopError, MopWarning
 from mop.estimators import ARX
 from mop.identify import load as load_fitted
 from mop.identify.store import save
@@ -170,3 +171,18 @@ def test_a_learned_model_trained_without_gaps_simulates_a_record_with_gaps_after
         model.simulate(val, init=20)[20:, 0],
         atol=1e-6,
     )
+
+
+def test_inputs_far_outside_the_fit_are_flagged_naming_the_channel_and_the_model(records):
+    assert main(["fit", "arx", "est.csv", "--out", "model", "--max-order", "3"]) == 0
+    val = read_records("val.csv")[0]
+    loud = Record(y=val.y, u=20 * val.u)
+    with pytest.warns(MopWarning, match=r"fitted-arx was fitted on \(est.csv\): u0 is"):
+        mop.load("model").simulate(loud, init=20)
+    learned = mop.load("pretrained:lti-siso")
+    learned.predictor_.input_stats = ([0.0, 0.0], [1.0, 1.0])  # the training inputs' (y0, u0) moments
+    with pytest.warns(MopWarning, match=r"pretrained:lti-siso was trained on: u0 is"):
+        learned.simulate(Record(y=val.y, u=1e3 * val.u), init=20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MopWarning)
+        mop.load("model").simulate(val, init=20)  # inputs like the estimation record's: no warning

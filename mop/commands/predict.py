@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from mop.atomic import atomic_path
+from mop.benchmarks.protocol import test_figure
 from mop.errors import MopError
 from mop.identify import is_fitted
 from mop.identify import load as load_fitted
@@ -343,8 +344,6 @@ def simulation_figures(
     """OUT.png (one record) or OUT_NAME.png (the first FIGURES records): the simulation against the measured
     output, drawn as `mop benchmark` draws a test (mop.benchmarks.protocol.test_figure), the RMSE in the
     legend, time in seconds where the record gives its sampling time."""
-    from mop.benchmarks.protocol import test_figure  # matplotlib: imported only where a figure is drawn
-
     label = predictor.removeprefix("pretrained:").removeprefix("baseline:").rstrip("/") or "predictor"
     label = Path(label).name or label
     written = []

@@ -19,6 +19,7 @@ means, for yhat_0; its lags at y_0, u_0 from t = 1 on; N4SID: 0, the mean).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,7 +27,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from mop.errors import MopError
+from mop.errors import MopError, MopWarning
 from mop.predictors import nan_beyond_horizon
 from mop.registry import Registry
 from mop.systems.base import Trajectories
@@ -126,6 +127,11 @@ def arrays_of(
     return y, u
 
 
+# warn when an input channel's RMS z-score against the estimation record's inputs exceeds this (the learned
+# models' mop.models.normalization.OOD_RMS, which this layer sits below)
+OOD_RMS = 5.0
+
+
 @dataclass
 class FittedPredictor:
     """A fitted identifier as a mop Predictor: predict / forecast / simulate with the model fixed.
@@ -146,7 +152,29 @@ class FittedPredictor:
         self.name = self.name or f"fitted-{self.kind}"
 
     def _arrays(self, traj: Trajectories, read: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        return arrays_of(traj, self.output_dim, self.input_dim, self.name, read)
+        y, u = arrays_of(traj, self.output_dim, self.input_dim, self.name, read)
+        self.check_inputs(u)
+        return y, u
+
+    def check_inputs(self, u: np.ndarray) -> None:
+        """Warn (once) when the inputs u (B, T+1, k) lie far outside the estimation record's (its
+        info["input_range"]: per-channel means and stds), as a learned model warns (OOD_RMS)."""
+        stats = self.info.get("input_range")
+        if stats is None or getattr(self, "_warned", False) or u.size == 0:
+            return
+        mean, std = np.asarray(stats[0]), np.asarray(stats[1])
+        rms = np.sqrt((((u - mean) / std) ** 2).mean(axis=(0, 1)))  # (k,)
+        worst = int(rms.argmax())
+        if rms[worst] > OOD_RMS:
+            self._warned = True
+            where = self.info.get("estimation", "its estimation record")
+            warnings.warn(
+                f"the inputs lie far outside what {self.name} was fitted on ({where}): u{worst} is "
+                f"{rms[worst]:.3g} estimation standard deviations from the estimation mean (RMS; the "
+                "estimation record: 1); its simulation may be poor",
+                MopWarning,
+                stacklevel=4,
+            )
 
     def states(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(B, T+1, n): the predictor states over the record. lag_state (ARX): the lags before the record's

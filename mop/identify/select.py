@@ -42,6 +42,13 @@ def complete_record(records: list[Record], source: str) -> Arrays:
     return [(r.y, np.zeros((len(r), 0)) if r.u is None else r.u) for r in records]
 
 
+def input_range(record: Arrays) -> list[list[float]]:
+    """[means, stds] of the estimation record's inputs u0.. (per channel): a fitted model warns when it is
+    driven far outside them (FittedPredictor.check_inputs)."""
+    u = np.concatenate([u for _, u in record])
+    return [u.mean(axis=0).tolist(), np.maximum(u.std(axis=0), 1e-12).tolist()]
+
+
 def holdout_cut(length: int) -> int:
     """The first held-out index of a trajectory of `length` outputs: the last 20% (at least one) held out."""
     return length - max(1, math.ceil(HOLDOUT * length))
@@ -121,6 +128,7 @@ def fit(
     check_length(kind, identifier, record, est, max_order, source)
     info = {"estimation": Path(source).name, "select": select, "max_order": max_order, "holdout": HOLDOUT}
     info["fingerprint"] = fingerprint(record)  # mop predict warns when it is asked to score this record
+    info["input_range"] = input_range(record)
     candidates = identifier.candidates(max_order, record[0][1].shape[1])
     grid = identifier.fit_grid(est, candidates, info, max_order)
     scores = [score(p, record, select) for p in grid]
@@ -161,6 +169,7 @@ def fit_orders(
         raise MopError(f"{source}: {steps} steps are too few to fit {kind} {orders}; lower the orders")
     info = {"estimation": Path(source).name, "select": "given", "max_order": largest}
     info["fingerprint"] = fingerprint(record)
+    info["input_range"] = input_range(record)
     fitted = identifier.fit_grid(record, [orders], info, largest)[0]
     fitted.info[POLE_RADIUS] = pole_radius(fitted.model.A)
     return fitted

@@ -120,10 +120,12 @@ class ModelPredictor:
         worst = None if self._warned else out_of_range(z, self.input_stats)
         if worst is not None:
             self._warned = True
+            m = self.cfg.output_dim
+            channel = f"y{worst[0]}" if worst[0] < m else f"u{worst[0] - m}"
             warnings.warn(
-                f"the inputs lie far outside the training data of predictor {self.name!r} (input channel "
-                f"{worst[0]} has an RMS of {worst[1]:.3g} training standard deviations from the "
-                f"training mean; training data: 1); its predictions may be poor",
+                f"the data lie far outside what {self.source or self.name} was trained on: {channel} is "
+                f"{worst[1]:.3g} training standard deviations from the training mean (RMS; the training "
+                "data: 1); its predictions may be poor",
                 MopWarning,
                 stacklevel=4,
             )
