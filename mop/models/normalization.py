@@ -85,6 +85,6 @@ def out_of_range(z: Tensor, input_stats: InputStats | None) -> tuple[int, float]
     if mean.shape[0] != z.shape[-1]:
         return None
     rms = torch.nanmean(((z.double() - mean) / std) ** 2, dim=(0, 1)).sqrt()  # (d_in,); NaN: missing y
-    rms = torch.nan_to_num(rms, nan=0.0)  # a channel with no value at all (y in a free run) is not out of range
+    rms = torch.nan_to_num(rms, nan=0.0)  # a channel with no value (y in a free run): not out of range
     worst = int(rms.argmax())
     return (worst, float(rms[worst])) if float(rms[worst]) > OOD_RMS else None
