@@ -10,10 +10,15 @@ checks, for every page under docs/results:
     | arx | 0.6269 |
     ...
 
-Each file is a results.json of `mop benchmark` copied beside the page (paths relative to the page), with
-its provenance (command, commit, machine, date). A row is one predictor of one file, labelled with the seed
-of the file's command where MOP trained; then the best published baseline and the state of the art
-(mop.benchmarks.protocol) where known. Values are in the units the field publishes (mV, mm: Benchmark.shown).
+A table written by `mop reproduce` (its summary.md, an experiment's report.md) is copied as it is:
+
+    <!-- results-copy: data/paper-small/summary.md -->       the file's first table; FILE#K its K-th (1-based)
+
+Each results-table file is a results.json of `mop benchmark` copied beside the page (paths relative to
+it), with its provenance (command, commit, machine, date). A row is one predictor of one file, labelled
+with the seed of the file's command where MOP trained; then the best published baseline and the state of
+the art (mop.benchmarks.protocol) where known. Values are in the units the field publishes (mV, mm:
+Benchmark.shown).
 `python -m mop.benchmarks.pages PAGE.md` rewrites every table of a page from its files.
 """
 
@@ -31,6 +36,7 @@ from mop.benchmarks.protocol import PUBLISHED, STATE_OF_THE_ART
 from mop.errors import MopError
 
 MARKER = re.compile(r"^<!-- results-table: (\S+) (.+?) -->$")
+COPY = re.compile(r"^<!-- results-copy: (\S+?)(?:#(\d+))? -->$")
 LEARNED = ("mop", "finetune:")  # predictors whose result depends on the training seed
 
 
@@ -78,9 +84,40 @@ def render(bench: str, files: list[Path]) -> list[str]:
     return [header, "|---" * (1 + len(tests)) + "|", *rows]
 
 
+def markdown_tables(text: str) -> list[list[str]]:
+    """The tables of a markdown text, each as its lines."""
+    found, current = [], []
+    for line in text.splitlines() + [""]:
+        if line.startswith("|"):
+            current.append(line)
+        elif current:
+            found.append(current)
+            current = []
+    return found
+
+
+def copied(path: Path, index: int = 1) -> list[str]:
+    """The index-th table (1-based) of a markdown file that `mop reproduce` wrote."""
+    if not path.is_file():
+        raise MopError(f"results table: {path} does not exist; copy the file `mop reproduce` wrote")
+    found = markdown_tables(path.read_text())
+    if not 1 <= index <= len(found):
+        raise MopError(f"results table: {path} has {len(found)} table(s), not a table {index}")
+    return found[index - 1]
+
+
+def expected(bench: str, files: list[Path]) -> list[str]:
+    """What a marked table must be: rendered from results.json files (bench a benchmark's name) or copied
+    from a markdown file (bench "copy:K")."""
+    if bench.startswith("copy:"):
+        return copied(files[0], int(bench.split(":")[1]))
+    return render(bench, files)
+
+
 def tables(page: Path) -> list[tuple[int, str, list[Path], list[str]]]:
-    """[(line of the marker, benchmark, files, the table's lines as written)] of a page; every table of the
-    page, marked or not (an unmarked one has benchmark "")."""
+    """[(line of the marker, kind, files, the table's lines as written)] of a page; every table of the
+    page, marked or not (an unmarked one has kind ""). The kind is a benchmark's name (results-table) or
+    "copy:K" (results-copy of a file's K-th table)."""
     lines = page.read_text().splitlines()
     found, i = [], 0
     while i < len(lines):
@@ -89,7 +126,13 @@ def tables(page: Path) -> list[tuple[int, str, list[Path], list[str]]]:
             while i < len(lines) and lines[i].startswith("|"):
                 i += 1
             marker = MARKER.match(lines[start - 1]) if start else None
-            bench, files = ("", []) if marker is None else (marker.group(1), marker.group(2).split())
+            copy = COPY.match(lines[start - 1]) if start else None
+            if marker is not None:
+                bench, files = marker.group(1), marker.group(2).split()
+            elif copy is not None:
+                bench, files = f"copy:{copy.group(2) or 1}", [copy.group(1)]
+            else:
+                bench, files = "", []
             found.append((start - 1, bench, [page.parent / f for f in files], lines[start:i]))
             continue
         i += 1
@@ -101,7 +144,7 @@ def rewrite(page: Path) -> None:
     lines = page.read_text().splitlines()
     for marker, bench, files, table in reversed(tables(page)):
         if bench:
-            lines[marker + 1 : marker + 1 + len(table)] = render(bench, files)
+            lines[marker + 1 : marker + 1 + len(table)] = expected(bench, files)
     page.write_text("\n".join(lines) + "\n")
 
 
