@@ -119,7 +119,7 @@ def with_record_prior(
     # those of a linear model, and may be fewer than the cubed lags
     linear = m.rls_cubes == 0
     if linear and m.arx_order > 0 and record.input_dim and not any(k in named for k in keys):
-        orders = record_orders(records or TrainingRecords.read(config.data.path))
+        orders = record_orders(record)
         if orders is not None:
             longest = config.train.horizon // 2  # the windows stay at least twice the orders
             p, q = fitted_long_orders(record, *orders, max_order=longest)

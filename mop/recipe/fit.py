@@ -80,7 +80,7 @@ def fit_record(
     records = read_given(data, val)
     config = records_config(source, preset, records, overrides, init, budget)
     if records is None and config.data is not None:  # a config naming its data (a RunConfig file, --init)
-        records = TrainingRecords.read(config.data.path, config.data.validation_path or None)
+        records = recorded_data(config.data).given  # the records the recipe read for it
     steps_given = "train.steps" in parse_overrides(overrides)
     if init is not None and fine_tune_minutes is not None and not steps_given:
         config = within_budget(config, fine_tune_minutes, records)

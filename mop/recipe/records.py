@@ -88,10 +88,10 @@ def fitted_long_orders(
     return (p, q) if pairs is None else choose_long_orders(pairs, p, q, max_order)[:2]
 
 
-def record_orders(records: TrainingRecords) -> tuple[int, int] | None:
-    """(p, q): arx_orders on the whole estimation record, its validation part included: the orders of
-    `mop fit arx FILE`."""
-    return arx_orders(list(records.records), records.source)
+def record_orders(record: RecordedData) -> tuple[int, int] | None:
+    """(p, q): arx_orders on the whole estimation record (record.given), its validation part included: the
+    orders of `mop fit arx FILE`."""
+    return arx_orders(list(record.given.records), record.path)
 
 
 def budget_plan(

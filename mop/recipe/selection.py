@@ -94,7 +94,6 @@ def select_against_arx(
         previous = json.loads(done.read_text())
         if previous.get("format") == 2:
             return previous
-    records = records or TrainingRecords.read(config.data.path, config.data.validation_path or None)
     record = recorded_data(config.data, records)
     m = record.output_dim
     train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
@@ -110,7 +109,7 @@ def select_against_arx(
     kept = "network" if best_rmse <= arx_rmse and math.isfinite(best_rmse) else "arx"
     fitted = run_dir / FITTED_FILE
     if kept == "arx":
-        whole = fit("arx", list(records.records), source=config.data.path)
+        whole = fit("arx", list(record.given.records), source=config.data.path)
         write_json(fitted, {"format": 1, **whole.to_json()})
     else:
         fitted.unlink(missing_ok=True)

@@ -37,7 +37,7 @@ from mop.errors import MopError
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.predictors import simulate
 from mop.systems.base import Trajectories
-from mop.train.records import TrainingRecords
+from mop.train.records import TrainingRecords, recorded_data
 
 GAINS = (0.0, 0.25, 0.5, 0.75, 1.0)
 SHRINK_FILE = "shrink.json"  # in the run directory: every gain's RMSE and the one chosen
@@ -70,8 +70,7 @@ def simulation_rmse(model: nn.Module, config: RunConfig, records: TrainingRecord
     norm = Normalization.from_lists(d.y_mean, d.y_std, d.u_mean, d.u_std)
     predictor = LearnedPredictor(model, normalization=norm, source=str(config.train.init))
     sq, n = 0.0, 0
-    records = records or TrainingRecords.read(d.path)
-    for record in records.records:
+    for record in recorded_data(d, records).given.records:
         y, u = record.y, record.u
         traj = Trajectories(
             y=torch.tensor(y[None], dtype=torch.float32),

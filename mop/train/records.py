@@ -125,13 +125,14 @@ class RecordedData:
 
     train_parts / val_parts: lists of (L, m + k) float64 arrays in the records' units; train_index /
     val_index: the trajectories on each side of a "trajectory" split (None for the others). `given`: the
-    records in memory (TrainingRecords); None reads cfg's files.
+    records in memory (TrainingRecords), kept as `given` (the whole records, before the split); None reads
+    cfg's files.
     """
 
     def __init__(self, cfg: DataConfig, given: TrainingRecords | None = None) -> None:
         if given is None:
             given = TrainingRecords.read(cfg.path, cfg.validation_path or None)
-        self.path = given.source
+        self.given, self.path = given, given.source
         records = list(given.records)
         self.output_dim, self.input_dim = _widths(self.path, records)
         self.num_trajectories = len(records)
