@@ -7,6 +7,8 @@ from the record's least-squares ARX (with_record_prior), and its windows fit the
 (mop.recipe.source) and the correction's gain after the last step (train.shrink_correction,
 mop.recipe.shrink); keeping the best validation weights is the loop's option train.keep_best. within_budget
 cuts a fine-tune's steps to a budget in minutes at this machine's step time (mop.estimators.Learned's).
+Each step that looks at the record is handed it (a RecordedData: the records in memory, split as
+config.data asks), never a path to read.
 """
 
 from __future__ import annotations
@@ -15,7 +17,6 @@ import dataclasses
 import math
 
 from mop.config import (
-    DataConfig,
     RunConfig,
     TrainConfig,
     parse_overrides,
@@ -28,7 +29,7 @@ from mop.recipe.records import budget_plan, fitted_long_orders, plan_records, re
 from mop.recipe.source import PRIOR_KEYS
 from mop.train import resolve_config, resolve_device
 from mop.train.estimate import step_seconds
-from mop.train.records import TrainingRecords, recorded_data
+from mop.train.records import RecordedData, TrainingRecords
 
 # 125: on the tank_records plants 1-6 (pretrained:cascaded-tanks fine-tuned on est.csv, seeds 0 / 1, the
 # validation record simulated from steps 0, 50 and 200; with the record's moments and tails from step 1) the
@@ -79,7 +80,7 @@ RECORD_PRIOR_STEPS = 100
 
 
 def with_record_prior(
-    config: RunConfig, records: TrainingRecords | None, overrides: list[str], source: RunConfig
+    config: RunConfig, record: RecordedData | None, overrides: list[str], source: RunConfig
 ) -> RunConfig:
     """Fine-tuning a class model (model.record_norm: its ARX feature identifies the record in context) on a
     record with complete outputs: the feature starts from the ARX fitted by least squares on the training
@@ -108,9 +109,8 @@ def with_record_prior(
     fine-tuned kept gain 0.5 by its own record (RMSE 0.01024 against 0.01035 at gain 0) and simulated the
     three tests at 2.41 / 11.2 / 2.50 mV; the held-out tail kept gain 0 and 0.65 / 0.70 / 0.53 mV."""
     m, named = config.model, parse_overrides(overrides)
-    if config.data is None or not reads_a_fit(source) or m.rls_order == 0 or m.rls_prior != "none":
+    if record is None or not reads_a_fit(source) or m.rls_order == 0 or m.rls_prior != "none":
         return config
-    record = recorded_data(config.data, records)
     if any(f"model.{key}" in named for key in PRIOR_KEYS) or record.num_missing:
         return config
     model = dataclasses.replace(m, rls_prior="fit", rls_p0=1.0, rls_prior_cov=None)
@@ -141,7 +141,7 @@ def records_start(source: RunConfig) -> bool:
 
 def with_records_recipe(
     config: RunConfig,
-    records: TrainingRecords | None,
+    record: RecordedData,
     overrides: list[str],
     minutes: float = DEFAULT_BUDGET_MINUTES,
 ) -> RunConfig:
@@ -158,7 +158,6 @@ def with_records_recipe(
     0.4589 from random weights; docs/results/benchmarks.md)."""
     base = preset_config(default_preset()).train
     config = dataclasses.replace(config, train=dataclasses.replace(config.train, batch_size=base.batch_size))
-    record = recorded_data(config.data, records)
     train = dataclasses.replace(
         config.train,
         steps=budget_plan(record, config.train.batch_size, config.train.horizon, minutes).steps,
@@ -215,18 +214,15 @@ def with_refitted_orders(config: RunConfig, source: RunConfig) -> RunConfig:
     return dataclasses.replace(config, model=dataclasses.replace(m, **refit))
 
 
-def record_horizon(
-    train: TrainConfig, data: DataConfig, records: TrainingRecords | None = None
-) -> TrainConfig:
+def record_horizon(train: TrainConfig, record: RecordedData, validation_fraction: float) -> TrainConfig:
     """A source trained on longer windows than the record's split holds trains on the longest that fit
     both sides (train.simulate_after scaled alike), so `--init` works on a short record as it is. With a
     validation record (--val) the windows are those the split in time would give, as long as the last
     data.validation_fraction of the estimation record: the same fine-tune with or without --val (windows
     of 500 steps on one record of 1024 fit its tail and simulate the validation record worse, measured)."""
-    split = recorded_data(data, records)
-    longest = [max(len(a) for a in split.train_parts), max(len(a) for a in split.val_parts)]
-    if split.split == "file":
-        longest.append(max(math.ceil(data.validation_fraction * len(a)) for a in split.train_parts))
+    longest = [max(len(a) for a in record.train_parts), max(len(a) for a in record.val_parts)]
+    if record.split == "file":
+        longest.append(max(math.ceil(validation_fraction * len(a)) for a in record.train_parts))
     fits = min(longest) - 1
     if not 2 <= fits < train.horizon:
         return train

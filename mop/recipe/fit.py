@@ -17,14 +17,14 @@ from pathlib import Path
 from mop.config import RunConfig, parse_overrides
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.finetune import records_start, within_budget
-from mop.recipe.layers import read_given, records_config
+from mop.recipe.layers import read_given, records_config, split
 from mop.recipe.records import budget_plan, feature_line, order_line
 from mop.recipe.selection import select_against_arx, selection_line
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
 from mop.runs import load_config, read_run_json
 from mop.train.data import validates_tails
-from mop.train.records import TrainingRecords, recorded_data
+from mop.train.records import RecordedData, TrainingRecords, recorded_data
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,14 +84,15 @@ def fit_record(
     steps_given = "train.steps" in parse_overrides(overrides)
     if init is not None and fine_tune_minutes is not None and not steps_given:
         config = within_budget(config, fine_tune_minutes, records)
+    record = split(config, records)  # the records split as the run trains on them
     if announce is not None:
         chosen = source is not None or preset is not None
-        for line in record_lines(config, records, overrides, init, chosen, budget):
+        for line in record_lines(config, record, overrides, init, chosen, budget):
             announce(line)
     run_dir = train(
         config, out_dir, progress=progress, wait=wait, fresh=fresh, announce=announce, records=records
     )
-    selection = select_against_arx(run_dir, config, records) if selects(config) else None
+    selection = select_against_arx(run_dir, config, record) if selects(config) else None
     if announce is not None:
         if selection is not None:
             announce(selection_line(selection))
@@ -103,25 +104,24 @@ def fit_record(
 
 def record_lines(
     config: RunConfig,
-    records: TrainingRecords | None,
+    record: RecordedData | None,
     overrides: list[str],
     init: str | None,
     chosen: bool,
     budget: float | None,
 ) -> list[str]:
-    """What `mop train` says before training on a record (`records`, in memory): the records recipe's
-    budget plan (where the plan set train.steps), the record, the feature, the orders and record_norm's
-    prior."""
+    """What `mop train` says before training on a record (`record`: config.data's records split as it asks;
+    None without data): the records recipe's budget plan (where the plan set train.steps), the record, the
+    feature, the orders and record_norm's prior."""
     lines = []
-    if config.data is None:
+    if record is None:
         return lines
-    record = recorded_data(config.data, records)
     if selects(config) and (init is None or records_start(load_config(init))):
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
         plan = budget_plan(record, config.train.batch_size, config.train.horizon, minutes)
         if plan.steps == config.train.steps:
             lines.append(plan.line())
-    lines.append(record.summary(config.train.horizon, validates_tails(config, records)))
+    lines.append(record.summary(config.train.horizon, validates_tails(config, record.given)))
     lines.append(feature_line(config) or "feature: none (the network reads the record alone)")
     orders = order_line(config, overrides, init, chosen)
     if orders:

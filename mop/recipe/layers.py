@@ -57,7 +57,7 @@ from mop.record import read_records
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.auto import resolve_features
-from mop.train.records import TrainingRecords
+from mop.train.records import RecordedData, TrainingRecords, recorded_data
 
 
 def base_config(source: str | None, preset: str | None) -> RunConfig:
@@ -122,6 +122,12 @@ def with_base_validation(records: TrainingRecords | None, base: RunConfig) -> Tr
     return TrainingRecords(records.records, tuple(read_records(path)), records.source, path)
 
 
+def split(config: RunConfig, records: TrainingRecords | None) -> RecordedData | None:
+    """The records split as config.data asks (None without data): the record a recipe's step looks at (a
+    config naming its own data without records in memory: read from data.path)."""
+    return None if config.data is None else recorded_data(config.data, records)
+
+
 def read_given(data: str | TrainingRecords | None, val: str | None) -> TrainingRecords | None:
     """The records of `mop train --data FILE [--val FILE]`, read once here (the edge), or those given in
     memory; None without --data. One-line MopError for --val without --data."""
@@ -181,10 +187,11 @@ def records_config(
         )
     if init is None:
         base = base_config(source, preset)
-        config = with_records(base, with_base_validation(records, base))
+        records = with_base_validation(records, base)
+        config = with_records(base, records)
         chosen = source is not None or preset is not None
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        config = with_recorded_features(config, records, list(overrides), chosen, minutes)
+        config = with_recorded_features(config, split(config, records), list(overrides), chosen, minutes)
         config = apply_overrides(given_features(config, list(overrides)), list(overrides))
         return resolve_features(config, scale_steps="train.steps" not in parse_overrides(list(overrides)))
     if source is not None or preset is not None:
@@ -195,10 +202,12 @@ def records_config(
     config = with_fine_tuning(with_records(base, records), base, init)
     if records_start(base) and config.data is not None:
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        config = with_records_recipe(config, records, list(overrides), minutes)
+        config = with_records_recipe(config, split(config, records), list(overrides), minutes)
     config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
-    config = with_record_prior(config, records, list(overrides), base)
-    if config.data is not None and "train.horizon" not in parse_overrides(list(overrides)):
-        # the windows fit the split the overrides ask for (data.validation_fraction, data.split)
-        config = dataclasses.replace(config, train=record_horizon(config.train, config.data, records))
+    record = split(config, records)  # the split the overrides ask for (data.validation_fraction, data.split)
+    config = with_record_prior(config, record, list(overrides), base)
+    if record is not None and "train.horizon" not in parse_overrides(list(overrides)):
+        # the windows fit that split
+        fraction = config.data.validation_fraction
+        config = dataclasses.replace(config, train=record_horizon(config.train, record, fraction))
     return config

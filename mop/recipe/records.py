@@ -30,7 +30,7 @@ from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_steps
 from mop.recipe.plan import RECORDED_MODEL, RecordsPlan
 from mop.record import RecordsLike
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
-from mop.train.records import RecordedData, TrainingRecords, recorded_data, window_count
+from mop.train.records import RecordedData, window_count
 
 __all__ = ["RECORDED_MODEL", "RecordsPlan", "plan_records"]
 
@@ -137,20 +137,19 @@ def plan_records(
 
 def with_recorded_features(
     config: RunConfig,
-    records: TrainingRecords | None,
+    record: RecordedData | None,
     overrides: list[str],
     chosen: bool = False,
     budget: float = DEFAULT_BUDGET_MINUTES,
 ) -> RunConfig:
-    """Layer 3: the records recipe on recorded data with inputs and complete outputs (`records`, in memory;
-    None: read from data.path), unless the source or --preset (`chosen`), the base's feature or an override
-    chose the feature (overrides of sizes and steps apply on top of it, as layer 4)."""
+    """Layer 3: the records recipe on recorded data with inputs and complete outputs (`record`: config.data's
+    records split as it asks; None without data), unless the source or --preset (`chosen`), the base's
+    feature or an override chose the feature (overrides of sizes and steps apply on top of it, as layer 4)."""
     named = parse_overrides(overrides)
-    if config.data is None or chosen or config.model.rls_order > 0:
+    if record is None or chosen or config.model.rls_order > 0:
         return config
     if any(k in named for k in FEATURE_KEYS):
         return config
-    record = recorded_data(config.data, records)
     if record.input_dim == 0 or record.num_missing:
         return config
     plan = plan_records(record, config, budget, cubes="model.rls_cubes" not in named)
