@@ -15,16 +15,17 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from mop.config import RunConfig, parse_overrides
+from mop.errors import MopError
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.finetune import records_start, within_budget
-from mop.recipe.layers import read_given, records_config, split
+from mop.recipe.layers import records_config, split
 from mop.recipe.records import budget_plan, feature_line, order_line
 from mop.recipe.selection import select_against_arx, selection_line
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
 from mop.runs import load_config, read_run_json
 from mop.train.data import validates_tails
-from mop.train.records import RecordedData, TrainingRecords, recorded_data
+from mop.train.records import RecordedData, TrainingRecords
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,8 +46,7 @@ def selects(config: RunConfig) -> bool:
 
 def fit_record(
     out_dir: str | os.PathLike,
-    data: str | TrainingRecords | None = None,
-    val: str | None = None,
+    records: TrainingRecords | None = None,
     *,
     source: str | None = None,
     preset: str | None = None,
@@ -64,7 +64,8 @@ def fit_record(
     hooks, then, for a records recipe or a fine-tune with a fitted feature, the held-out choice between the
     network and the fitted ARX (select_against_arx), all on one set of records in memory.
 
-    data: the records (TrainingRecords, read by the caller; val None), or a file read here once (with val's).
+    records: the records of --data (and --val) in memory, read by the caller (TrainingRecords.read at the
+    command line; Learned takes them as given); None without --data.
 
     fine_tune_minutes: a fine-tune's train.steps cut to what these minutes allow at the measured time of one
     step (within_budget; machine-dependent), unless an override sets train.steps; for a records start
@@ -77,10 +78,9 @@ def fit_record(
         check_budget(budget)
     if init is not None and records_start(load_config(init)):  # the records recipe's budget plans its steps
         budget, fine_tune_minutes = (fine_tune_minutes if budget is None else budget), None
-    records = read_given(data, val)
-    config = records_config(source, preset, records, overrides, init, budget)
-    if records is None and config.data is not None:  # a config naming its data (a RunConfig file, --init)
-        records = recorded_data(config.data).given  # the records the recipe read for it
+    if records is not None and not isinstance(records, TrainingRecords):
+        raise MopError("fit_record takes the records in memory: give TrainingRecords.read(PATH), not a path")
+    config, records = records_config(source, preset, records, overrides, init, budget)
     steps_given = "train.steps" in parse_overrides(overrides)
     if init is not None and fine_tune_minutes is not None and not steps_given:
         config = within_budget(config, fine_tune_minutes, records)

@@ -57,7 +57,7 @@ from mop.record import read_records
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.auto import resolve_features
-from mop.train.records import RecordedData, TrainingRecords, recorded_data
+from mop.train.records import RecordedData, TrainingRecords
 
 
 def base_config(source: str | None, preset: str | None) -> RunConfig:
@@ -111,21 +111,31 @@ def with_records(config: RunConfig, records: TrainingRecords | None) -> RunConfi
     )
 
 
-def with_base_validation(records: TrainingRecords | None, base: RunConfig) -> TrainingRecords | None:
-    """--data without --val on a config naming its validation file (data.validation_path): that file
-    validates, as the config says (read here: the config's own file)."""
-    if records is None or records.validation is not None or base.data is None:
+def run_records(records: TrainingRecords | None, base: RunConfig) -> TrainingRecords | None:
+    """The records the run trains on: those given (--data, --val), else those of the base config's own
+    data (a RunConfig file or an --init source naming data.path), read here once; --data without --val on a
+    config naming its validation file (data.validation_path) validates on that file, as the config says."""
+    if base.data is None:
         return records
-    if not base.data.validation_path:
+    if records is None:
+        return TrainingRecords.read(base.data.path, base.data.validation_path or None)
+    if records.validation is not None or not base.data.validation_path:
         return records
     path = base.data.validation_path
     return TrainingRecords(records.records, tuple(read_records(path)), records.source, path)
 
 
+def named_records(records: TrainingRecords | None, config: RunConfig) -> TrainingRecords | None:
+    """run_records after the overrides, which may name the data (data.path, data.validation_path); a
+    data.path override beside --data is refused in one line (the record is named once)."""
+    if records is not None and config.data is not None and config.data.path != records.source:
+        raise MopError(f"data.path={config.data.path} beside --data {records.source}: name the record once")
+    return run_records(records, config)
+
+
 def split(config: RunConfig, records: TrainingRecords | None) -> RecordedData | None:
-    """The records split as config.data asks (None without data): the record a recipe's step looks at (a
-    config naming its own data without records in memory: read from data.path)."""
-    return None if config.data is None else recorded_data(config.data, records)
+    """The records split as config.data asks (None without data): the record a recipe's step looks at."""
+    return None if config.data is None else records.split(config.data)
 
 
 def read_given(data: str | TrainingRecords | None, val: str | None) -> TrainingRecords | None:
@@ -164,7 +174,7 @@ def training_config(
     val then None)."""
     if budget is not None:  # before the file is read
         check_budget(budget)
-    return records_config(source, preset, read_given(data, val), overrides, init, budget)
+    return records_config(source, preset, read_given(data, val), overrides, init, budget)[0]
 
 
 def records_config(
@@ -174,9 +184,10 @@ def records_config(
     overrides: list[str] = (),
     init: str | None = None,
     budget: float | None = None,
-) -> RunConfig:
-    """training_config on the records in memory (`records`; None: no --data): no file is read here but a
-    config's own (a RunConfig file or --init source naming its data)."""
+) -> tuple[RunConfig, TrainingRecords | None]:
+    """(config, the records it trains on): training_config on the records in memory (`records`; None: no
+    --data); no file is read here but a config's own (run_records: a RunConfig file or --init source naming
+    its data)."""
     if budget is not None:
         check_budget(budget)
     if budget is not None and records is None:
@@ -187,27 +198,29 @@ def records_config(
         )
     if init is None:
         base = base_config(source, preset)
-        records = with_base_validation(records, base)
+        records = run_records(records, base)
         config = with_records(base, records)
         chosen = source is not None or preset is not None
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
         config = with_recorded_features(config, split(config, records), list(overrides), chosen, minutes)
         config = apply_overrides(given_features(config, list(overrides)), list(overrides))
-        return resolve_features(config, scale_steps="train.steps" not in parse_overrides(list(overrides)))
+        steps = "train.steps" not in parse_overrides(list(overrides))
+        return resolve_features(config, scale_steps=steps), named_records(records, config)
     if source is not None or preset is not None:
         given = source if source is not None else f"--preset {preset}"
         raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
     base = load_config(init)
-    records = with_base_validation(records, base)
+    records = run_records(records, base)
     config = with_fine_tuning(with_records(base, records), base, init)
     if records_start(base) and config.data is not None:
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
         config = with_records_recipe(config, split(config, records), list(overrides), minutes)
     config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
+    records = named_records(records, config)
     record = split(config, records)  # the split the overrides ask for (data.validation_fraction, data.split)
     config = with_record_prior(config, record, list(overrides), base)
     if record is not None and "train.horizon" not in parse_overrides(list(overrides)):
         # the windows fit that split
         fraction = config.data.validation_fraction
         config = dataclasses.replace(config, train=record_horizon(config.train, record, fraction))
-    return config
+    return config, records

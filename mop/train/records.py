@@ -125,13 +125,11 @@ class RecordedData:
 
     train_parts / val_parts: lists of (L, m + k) float64 arrays in the records' units; train_index /
     val_index: the trajectories on each side of a "trajectory" split (None for the others). `given`: the
-    records in memory (TrainingRecords), kept as `given` (the whole records, before the split); None reads
-    cfg's files.
+    records in memory (TrainingRecords), kept as `given` (the whole records, before the split); it reads no
+    file (read_recorded reads cfg's).
     """
 
-    def __init__(self, cfg: DataConfig, given: TrainingRecords | None = None) -> None:
-        if given is None:
-            given = TrainingRecords.read(cfg.path, cfg.validation_path or None)
+    def __init__(self, cfg: DataConfig, given: TrainingRecords) -> None:
         self.given, self.path = given, given.source
         records = list(given.records)
         self.output_dim, self.input_dim = _widths(self.path, records)
@@ -345,6 +343,11 @@ def _count(n: int, one: str, many: str) -> str:
     return f"{n} {one if n == 1 else many}"
 
 
+def read_recorded(cfg: DataConfig) -> RecordedData:
+    """RecordedData of cfg's files (data.path, data.validation_path), read here."""
+    return TrainingRecords.read(cfg.path, cfg.validation_path or None).split(cfg)
+
+
 def recorded_data(cfg: DataConfig, given: TrainingRecords | None = None) -> RecordedData:
     """RecordedData of cfg's split: of the records `given` (in memory), else of cfg's files, read once per
     file version and split (callers must not modify it)."""
@@ -364,7 +367,7 @@ def _file_key(path: str) -> tuple:
 @functools.lru_cache(maxsize=2)
 def _recorded(files: tuple, path: str, split: tuple) -> RecordedData:
     fraction, seed, how, validation_path = split
-    return RecordedData(
+    return read_recorded(
         DataConfig(
             path=path,
             validation_fraction=fraction,
