@@ -12,8 +12,9 @@ import pytest
 import mop.record
 from mop.cli import main
 from mop.config import DataConfig
+from mop.errors import MopError
 from mop.estimators import Learned
-from mop.recipe.layers import training_config
+from mop.recipe.layers import records_config, training_config
 from mop.recipe.plan import RecordsPlan
 from mop.recipe.records import plan_records
 from mop.record import Record, read_records, write_records
@@ -95,3 +96,17 @@ def test_learned_fit_writes_no_file_of_the_records_and_leaves_no_folder(tmp_path
     from_file = Learned(out_dir=tmp_path / "file", **TINY).fit(str(path))
     assert reads == [str(path)]  # the user's file is read once, at the edge
     np.testing.assert_array_equal(from_file.predict(read_records(path)[0]), y)
+
+
+def test_a_record_is_named_once(tmp_path, reads):
+    path = str(write_records([plant(300, 0)], tmp_path / "r.csv"))
+    other = str(write_records([plant(300, 1)], tmp_path / "o.csv"))
+    with pytest.raises(MopError) as e:
+        training_config(None, data=path, overrides=[f'data.path="{other}"'])
+    assert "name the record once" in str(e.value) and reads == [path]
+    # a validation file named by its key validates the run, as --val does (the recipe, before the
+    # overrides, planned on the record's own split)
+    config, records = records_config(
+        None, None, TrainingRecords.read(path), [f'data.validation_path="{other}"']
+    )
+    assert config.data.validation_path == other and records.split(config.data).split == "file"
