@@ -16,8 +16,9 @@ y_<c and the inputs alone (NaN for t < c), exactly the numbers `mop predict MODE
 (init=0: from the record's start, y_0 its initial condition, t >= 1).
 
 ARX and N4SID are mop.identify's fits (`mop fit arx|n4sid`); Learned trains through the path `mop train --data
-FILE [--init RUN]` takes (mop.recipe.fit.fit_record: the config, the training, the held-out choice): the
-records are written to a CSV beside the run's directory, which the run's config names.
+FILE [--init RUN]` takes (mop.recipe.fit.fit_record: the config, the training, the held-out choice), on the
+records in memory: no file is written but the run (in out_dir, or in a temporary directory removed with the
+estimator); the run's config names where the records came from (the file, or the first record's name).
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ import dataclasses
 import json
 import math
 import os
+import shutil
 import sys
 import tempfile
+import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -48,10 +51,11 @@ from mop.predictors import Predictor
 from mop.pretrained import dimensions
 from mop.recipe.fit import fit_record
 from mop.recipe.selection import selection_line
-from mop.record import Record, as_pairs, read_records, write_records
+from mop.record import Record, as_pairs, read_records
 from mop.records import predict_all, simulate_all
 from mop.runs import load_predictor
 from mop.systems.base import Trajectories
+from mop.train.records import TrainingRecords
 
 Records = Record | Sequence[Record] | str | os.PathLike | tuple[Any, Any]
 
@@ -222,8 +226,9 @@ class Learned(Estimator):
     init: fine-tune a run directory or pretrained:NAME (--init).
     overrides: dotted config keys, as keyword arguments with "__" for "." (train__steps=200) or as a dict
     (**{"train.steps": 200}). progress: the training's progress bar and the held-out check's verdict on
-    standard error (default: where a terminal is attached). out_dir: where the run directory and the
-    records' CSV go (default: a new temporary directory). The seed is train.seed (0)."""
+    standard error (default: where a terminal is attached). out_dir: where the run directory (out_dir/run)
+    goes; without it, a temporary directory removed when the estimator is garbage-collected or the process
+    ends (the predictor is held in memory). No file of the records is written. The seed is train.seed (0)."""
 
     name = "Learned"
 
@@ -253,17 +258,18 @@ class Learned(Estimator):
         validation records (--val). The run directory is run_dir_."""
         records, _ = as_records(data)
         self._fitted_on(records)
-        base = self.out_dir or Path(tempfile.mkdtemp(prefix="mop-learned-"))
+        val_records = None if val is None else tuple(as_records(val, "validation data")[0])
+        given = TrainingRecords(
+            tuple(records),
+            val_records,
+            _source(data, records),
+            "" if val is None else _source(val, val_records),
+        )
+        base = self.out_dir or self._temporary_dir()
         base.mkdir(parents=True, exist_ok=True)
-        path = write_records(records, base / "records.csv")
-        val_path = None
-        if val is not None:
-            val_records, _ = as_records(val, "validation data")
-            val_path = str(write_records(val_records, base / "validation.csv"))
         run = fit_record(
             base / "run",
-            str(path),
-            val_path,
+            given,
             overrides=self.overrides,
             init=self.init,
             budget=self.budget_minutes if self.init is None else None,
@@ -278,6 +284,21 @@ class Learned(Estimator):
         fitted = self.run_dir_ / FITTED_FILE
         self.predictor_ = load_fitted(fitted.parent) if fitted.is_file() else load_predictor(self.run_dir_)
         return self
+
+    def _temporary_dir(self) -> Path:
+        """A new temporary directory for the run, removed when this estimator is garbage-collected or the
+        process ends (its predictor_ is loaded in memory before)."""
+        path = Path(tempfile.mkdtemp(prefix="mop-learned-"))
+        weakref.finalize(self, shutil.rmtree, path, ignore_errors=True)
+        return path
+
+
+def _source(data: Records, records: Sequence[Record]) -> str:
+    """Where records came from, for the run's config (data.path: provenance only): the file given, else the
+    first record's name ("record" without one)."""
+    if isinstance(data, (str, os.PathLike)):
+        return str(data)
+    return records[0].name or "record"
 
 
 class Loaded(Estimator):

@@ -145,7 +145,7 @@ def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predi
     stretches = held_out_stretches(recorded_data(config.data))
     assert stretches_rmse(mop.load(run), stretches) == pytest.approx(kept, rel=1e-6)
     weights = (run / "model.safetensors").read_bytes()
-    assert select_against_arx(run, config) == chosen
+    assert select_against_arx(run, config, recorded_data(config.data)) == chosen
     assert (run / "model.safetensors").read_bytes() == weights
 
 

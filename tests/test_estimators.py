@@ -154,7 +154,8 @@ def test_learned_trains_through_mop_train_data_and_predicts_as_mop_load(tmp_path
     model = Learned(out_dir=tmp_path, **TINY).fit(rec)
     config = load_config(model.run_dir_)
     assert config.train.steps == 3 and config.model.width == 16
-    assert config.data.path == str(tmp_path / "records.csv")
+    assert config.data.path == "r"  # where the record came from: its name (no file of it is written)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
     assert config.model.rls_order > 0  # the records recipe's ARX feature, as `mop train --data` gives
     yhat = model.predict(rec)
     assert yhat.shape == (160, 1) and np.isfinite(yhat).all()

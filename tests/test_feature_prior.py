@@ -11,7 +11,7 @@ from mop.errors import MopError
 from mop.filters.arx import arx_predict
 from mop.models import build_model
 from mop.models.predict import stream
-from mop.train.records import RecordedData
+from mop.train.records import read_recorded
 
 
 def tiny(**kw) -> ModelConfig:
@@ -42,7 +42,7 @@ def write(path, y, u):
 
 def test_fit_prior_is_least_squares_in_normalised_units(tmp_path):
     y, u = arx_record()
-    rec = RecordedData(DataConfig(path=str(write(tmp_path / "r.csv", y, u))))
+    rec = read_recorded(DataConfig(path=str(write(tmp_path / "r.csv", y, u))))
     cfg = DataConfig(path="r.csv", **rec.fit())
     theta = np.array(rec.fit_prior(cfg, 2, 2, True))
     # numpy least squares on the same training steps, normalised by the fitted mean / std

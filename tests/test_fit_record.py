@@ -13,6 +13,7 @@ from mop.cli import main
 from mop.estimators import Learned
 from mop.recipe.fit import fit_record
 from mop.record import Record, write_records
+from mop.train.records import TrainingRecords
 
 TINY = {
     **{"model.num_layers": 1, "model.width": 16, "model.num_heads": 2, "model.context": 8},
@@ -61,7 +62,8 @@ def test_mop_train_prints_what_fit_record_announces(tmp_path, capsys):
     assert main(["train", "--data", data, "--out", str(tmp_path / "cli"), "--no-progress", *overrides]) == 0
     printed = capsys.readouterr().out.splitlines()
     lines: list[str] = []
-    run = fit_record(tmp_path / "py", data, overrides=overrides, progress=False, announce=lines.append)
+    records = TrainingRecords.read(data)  # read at the edge, as `mop train` reads it
+    run = fit_record(tmp_path / "py", records, overrides=overrides, progress=False, announce=lines.append)
     timed = lambda out: [line.startswith("model: ") for line in out]  # noqa: E731  (the loop's timed plan)
     assert timed(printed[:-1]) == timed(lines) and sum(timed(lines)) == 1
     untimed = lambda out: [line for line in out if not line.startswith("model: ")]  # noqa: E731

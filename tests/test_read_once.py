@@ -2,15 +2,16 @@
 recipe and as a fine-tune whose recipe looks at the record several times (orders, moments, the correction's
 gain), and trains the same weights as when every step read the file itself."""
 
-import contextlib
-
 import numpy as np
 import pytest
 
 import mop.io
-import mop.recipe.fit
 from mop.cli import main
+from mop.recipe.layers import training_config
+from mop.recipe.selection import select_against_arx
+from mop.recipe.training import train
 from mop.record import Record, write_records
+from mop.train.records import recorded_data
 
 TINY = [
     *("model.num_layers=1", "model.width=16", "model.num_heads=2", "model.context=8"),
@@ -20,10 +21,10 @@ TINY = [
 
 @pytest.fixture
 def counted(monkeypatch):
-    """The number of calls to mop.io.read_csv (the CSV parser) so far."""
+    """The number of calls to mop.io.read_csv_timed (the CSV parser) so far."""
     calls = []
-    parse = mop.io.read_csv
-    monkeypatch.setattr(mop.io, "read_csv", lambda path: calls.append(path) or parse(path))
+    parse = mop.io.read_csv_timed
+    monkeypatch.setattr(mop.io, "read_csv_timed", lambda path: calls.append(path) or parse(path))
     return calls
 
 
@@ -43,15 +44,16 @@ def test_train_data_reads_the_file_once(tmp_path, counted, capsys):
     assert len(counted) == 1
 
 
-def test_a_fine_tune_reads_the_file_once_and_trains_the_same_weights(tmp_path, counted, monkeypatch, capsys):
+def test_a_fine_tune_reads_the_file_once_and_trains_the_same_weights(tmp_path, counted, capsys):
     data = record_csv(tmp_path / "rec.csv")
     argv = ["train", "--data", data, "--init", "pretrained:cascaded-tanks", "--no-progress", "train.steps=2"]
     assert main([*argv, "--out", str(tmp_path / "once")]) == 0
     assert "held-out simulation" in capsys.readouterr().out  # the held-out tail at five gains and the ARX
     assert len(counted) == 1
-    monkeypatch.setattr(mop.recipe.fit, "reading_once", contextlib.nullcontext)
-    assert main([*argv, "--out", str(tmp_path / "each")]) == 0
-    assert len(counted) >= 2  # without the block the run reads it again
+    # each step handed the path alone (no records in memory) reads the file itself
+    config = training_config(None, data=data, init="pretrained:cascaded-tanks", overrides=["train.steps=2"])
+    select_against_arx(train(config, tmp_path / "each", progress=False), config, recorded_data(config.data))
+    assert len(counted) >= 3
     once, each = ((tmp_path / d / "model.safetensors").read_bytes() for d in ("once", "each"))
     assert once == each
 

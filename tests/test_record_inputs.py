@@ -8,7 +8,7 @@ import pytest
 from mop.config import DataConfig
 from mop.identify.select import feasible_order, fit, fit_orders
 from mop.record import Record, as_pairs, read_records, to_records
-from mop.train.records import RecordedData
+from mop.train.records import read_recorded
 
 
 def arx_records(num: int = 2, T: int = 200, inputs: bool = True) -> list[Record]:
@@ -65,7 +65,7 @@ def test_recorded_data_reads_the_files_records(tmp_path):
     records = arx_records(num=4)
     path = tmp_path / "rec.npz"
     np.savez(path, y=np.stack([r.y for r in records]), u=np.stack([r.u for r in records]))
-    data = RecordedData(DataConfig(path=str(path), split="time"))
+    data = read_recorded(DataConfig(path=str(path), split="time"))
     assert (data.output_dim, data.input_dim, data.num_trajectories) == (1, 1, 4)
     whole = [np.concatenate([r.y, r.u], axis=1) for r in read_records(path)]
     for part, val, full in zip(data.train_parts, data.val_parts, whole, strict=True):

@@ -19,7 +19,7 @@ from mop.recipe.records import RECORDED_MODEL
 from mop.record import Record
 from mop.train.auto import MIXTURE_SIZE, STEP_COST, steps_for
 from mop.train.estimate import duration
-from mop.train.records import RecordedData, choose_split
+from mop.train.records import choose_split, read_recorded
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -59,7 +59,7 @@ def test_auto_split_is_by_trajectory_where_possible_else_in_time():
 
 def test_one_record_splits_in_time_and_no_window_crosses_the_cut(tmp_path):
     path = write_record(tmp_path / "one.csv", lengths=(200,))
-    rec = RecordedData(DataConfig(path=str(path)))
+    rec = read_recorded(DataConfig(path=str(path)))
     assert rec.split == "time"
     # the last ceil(0.1 * 200) = 20 steps validate, the first 180 train
     (train,), (val,) = rec.train_parts, rec.val_parts
@@ -83,7 +83,7 @@ def test_one_record_splits_in_time_and_no_window_crosses_the_cut(tmp_path):
 def test_time_split_rounds_the_validation_length_up_as_record_split_does(tmp_path):
     # 0.1 * 203 = 20.3 and 0.1 * 57 = 5.7: floor (20, 5), round (20, 6) and ceil (21, 6) all differ
     path = write_record(tmp_path / "two.csv", lengths=(203, 57))
-    rec = RecordedData(DataConfig(path=str(path), split="time", validation_fraction=0.1))
+    rec = read_recorded(DataConfig(path=str(path), split="time", validation_fraction=0.1))
     assert [len(v) for v in rec.val_parts] == [21, 6]
     assert [len(t) for t in rec.train_parts] == [182, 51]
     for i, (train, val) in enumerate(zip(rec.train_parts, rec.val_parts, strict=True)):
@@ -95,18 +95,18 @@ def test_time_split_rounds_the_validation_length_up_as_record_split_does(tmp_pat
 def test_a_validation_record_validates_and_all_of_data_trains(tmp_path):
     est = write_record(tmp_path / "est.csv", lengths=(100,))
     val = write_record(tmp_path / "val.csv", lengths=(30,), seed=1)
-    rec = RecordedData(DataConfig(path=str(est), validation_path=str(val)))
+    rec = read_recorded(DataConfig(path=str(est), validation_path=str(val)))
     assert rec.split == "file" and len(rec.train_parts[0]) == 100 and len(rec.val_parts[0]) == 30
     assert "validation from --val (1 trajectory)" in rec.summary(8)
     assert "92 training / 22 validation windows of 9 steps" in rec.summary(8)
     wrong = write_record(tmp_path / "wrong.csv", lengths=(30,), inputs=False)
     with pytest.raises(Exception, match="has m=1 outputs and k=0 inputs, but .* has m=1, k=1"):
-        RecordedData(DataConfig(path=str(est), validation_path=str(wrong)))
+        read_recorded(DataConfig(path=str(est), validation_path=str(wrong)))
 
 
 def test_validation_windows_are_thinned_evenly(tmp_path):
     path = write_record(tmp_path / "long.csv", lengths=(6000,))
-    rec = RecordedData(DataConfig(path=str(path)))
+    rec = read_recorded(DataConfig(path=str(path)))
     windows = rec.validation_windows(8)
     assert len(windows) == 256 and windows[0] == (0, 0) and windows[-1] == (0, 600 - 9)
 

@@ -15,7 +15,7 @@ from mop.errors import MopError
 from mop.runs import load_config, load_predictor
 from mop.systems import make_family
 from mop.systems.base import Trajectories
-from mop.train.records import RecordedData, recorded_data
+from mop.train.records import read_recorded, recorded_data
 from tests.reference import sigint_during_step
 
 TINY = [
@@ -63,9 +63,9 @@ def write_csv(path: Path, trajectories: list[np.ndarray]) -> Path:
 
 def test_split_is_seeded_disjoint_and_sized(tmp_path):
     path = write_linear(tmp_path / "d.npz", num=40)
-    a = RecordedData(DataConfig(path=str(path), validation_fraction=0.25, split_seed=3))
-    b = RecordedData(DataConfig(path=str(path), validation_fraction=0.25, split_seed=3))
-    c = RecordedData(DataConfig(path=str(path), validation_fraction=0.25, split_seed=4))
+    a = read_recorded(DataConfig(path=str(path), validation_fraction=0.25, split_seed=3))
+    b = read_recorded(DataConfig(path=str(path), validation_fraction=0.25, split_seed=3))
+    c = read_recorded(DataConfig(path=str(path), validation_fraction=0.25, split_seed=4))
     assert np.array_equal(a.val_index, b.val_index) and np.array_equal(a.train_index, b.train_index)
     assert not np.array_equal(a.val_index, c.val_index)
     assert len(a.val_index) == 10 and len(a.train_index) == 30
@@ -77,7 +77,7 @@ def test_normalisation_is_numpy_mean_std_of_training_split_only(tmp_path):
     path = write_linear(tmp_path / "d.npz", num=20)
     with np.load(path) as f:
         y, u = f["y"].copy(), f["u"].copy()
-    split = RecordedData(DataConfig(path=str(path), validation_fraction=0.3, split_seed=1))
+    split = read_recorded(DataConfig(path=str(path), validation_fraction=0.3, split_seed=1))
     y[split.val_index] += 100.0  # the validation split far off: must not move the statistics
     np.savez(path, y=y, u=u)
     config = mt.resolve_config(data_config(path, validation_fraction=0.3, split_seed=1))

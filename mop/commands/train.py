@@ -12,6 +12,7 @@ from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
 from mop.recipe.budget import check_budget
 from mop.recipe.fit import fit_record
+from mop.recipe.layers import read_given
 
 EPILOG = """examples:
   mop train --out runs/linear                        # the linear family: CPU preset small, GPU paper
@@ -92,10 +93,10 @@ def run(args: argparse.Namespace) -> int:
     if source is not None and "=" in source:  # no config file: the first word is an override
         source, overrides = None, [source, *overrides]
     budget = None if args.budget is None else check_budget(args.budget)
+    records = read_given(args.data, args.val)  # the record is read here, once; from here on it is in memory
     fitted = fit_record(
         args.out,
-        args.data,
-        args.val,
+        records,
         source=source,
         preset=args.preset,
         overrides=overrides,

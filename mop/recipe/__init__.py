@@ -2,6 +2,7 @@
 
 - layers: the config's layers (a preset or experiment, the data, the recipes, the overrides);
 - records: the records recipe before training (orders, the cubic NARX choice, model and budget);
+- plan: what the records recipe decides for one record (RecordsPlan);
 - selection: the records recipe after training (the network's gain or the fitted ARX, on held-out data);
 - finetune: the fine-tune recipe of `--init SOURCE`: its config;
 - source: the fine-tune's source (its architecture check, its weights at step 0);

@@ -7,6 +7,8 @@ from the record's least-squares ARX (with_record_prior), and its windows fit the
 (mop.recipe.source) and the correction's gain after the last step (train.shrink_correction,
 mop.recipe.shrink); keeping the best validation weights is the loop's option train.keep_best. within_budget
 cuts a fine-tune's steps to a budget in minutes at this machine's step time (mop.estimators.Learned's).
+Each step that looks at the record is handed it (a RecordedData: the records in memory, split as
+config.data asks), never a path to read.
 """
 
 from __future__ import annotations
@@ -15,7 +17,6 @@ import dataclasses
 import math
 
 from mop.config import (
-    DataConfig,
     RunConfig,
     TrainConfig,
     parse_overrides,
@@ -24,11 +25,11 @@ from mop.experiments.presets import default_preset, preset_config
 from mop.models import build_model
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES
 from mop.recipe.records import FEATURE_KEYS as RECIPE_FEATURE_KEYS
-from mop.recipe.records import budget_plan, fitted_long_orders, record_orders, recorded_recipe
+from mop.recipe.records import budget_plan, fitted_long_orders, plan_records, record_orders
 from mop.recipe.source import PRIOR_KEYS
 from mop.train import resolve_config, resolve_device
 from mop.train.estimate import step_seconds
-from mop.train.records import recorded_data
+from mop.train.records import RecordedData, TrainingRecords
 
 # 125: on the tank_records plants 1-6 (pretrained:cascaded-tanks fine-tuned on est.csv, seeds 0 / 1, the
 # validation record simulated from steps 0, 50 and 200; with the record's moments and tails from step 1) the
@@ -78,7 +79,9 @@ def with_fine_tuning(config: RunConfig, source: RunConfig, init: str) -> RunConf
 RECORD_PRIOR_STEPS = 100
 
 
-def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig) -> RunConfig:
+def with_record_prior(
+    config: RunConfig, record: RecordedData | None, overrides: list[str], source: RunConfig
+) -> RunConfig:
     """Fine-tuning a class model (model.record_norm: its ARX feature identifies the record in context) on a
     record with complete outputs: the feature starts from the ARX fitted by least squares on the training
     part (model.rls_prior = "fit", P_0 = 1e-3 I in the run's normalised units), as the records recipe's
@@ -106,25 +109,20 @@ def with_record_prior(config: RunConfig, overrides: list[str], source: RunConfig
     fine-tuned kept gain 0.5 by its own record (RMSE 0.01024 against 0.01035 at gain 0) and simulated the
     three tests at 2.41 / 11.2 / 2.50 mV; the held-out tail kept gain 0 and 0.65 / 0.70 / 0.53 mV."""
     m, named = config.model, parse_overrides(overrides)
-    if config.data is None or not reads_a_fit(source) or m.rls_order == 0 or m.rls_prior != "none":
+    if record is None or not reads_a_fit(source) or m.rls_order == 0 or m.rls_prior != "none":
         return config
-    if any(f"model.{key}" in named for key in PRIOR_KEYS) or recorded_data(config.data).num_missing:
+    if any(f"model.{key}" in named for key in PRIOR_KEYS) or record.num_missing:
         return config
     model = dataclasses.replace(m, rls_prior="fit", rls_p0=1.0, rls_prior_cov=None)
     keys = ("model.rls_order", "model.arx_order")
     # a cubic feature (model.rls_cubes) keeps the class's lags: the ARX orders `mop fit arx` chooses are
     # those of a linear model, and may be fewer than the cubed lags
     linear = m.rls_cubes == 0
-    if (
-        linear
-        and m.arx_order > 0
-        and recorded_data(config.data).input_dim
-        and not any(k in named for k in keys)
-    ):
-        orders = record_orders(config.data.path)
+    if linear and m.arx_order > 0 and record.input_dim and not any(k in named for k in keys):
+        orders = record_orders(record)
         if orders is not None:
             longest = config.train.horizon // 2  # the windows stay at least twice the orders
-            p, q = fitted_long_orders(config.data, *orders, max_order=longest)
+            p, q = fitted_long_orders(record, *orders, max_order=longest)
             long = (p, q) != orders  # a long ARX stays at its fit (model.rls_fixed), as the records recipe's
             model = dataclasses.replace(model, rls_order=p, arx_order=q, rls_fixed=long)
     own_units = source.data is None or not source.data.fitted
@@ -142,14 +140,17 @@ def records_start(source: RunConfig) -> bool:
 
 
 def with_records_recipe(
-    config: RunConfig, overrides: list[str], minutes: float = DEFAULT_BUDGET_MINUTES
+    config: RunConfig,
+    record: RecordedData,
+    overrides: list[str],
+    minutes: float = DEFAULT_BUDGET_MINUTES,
 ) -> RunConfig:
     """A fine-tune of a records start (records_start) on config.data: the records recipe from the source's
     weights. Its schedule: the steps `minutes` buy on the record (mop.recipe.budget, as `mop train --data
     --budget` plans them on windows of the source's length) at the default preset's batch size, learning rate,
     schedule and warm-up, instead of FINE_TUNE_STEPS at a tenth of the source's rate. Its feature, on a record
     with inputs and complete outputs where no override names one: the records recipe's
-    (mop.recipe.records.recorded_recipe: the ARX orders, cubed lags or long ARX it picks on the training part,
+    (mop.recipe.records.plan_records: the ARX orders, cubed lags or long ARX it picks on the training part,
     started from their least-squares fit; the network reads the feature's prediction whatever its orders),
     else the class model's rule (with_record_prior). On the F-16 (one output, seed 0) the 125-step fine-tune
     of the duffing-class start kept the fitted ARX (held-out 0.3877 at gain 0); the records recipe's 9375
@@ -159,32 +160,31 @@ def with_records_recipe(
     config = dataclasses.replace(config, train=dataclasses.replace(config.train, batch_size=base.batch_size))
     train = dataclasses.replace(
         config.train,
-        steps=budget_plan(config, minutes).steps,
+        steps=budget_plan(record, config.train.batch_size, config.train.horizon, minutes).steps,
         lr=base.lr,
         lr_schedule=base.lr_schedule,
         warmup_steps=base.warmup_steps,
     )
     config = dataclasses.replace(config, train=train)
-    record = recorded_data(config.data)
     named = parse_overrides(overrides)
     if not record.input_dim or record.num_missing or any(k in named for k in RECIPE_FEATURE_KEYS):
         return config
-    recipe = recorded_recipe(config, minutes)
+    plan = plan_records(record, config, minutes)
     model = dataclasses.replace(
         config.model,
-        rls_order=recipe["model.rls_order"],
-        arx_order=recipe["model.arx_order"],
-        rls_cubes=recipe["model.rls_cubes"],
+        rls_order=plan.p,
+        arx_order=plan.q,
+        rls_cubes=plan.cubes,
         rls_offset=True,
         rls_prior="fit",
         rls_p0=1.0,
         rls_prior_cov=None,
-        rls_fixed=bool(recipe.get("model.rls_fixed", False)),
+        rls_fixed=plan.fixed,
     )
-    horizon = recipe.get("train.horizon", train.horizon)
+    horizon = plan.horizon if plan.longer else train.horizon
     if horizon > model.context:  # the source's windows are its context: the feature regresses on less
         horizon = train.horizon
-    train = dataclasses.replace(train, steps=recipe["train.steps"], horizon=horizon)
+    train = dataclasses.replace(train, steps=plan.steps, horizon=horizon)
     return dataclasses.replace(config, model=model, train=train)
 
 
@@ -214,16 +214,15 @@ def with_refitted_orders(config: RunConfig, source: RunConfig) -> RunConfig:
     return dataclasses.replace(config, model=dataclasses.replace(m, **refit))
 
 
-def record_horizon(train: TrainConfig, data: DataConfig) -> TrainConfig:
+def record_horizon(train: TrainConfig, record: RecordedData, validation_fraction: float) -> TrainConfig:
     """A source trained on longer windows than the record's split holds trains on the longest that fit
     both sides (train.simulate_after scaled alike), so `--init` works on a short record as it is. With a
     validation record (--val) the windows are those the split in time would give, as long as the last
     data.validation_fraction of the estimation record: the same fine-tune with or without --val (windows
     of 500 steps on one record of 1024 fit its tail and simulate the validation record worse, measured)."""
-    split = recorded_data(data)
-    longest = [max(len(a) for a in split.train_parts), max(len(a) for a in split.val_parts)]
-    if split.split == "file":
-        longest.append(max(math.ceil(data.validation_fraction * len(a)) for a in split.train_parts))
+    longest = [max(len(a) for a in record.train_parts), max(len(a) for a in record.val_parts)]
+    if record.split == "file":
+        longest.append(max(math.ceil(validation_fraction * len(a)) for a in record.train_parts))
     fits = min(longest) - 1
     if not 2 <= fits < train.horizon:
         return train
@@ -233,10 +232,10 @@ def record_horizon(train: TrainConfig, data: DataConfig) -> TrainConfig:
     return dataclasses.replace(train, horizon=fits, simulate_after=after)
 
 
-def within_budget(config: RunConfig, minutes: float) -> RunConfig:
+def within_budget(config: RunConfig, minutes: float, records: TrainingRecords | None = None) -> RunConfig:
     """config with train.steps cut to what `minutes` allow at the measured time of one step (on this machine:
     mop.train.estimate.step_seconds), never raised."""
-    resolved = resolve_config(config)
+    resolved = resolve_config(config, records)
     device = resolve_device(resolved.train.device)
     seconds = step_seconds(resolved, build_model(resolved.model), device)
     steps = max(1, min(config.train.steps, int(minutes * 60 / max(seconds, 1e-9))))

@@ -2,7 +2,9 @@
 the recipe's hooks (mop.recipe.training), then the held-out choice (mop.recipe.selection).
 
 `mop train` and mop.estimators.Learned both call fit_record, so a record trains the same way from the command
-line and from Python; the command line hands it `print` to announce what it does.
+line and from Python; the command line hands it `print` to announce what it does. Both read the record
+before (`mop train --data FILE` once, at the command; Learned takes it in memory) and hand it in as
+TrainingRecords: from here the recipe plans on it and the trainer trains on it, and no step reads it again.
 """
 
 from __future__ import annotations
@@ -13,17 +15,17 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from mop.config import RunConfig, parse_overrides
-from mop.io import reading_once
-from mop.recipe.budget import DEFAULT_BUDGET_MINUTES
+from mop.errors import MopError
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.finetune import records_start, within_budget
-from mop.recipe.layers import training_config
+from mop.recipe.layers import records_config, split
 from mop.recipe.records import budget_plan, feature_line, order_line
 from mop.recipe.selection import select_against_arx, selection_line
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
 from mop.runs import load_config, read_run_json
 from mop.train.data import validates_tails
-from mop.train.records import recorded_data
+from mop.train.records import RecordedData, TrainingRecords
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,8 +46,7 @@ def selects(config: RunConfig) -> bool:
 
 def fit_record(
     out_dir: str | os.PathLike,
-    data: str | None = None,
-    val: str | None = None,
+    records: TrainingRecords | None = None,
     *,
     source: str | None = None,
     preset: str | None = None,
@@ -59,9 +60,12 @@ def fit_record(
     announce: Callable[[str], None] | None = None,
 ) -> FittedRun:
     """Train the run `out_dir` as `mop train [SOURCE] [--preset P] [--data DATA [--val VAL]] [--init RUN]
-    [--budget MINUTES] [key=value ...]` does, reading the record once: its config (training_config), the
-    training with the recipe's hooks, then, for a records recipe or a fine-tune with a fitted feature, the
-    held-out choice between the network and the fitted ARX (select_against_arx).
+    [--budget MINUTES] [key=value ...]` does: its config (records_config), the training with the recipe's
+    hooks, then, for a records recipe or a fine-tune with a fitted feature, the held-out choice between the
+    network and the fitted ARX (select_against_arx), all on one set of records in memory.
+
+    records: the records of --data (and --val) in memory, read by the caller (TrainingRecords.read at the
+    command line; Learned takes them as given); None without --data.
 
     fine_tune_minutes: a fine-tune's train.steps cut to what these minutes allow at the measured time of one
     step (within_budget; machine-dependent), unless an override sets train.steps; for a records start
@@ -70,19 +74,25 @@ def fit_record(
     orders before training; the loop's plan line; the held-out choice after it.
     """
     overrides = list(overrides)
+    if budget is not None:  # before any file is read
+        check_budget(budget)
     if init is not None and records_start(load_config(init)):  # the records recipe's budget plans its steps
         budget, fine_tune_minutes = (fine_tune_minutes if budget is None else budget), None
-    with reading_once():  # the record is read once, whichever steps of the recipe look at it
-        config = training_config(source, preset, data, val, overrides, init, budget)
-        steps_given = "train.steps" in parse_overrides(overrides)
-        if init is not None and fine_tune_minutes is not None and not steps_given:
-            config = within_budget(config, fine_tune_minutes)
-        if announce is not None:
-            chosen = source is not None or preset is not None
-            for line in record_lines(config, overrides, init, chosen, budget):
-                announce(line)
-        run_dir = train(config, out_dir, progress=progress, wait=wait, fresh=fresh, announce=announce)
-        selection = select_against_arx(run_dir, config) if selects(config) else None
+    if records is not None and not isinstance(records, TrainingRecords):
+        raise MopError("fit_record takes the records in memory: give TrainingRecords.read(PATH), not a path")
+    config, records = records_config(source, preset, records, overrides, init, budget)
+    steps_given = "train.steps" in parse_overrides(overrides)
+    if init is not None and fine_tune_minutes is not None and not steps_given:
+        config = within_budget(config, fine_tune_minutes, records)
+    record = split(config, records)  # the records split as the run trains on them
+    if announce is not None:
+        chosen = source is not None or preset is not None
+        for line in record_lines(config, record, overrides, init, chosen, budget):
+            announce(line)
+    run_dir = train(
+        config, out_dir, progress=progress, wait=wait, fresh=fresh, announce=announce, records=records
+    )
+    selection = select_against_arx(run_dir, config, record) if selects(config) else None
     if announce is not None:
         if selection is not None:
             announce(selection_line(selection))
@@ -93,18 +103,25 @@ def fit_record(
 
 
 def record_lines(
-    config: RunConfig, overrides: list[str], init: str | None, chosen: bool, budget: float | None
+    config: RunConfig,
+    record: RecordedData | None,
+    overrides: list[str],
+    init: str | None,
+    chosen: bool,
+    budget: float | None,
 ) -> list[str]:
-    """What `mop train` says before training on a record: the records recipe's budget plan (where the plan
-    set train.steps), the record, the feature, the orders and record_norm's prior."""
+    """What `mop train` says before training on a record (`record`: config.data's records split as it asks;
+    None without data): the records recipe's budget plan (where the plan set train.steps), the record, the
+    feature, the orders and record_norm's prior."""
     lines = []
+    if record is None:
+        return lines
     if selects(config) and (init is None or records_start(load_config(init))):
-        plan = budget_plan(config, DEFAULT_BUDGET_MINUTES if budget is None else budget)
+        minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
+        plan = budget_plan(record, config.train.batch_size, config.train.horizon, minutes)
         if plan.steps == config.train.steps:
             lines.append(plan.line())
-    if config.data is None:
-        return lines
-    lines.append(recorded_data(config.data).summary(config.train.horizon, validates_tails(config)))
+    lines.append(record.summary(config.train.horizon, validates_tails(config, record.given)))
     lines.append(feature_line(config) or "feature: none (the network reads the record alone)")
     orders = order_line(config, overrides, init, chosen)
     if orders:

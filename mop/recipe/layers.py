@@ -7,7 +7,7 @@ Layers, later wins:
 2. `--data FILE` (data.path) and `--val FILE` (data.validation_path): recorded trajectories;
 3. on recorded data with inputs and complete outputs, where no source, no --preset and no override chose
    the feature, the
-   records recipe (recorded_recipe): a 1 x 32 model for the steps its budget buys on the record
+   records recipe (plan_records, a RecordsPlan): a 1 x 32 model for the steps its budget buys on the record
    (mop.recipe.budget: --budget MINUTES, default 5) whose ARX(p, q) feature with an
    intercept starts from the least-squares ARX of the training part (model.rls_prior = "fit"), the orders
    those `mop fit arx` chooses on that part (held-out free-run simulation); the last weights are kept (not
@@ -53,9 +53,11 @@ from mop.recipe.finetune import (
     with_refitted_orders,
 )
 from mop.recipe.records import with_recorded_features
+from mop.record import read_records
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.auto import resolve_features
+from mop.train.records import RecordedData, TrainingRecords
 
 
 def base_config(source: str | None, preset: str | None) -> RunConfig:
@@ -96,18 +98,56 @@ def _named_experiment(name: str, preset: str | None) -> RunConfig:
     return run_config(exp, preset or default_preset())
 
 
-def with_records(config: RunConfig, data: str | None, val: str | None) -> RunConfig:
-    """Layer 2: --data and --val; the normalisation is left to the trainer (a saved config's is refitted)."""
+def with_records(config: RunConfig, records: TrainingRecords | None) -> RunConfig:
+    """Layer 2: --data and --val, as data.path and data.validation_path (where the records came from: their
+    provenance); the normalisation is left to the trainer (a saved config's is refitted)."""
+    if records is None:
+        return config
+    unfitted = dict.fromkeys(("y_mean", "y_std", "u_mean", "u_std"))
+    base = config.data or DataConfig(path=records.source)
+    val = records.validation_source if records.validation is not None else base.validation_path
+    return dataclasses.replace(
+        config, data=dataclasses.replace(base, path=records.source, validation_path=val, **unfitted)
+    )
+
+
+def run_records(records: TrainingRecords | None, base: RunConfig) -> TrainingRecords | None:
+    """The records the run trains on: those given (--data, --val), else those of the base config's own
+    data (a RunConfig file or an --init source naming data.path), read here once; --data without --val on a
+    config naming its validation file (data.validation_path) validates on that file, as the config says."""
+    if base.data is None:
+        return records
+    if records is None:
+        return TrainingRecords.read(base.data.path, base.data.validation_path or None)
+    if records.validation is not None or not base.data.validation_path:
+        return records
+    path = base.data.validation_path
+    return TrainingRecords(records.records, tuple(read_records(path)), records.source, path)
+
+
+def named_records(records: TrainingRecords | None, config: RunConfig) -> TrainingRecords | None:
+    """run_records after the overrides, which may name the data (data.path, data.validation_path); a
+    data.path override beside --data is refused in one line (the record is named once)."""
+    if records is not None and config.data is not None and config.data.path != records.source:
+        raise MopError(f"data.path={config.data.path} beside --data {records.source}: name the record once")
+    return run_records(records, config)
+
+
+def split(config: RunConfig, records: TrainingRecords | None) -> RecordedData | None:
+    """The records split as config.data asks (None without data): the record a recipe's step looks at."""
+    return None if config.data is None else records.split(config.data)
+
+
+def read_given(data: str | TrainingRecords | None, val: str | None) -> TrainingRecords | None:
+    """The records of `mop train --data FILE [--val FILE]`, read once here (the edge), or those given in
+    memory; None without --data. One-line MopError for --val without --data."""
     if data is None:
         if val is not None:
             raise MopError("--val FILE is the validation record of --data FILE: give --data too")
-        return config
-    unfitted = dict.fromkeys(("y_mean", "y_std", "u_mean", "u_std"))
-    base = config.data or DataConfig(path=data)
-    return dataclasses.replace(
-        config,
-        data=dataclasses.replace(base, path=data, validation_path=val or base.validation_path, **unfitted),
-    )
+        return None
+    if isinstance(data, TrainingRecords):
+        return data
+    return TrainingRecords.read(data, val)
 
 
 def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
@@ -122,7 +162,7 @@ def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
 def training_config(
     source: str | None,
     preset: str | None = None,
-    data: str | None = None,
+    data: str | TrainingRecords | None = None,
     val: str | None = None,
     overrides: list[str] = (),
     init: str | None = None,
@@ -130,33 +170,57 @@ def training_config(
 ) -> RunConfig:
     """The RunConfig of `mop train [SOURCE] [--preset P] [--data FILE [--val FILE]] [--init RUN]
     [--budget MINUTES] [key=value ...]`; the budget (DEFAULT_BUDGET_MINUTES where None) plans the records
-    recipe's steps."""
+    recipe's steps. data: a file (read here, once, with val's) or the records in memory (TrainingRecords;
+    val then None)."""
+    if budget is not None:  # before the file is read
+        check_budget(budget)
+    return records_config(source, preset, read_given(data, val), overrides, init, budget)[0]
+
+
+def records_config(
+    source: str | None,
+    preset: str | None = None,
+    records: TrainingRecords | None = None,
+    overrides: list[str] = (),
+    init: str | None = None,
+    budget: float | None = None,
+) -> tuple[RunConfig, TrainingRecords | None]:
+    """(config, the records it trains on): training_config on the records in memory (`records`; None: no
+    --data); no file is read here but a config's own (run_records: a RunConfig file or --init source naming
+    its data)."""
     if budget is not None:
         check_budget(budget)
-    if budget is not None and data is None:
+    if budget is not None and records is None:
         raise MopError("--budget MINUTES plans training on a record: give --data FILE too (or train.steps=N)")
     if budget is not None and init is not None and not records_start(load_config(init)):
         raise MopError(
             "--budget plans the records recipe; a fine-tune (--init) has its own schedule: drop it"
         )
     if init is None:
-        config = with_records(base_config(source, preset), data, val)
+        base = base_config(source, preset)
+        records = run_records(records, base)
+        config = with_records(base, records)
         chosen = source is not None or preset is not None
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        config = with_recorded_features(config, list(overrides), chosen, minutes)
+        config = with_recorded_features(config, split(config, records), list(overrides), chosen, minutes)
         config = apply_overrides(given_features(config, list(overrides)), list(overrides))
-        return resolve_features(config, scale_steps="train.steps" not in parse_overrides(list(overrides)))
+        steps = "train.steps" not in parse_overrides(list(overrides))
+        return resolve_features(config, scale_steps=steps), named_records(records, config)
     if source is not None or preset is not None:
         given = source if source is not None else f"--preset {preset}"
         raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
     base = load_config(init)
-    config = with_fine_tuning(with_records(base, data, val), base, init)
+    records = run_records(records, base)
+    config = with_fine_tuning(with_records(base, records), base, init)
     if records_start(base) and config.data is not None:
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        config = with_records_recipe(config, list(overrides), minutes)
+        config = with_records_recipe(config, split(config, records), list(overrides), minutes)
     config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
-    config = with_record_prior(config, list(overrides), base)
-    if config.data is not None and "train.horizon" not in parse_overrides(list(overrides)):
-        # the windows fit the split the overrides ask for (data.validation_fraction, data.split)
-        config = dataclasses.replace(config, train=record_horizon(config.train, config.data))
-    return config
+    records = named_records(records, config)
+    record = split(config, records)  # the split the overrides ask for (data.validation_fraction, data.split)
+    config = with_record_prior(config, record, list(overrides), base)
+    if record is not None and "train.horizon" not in parse_overrides(list(overrides)):
+        # the windows fit that split
+        fraction = config.data.validation_fraction
+        config = dataclasses.replace(config, train=record_horizon(config.train, record, fraction))
+    return config, records

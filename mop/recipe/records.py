@@ -1,18 +1,17 @@
 """The records recipe: what `mop train --data FILE` trains on one user's record when nothing else is named.
 
-Before training (recorded_recipe, layer 3 of mop.recipe.layers): the ARX orders `mop fit arx` chooses on the
+Before training (plan_records, layer 3 of mop.recipe.layers): the ARX orders `mop fit arx` chooses on the
 record's training part (fitted_orders), cubed output lags where a cubic NARX simulates the held-out end of
 that part better (fitted_cubes, mop.identify.cubic), else a longer ARX where a long record supports one
 (fitted_long_orders, mop.identify.long_arx; windows of at least twice its orders; fixed at its fit,
 model.rls_fixed, as the recursion would cost most of each step), the feature started from their
 least-squares fit, the model RECORDED_MODEL and the steps its budget buys on the record (budget_plan,
-mop.recipe.budget). After training: the held-out choice between the network's correction at each gain and
-the fitted ARX (mop.recipe.selection). feature_line and order_line say what was chosen and why.
+mop.recipe.budget): a RecordsPlan (mop.recipe.plan), planned from the record in memory (nothing here reads
+a file). After training: the held-out choice between the network's correction at each gain and the fitted
+ARX (mop.recipe.selection). feature_line and order_line say what was chosen and why.
 """
 
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 
@@ -28,15 +27,12 @@ from mop.identify.cubic import EXTRA_LAGS, choose_cubes
 from mop.identify.long_arx import LONG_ORDERS, choose_long_orders
 from mop.identify.select import feasible_order, fit
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_steps
-from mop.record import RecordsLike, read_records
+from mop.recipe.plan import RECORDED_MODEL, RecordsPlan
+from mop.record import RecordsLike
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
-from mop.train.records import recorded_data, window_count
+from mop.train.records import RecordedData, window_count
 
-# The records recipe (docs/results/families.md: measured on examples/tank_records.py, one record of 1024
-# samples): a small network reading the fitted ARX's prediction and predicting its residual, so it starts as
-# that ARX; the 2 x 64 small-preset model trained 2500 steps overfits one record (one-step RMSE 2.5x ARX's)
-RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2}
-
+__all__ = ["RECORDED_MODEL", "RecordsPlan", "plan_records"]
 
 # the identifier's keys (mop.train.auto's feature keys but the running scale): naming one turns the recipe off
 FEATURE_KEYS = tuple(f"model.{key}" for key in AUTO_KEYS if key != "input_scale")
@@ -53,62 +49,57 @@ def arx_orders(data: RecordsLike, source: str) -> tuple[int, int] | None:
     return orders["p"], orders["q"]
 
 
-def fitted_orders(data: DataConfig) -> tuple[int, int]:
+def fitted_orders(record: RecordedData) -> tuple[int, int]:
     """(p, q): arx_orders on the record's training part (the records recipe's feature)."""
-    record = recorded_data(data)
-    orders = arx_orders(record.records(record.train_parts), data.path)
+    orders = arx_orders(record.records(record.train_parts), record.path)
     if orders is None:
         raise MopError(
-            f"{data.path}: its training part is too short to fit the records recipe's ARX feature; give a "
+            f"{record.path}: its training part is too short to fit the records recipe's ARX feature; give a "
             "longer record, or name the model's feature (model.rls_order=0 for none)"
         )
     return orders
 
 
-def training_pairs(data: DataConfig) -> list[tuple[np.ndarray, np.ndarray]] | None:
+def training_pairs(record: RecordedData) -> list[tuple[np.ndarray, np.ndarray]] | None:
     """[(y (L, m), u (L, k))] of the record's training parts, normalised as the network reads them; None
     where outputs are missing (the candidates' least squares need them all)."""
-    record = recorded_data(data)
     if record.num_missing:
         return None
     m = record.output_dim
-    parts = record.normalised(dataclasses.replace(data, **record.fit()), record.train_parts)
+    parts = record.normalised(DataConfig(path=record.path, **record.fit()), record.train_parts)
     return [(a[:, :m], a[:, m:]) for a in parts]
 
 
-def fitted_cubes(data: DataConfig, p: int, q: int) -> tuple[int, int]:
+def fitted_cubes(record: RecordedData, p: int, q: int) -> tuple[int, int]:
     """(p, c): the output lags and cubed lags of the records recipe's feature, by held-out free-run
     simulation of cubic NARX candidates on the record's training part (mop.identify.cubic.choose_cubes,
     training_pairs); (p, 0) keeps the ARX(p, q) `mop fit arx` chose."""
-    pairs = training_pairs(data)
+    pairs = training_pairs(record)
     return (p, 0) if pairs is None else choose_cubes(pairs, p, q)[:2]
 
 
 def fitted_long_orders(
-    data: DataConfig, p: int, q: int, max_order: int = max(LONG_ORDERS)
+    record: RecordedData, p: int, q: int, max_order: int = max(LONG_ORDERS)
 ) -> tuple[int, int]:
     """(p, q): the ARX orders of the records recipe's linear feature, `mop fit arx`'s (p, q) or a longer
     ARX(P, P), P <= max_order, where the record is long enough and it simulates the last 20% of the training
     part better (mop.identify.long_arx.choose_long_orders on training_pairs)."""
-    pairs = training_pairs(data)
+    pairs = training_pairs(record)
     return (p, q) if pairs is None else choose_long_orders(pairs, p, q, max_order)[:2]
 
 
-def record_orders(path: str) -> tuple[int, int] | None:
-    """(p, q): arx_orders on the whole estimation record at `path`, its validation part included: the
-    orders of `mop fit arx PATH`."""
-    return arx_orders(read_records(path), path)
+def record_orders(record: RecordedData) -> tuple[int, int] | None:
+    """(p, q): arx_orders on the whole estimation record (record.given), its validation part included: the
+    orders of `mop fit arx FILE`."""
+    return arx_orders(list(record.given.records), record.path)
 
 
 def budget_plan(
-    config: RunConfig, minutes: float = DEFAULT_BUDGET_MINUTES, horizon: int | None = None
+    record: RecordedData, batch_size: int, horizon: int, minutes: float = DEFAULT_BUDGET_MINUTES
 ) -> BudgetPlan:
-    """The steps `minutes` buy on config.data's training windows of `horizon` (default
-    config.train.horizon) steps (mop.recipe.budget.plan_steps)."""
-    horizon = config.train.horizon if horizon is None else horizon
-    record = recorded_data(config.data)
-    windows = window_count(record.train_parts, horizon)
-    return plan_steps(minutes, windows, config.train.batch_size, horizon)
+    """The steps `minutes` buy on the record's training windows of `horizon` steps, `batch_size` windows a
+    step (mop.recipe.budget.plan_steps)."""
+    return plan_steps(minutes, window_count(record.train_parts, horizon), batch_size, horizon)
 
 
 def feature_horizon(horizon: int, p: int, q: int) -> int:
@@ -117,48 +108,52 @@ def feature_horizon(horizon: int, p: int, q: int) -> int:
     return max(horizon, 2 * max(p, q))
 
 
-def recorded_recipe(
-    config: RunConfig, budget: float = DEFAULT_BUDGET_MINUTES, cubes: bool = True
-) -> dict[str, object]:
-    """The records recipe's settings for config.data: the ARX orders `mop fit arx` chooses on the training
-    part (fitted_orders), cubed output lags where a cubic NARX simulates the held-out end of the training
-    part better (fitted_cubes), else the longer ARX orders a long record supports (fitted_long_orders) with
-    windows of feature_horizon, the feature started from their least-squares fit, RECORDED_MODEL, and the
-    steps the budget (minutes) buys on the record (budget_plan: longer records train longer)."""
-    p, q = fitted_orders(config.data)
-    p, c = fitted_cubes(config.data, p, q) if cubes else (p, 0)
+def plan_records(
+    record: RecordedData, config: RunConfig, budget: float = DEFAULT_BUDGET_MINUTES, cubes: bool = True
+) -> RecordsPlan:
+    """The records recipe's plan for `record` (a RecordedData: the record split as config.data asks; nothing
+    is read from disk): the ARX orders `mop fit arx` chooses on the training part (fitted_orders), cubed
+    output lags where a cubic NARX simulates the held-out end of the training part better (fitted_cubes),
+    else the longer ARX orders a long record supports (fitted_long_orders) with windows of feature_horizon,
+    the feature started from their least-squares fit, RECORDED_MODEL, and the steps the budget (minutes)
+    buys on the record (budget_plan: longer records train longer). config gives the windows' length, the
+    batch size and the model's context the plan starts from."""
+    p, q = fitted_orders(record)
+    p, c = fitted_cubes(record, p, q) if cubes else (p, 0)
     if c == 0:
-        p, q = fitted_long_orders(config.data, p, q)
+        p, q = fitted_long_orders(record, p, q)
     horizon = feature_horizon(config.train.horizon, p, q)
-    longer = {"train.horizon": horizon, "model.context": max(config.model.context, horizon)}
-    return {
-        **RECORDED_MODEL,
-        **(longer if horizon > config.train.horizon else {}),
-        **({"model.rls_fixed": True} if max(p, q) in LONG_ORDERS and c == 0 else {}),
-        "train.steps": budget_plan(config, budget, horizon).steps,
-        "model.rls_order": p,
-        "model.arx_order": q,
-        "model.rls_cubes": c,
-        "model.rls_offset": True,
-        "model.rls_prior": "fit",
-    }
+    return RecordsPlan(
+        p=p,
+        q=q,
+        cubes=c,
+        fixed=max(p, q) in LONG_ORDERS and c == 0,
+        horizon=horizon,
+        longer=horizon > config.train.horizon,
+        context=max(config.model.context, horizon),
+        budget=budget_plan(record, config.train.batch_size, horizon, budget),
+    )
 
 
 def with_recorded_features(
-    config: RunConfig, overrides: list[str], chosen: bool = False, budget: float = DEFAULT_BUDGET_MINUTES
+    config: RunConfig,
+    record: RecordedData | None,
+    overrides: list[str],
+    chosen: bool = False,
+    budget: float = DEFAULT_BUDGET_MINUTES,
 ) -> RunConfig:
-    """Layer 3: the records recipe on recorded data with inputs and complete outputs, unless the source or
-    --preset (`chosen`), the base's feature or an override chose the feature (overrides of sizes and steps
-    apply on top of it, as layer 4)."""
+    """Layer 3: the records recipe on recorded data with inputs and complete outputs (`record`: config.data's
+    records split as it asks; None without data), unless the source or --preset (`chosen`), the base's
+    feature or an override chose the feature (overrides of sizes and steps apply on top of it, as layer 4)."""
     named = parse_overrides(overrides)
-    if config.data is None or chosen or config.model.rls_order > 0:
+    if record is None or chosen or config.model.rls_order > 0:
         return config
     if any(k in named for k in FEATURE_KEYS):
         return config
-    data = recorded_data(config.data)
-    if data.input_dim == 0 or data.num_missing:
+    if record.input_dim == 0 or record.num_missing:
         return config
-    return apply_settings(config, recorded_recipe(config, budget, cubes="model.rls_cubes" not in named))
+    plan = plan_records(record, config, budget, cubes="model.rls_cubes" not in named)
+    return apply_settings(config, plan.settings())
 
 
 def feature_line(config: RunConfig) -> str | None:

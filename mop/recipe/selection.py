@@ -29,10 +29,9 @@ from mop.config import RunConfig
 from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
 from mop.recipe.shrink import GAINS, best_gain, gain_scores, scale_correction
-from mop.record import read_records
 from mop.records import divergence_step, simulate_all
 from mop.runs import load_predictor
-from mop.train.records import RecordedData, recorded_data
+from mop.train.records import RecordedData
 
 SELECTION_FILE = "selection.json"
 INIT_WINDOW = 50  # measured outputs a held-out simulation starts from (the benchmarks' usual n)
@@ -79,20 +78,20 @@ def _gains_apply(predictor) -> bool:
     return cfg is not None and getattr(cfg, "rls_order", 0) > 0 and getattr(cfg, "readout", "") == "mean"
 
 
-def select_against_arx(run_dir: str | Path, config: RunConfig) -> dict:
+def select_against_arx(run_dir: str | Path, config: RunConfig, record: RecordedData) -> dict:
     """Choose what the finished run in `run_dir` predicts with, by free-run simulation of its held-out data
     (held_out_stretches): the network with its correction at each gain of mop.recipe.shrink.GAINS (1: as
     trained; 0: its in-context feature alone), or `mop fit arx`'s ARX fitted on the training part. On
     a tie the network at the larger gain is kept. Writes SELECTION_FILE; a gain below 1 is written into
     the run's model.safetensors, and where the ARX wins the run also holds it refitted on the whole record
-    (fitted.json, as `mop fit arx` writes it). A run that already holds SELECTION_FILE keeps its choice."""
+    (fitted.json, as `mop fit arx` writes it). A run that already holds SELECTION_FILE keeps its choice.
+    record: config.data's records in memory, split as it asks (mop.train.records.RecordedData)."""
     run_dir = Path(run_dir)
     done = run_dir / SELECTION_FILE
     if done.is_file():
         previous = json.loads(done.read_text())
         if previous.get("format") == 2:
             return previous
-    record = recorded_data(config.data)
     m = record.output_dim
     train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
     stretches = held_out_stretches(record)
@@ -107,7 +106,7 @@ def select_against_arx(run_dir: str | Path, config: RunConfig) -> dict:
     kept = "network" if best_rmse <= arx_rmse and math.isfinite(best_rmse) else "arx"
     fitted = run_dir / FITTED_FILE
     if kept == "arx":
-        whole = fit("arx", read_records(config.data.path), source=config.data.path)
+        whole = fit("arx", list(record.given.records), source=config.data.path)
         write_json(fitted, {"format": 1, **whole.to_json()})
     else:
         fitted.unlink(missing_ok=True)

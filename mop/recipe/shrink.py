@@ -36,8 +36,8 @@ from mop.config import RunConfig
 from mop.errors import MopError
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.predictors import simulate
-from mop.record import read_records
 from mop.systems.base import Trajectories
+from mop.train.records import TrainingRecords, recorded_data
 
 GAINS = (0.0, 0.25, 0.5, 0.75, 1.0)
 SHRINK_FILE = "shrink.json"  # in the run directory: every gain's RMSE and the one chosen
@@ -62,14 +62,15 @@ def scale_correction(model: nn.Module, gain: float) -> None:
         model.read_out.bias.mul_(gain)
 
 
-def simulation_rmse(model: nn.Module, config: RunConfig) -> float:
-    """RMSE of the free-run simulation of every record of data.path from its start (t >= 1, in the
-    records' units, pooled over records and output channels; missing outputs left out)."""
+def simulation_rmse(model: nn.Module, config: RunConfig, records: TrainingRecords | None = None) -> float:
+    """RMSE of the free-run simulation of every estimation record (`records` in memory, else data.path's)
+    from its start (t >= 1, in the records' units, pooled over records and output channels; missing outputs
+    left out)."""
     d = config.data
     norm = Normalization.from_lists(d.y_mean, d.y_std, d.u_mean, d.u_std)
     predictor = LearnedPredictor(model, normalization=norm, source=str(config.train.init))
     sq, n = 0.0, 0
-    for record in read_records(d.path):
+    for record in recorded_data(d, records).given.records:
         y, u = record.y, record.u
         traj = Trajectories(
             y=torch.tensor(y[None], dtype=torch.float32),
@@ -103,23 +104,27 @@ def best_gain(scores: list[float]) -> float:
     return GAINS[min(range(len(GAINS)), key=lambda i: (scores[i], -GAINS[i]))]
 
 
-def choose_gain(model: nn.Module, config: RunConfig) -> dict[str, object]:
+def choose_gain(
+    model: nn.Module, config: RunConfig, records: TrainingRecords | None = None
+) -> dict[str, object]:
     """Scale `model`'s correction (in place) by the gain of GAINS that simulates data.path best; returns
     {"gains": GAINS, "free_run_rmse": [RMSE per gain], "gain": chosen}. On a tie the larger gain is kept."""
-    rmse = gain_scores(model, lambda: simulation_rmse(model, config))
+    rmse = gain_scores(model, lambda: simulation_rmse(model, config, records))
     gain = best_gain(rmse)
     scale_correction(model, gain)
     return {"gains": list(GAINS), "free_run_rmse": rmse, "gain": gain}
 
 
-def apply_chosen_gain(config: RunConfig, model: nn.Module, out_dir: Path) -> None:
+def apply_chosen_gain(
+    config: RunConfig, model: nn.Module, out_dir: Path, records: TrainingRecords | None = None
+) -> None:
     """With train.shrink_correction, once a run has trained: scale `model`'s correction by choose_gain's
     gain and write it to out_dir's model.safetensors, then shrink.json (after the weights, so a resumed run
     that finds shrink.json has the scaled weights already and leaves them)."""
     shrunk = out_dir / SHRINK_FILE
     if not config.train.shrink_correction or shrunk.exists():
         return
-    choice = choose_gain(model, config)
+    choice = choose_gain(model, config, records)
     save_model(out_dir / "model.safetensors", model)
     write_json(shrunk, choice)
 

@@ -11,6 +11,8 @@ A config without those keys trains exactly as mop.train.train trains it.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -22,6 +24,7 @@ from mop.recipe.shrink import apply_chosen_gain, check_shrink
 from mop.recipe.source import check_init, load_init
 from mop.train import TrainHooks
 from mop.train import train as train_loop
+from mop.train.records import TrainingRecords
 
 
 def check(config: RunConfig) -> None:
@@ -47,8 +50,20 @@ def train(
     wait: bool = True,
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
+    records: TrainingRecords | None = None,
 ) -> Path:
-    """mop.train.train with RECIPE_HOOKS: train (or resume, or reuse) the run `out_dir` of `config`."""
+    """mop.train.train with RECIPE_HOOKS: train (or resume, or reuse) the run `out_dir` of `config`, on
+    config.data's `records` in memory where given (None: read from data.path)."""
+    hooks = RECIPE_HOOKS
+    if records is not None:
+        hooks = dataclasses.replace(hooks, after=functools.partial(apply_chosen_gain, records=records))
     return train_loop(
-        config, out_dir, progress=progress, wait=wait, fresh=fresh, announce=announce, hooks=RECIPE_HOOKS
+        config,
+        out_dir,
+        progress=progress,
+        wait=wait,
+        fresh=fresh,
+        announce=announce,
+        hooks=hooks,
+        records=records,
     )

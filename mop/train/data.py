@@ -41,7 +41,7 @@ from mop.missing import drop_mask, drop_outputs, masked_inputs
 from mop.models.normalization import Normalization
 from mop.systems import make_family
 from mop.train.context import check_context_prefix, prefix_fit
-from mop.train.records import recorded_data
+from mop.train.records import TrainingRecords, recorded_data
 
 NUM_VAL_SYSTEMS = 256
 
@@ -75,9 +75,12 @@ def simulated_batch(family, num_systems: int, config: RunConfig, generator: torc
 
 class TrainingData:
     """Batches of (inputs (B, T, d_in), targets (B, T, m)[, fitted (B, d, m) with train.context_prefix]) on
-    `device`, all randomness from one generator; simulated ones in the model's units (in_model_units)."""
+    `device`, all randomness from one generator; simulated ones in the model's units (in_model_units).
+    records: the recorded data of config.data in memory (None: read from data.path)."""
 
-    def __init__(self, config: RunConfig, device: torch.device) -> None:
+    def __init__(
+        self, config: RunConfig, device: torch.device, records: TrainingRecords | None = None
+    ) -> None:
         check_context_prefix(config)
         self.config = config
         self.cfg = config.train
@@ -91,7 +94,7 @@ class TrainingData:
             )
         if config.data is not None:
             self.family = None
-            self.windows = recorded_data(config.data).windows(config.data, self.cfg.horizon, device)
+            self.windows = recorded_data(config.data, records).windows(config.data, self.cfg.horizon, device)
             return
         self.family = make_family(config.system)
         if self.cfg.target == "optimal":  # refuse a family without a linear-Gaussian model before step 1
@@ -161,7 +164,7 @@ def simulated_tail(shape: torch.Size, after: int, generator: torch.Generator) ->
     return (torch.arange(T1, device=dev)[None, :] >= start)[..., None]
 
 
-def validates_tails(config: RunConfig) -> bool:
+def validates_tails(config: RunConfig, records: TrainingRecords | None = None) -> bool:
     """True where the validation loss is a free-run simulation: on recorded data split in time or given a
     validation record, for a model that simulates across a gap of outputs (model.forecast_mode = "gap")
     and is trained for it (train.simulate_after > 0), so train.keep_best keeps the weights that simulate
@@ -169,7 +172,7 @@ def validates_tails(config: RunConfig) -> bool:
     validation windows from step train.simulate_after on (validation_batch)."""
     if config.data is None or config.model.forecast_mode != "gap" or config.train.simulate_after <= 0:
         return False
-    return recorded_data(config.data).split in ("time", "file")
+    return recorded_data(config.data, records).split in ("time", "file")
 
 
 def tail_batch(windows: Tensor, cuts: Tensor, output_dim: int) -> tuple[Tensor, Tensor]:
@@ -185,15 +188,18 @@ def tail_batch(windows: Tensor, cuts: Tensor, output_dim: int) -> tuple[Tensor, 
     return masked_inputs(z, m), scored[:, 1:].contiguous()
 
 
-def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, ...]:
+def validation_batch(
+    config: RunConfig, device: torch.device, records: TrainingRecords | None = None
+) -> tuple[Tensor, ...]:
     """Held-out systems (a generator seeded apart from training) for the validation loss.
 
     Recorded data: the validation windows of mop.train.records (RecordedData.validation_windows); where
-    validates_tails, the held-out tails after the steps before them (RecordedData.tail_windows, tail_batch).
+    validates_tails, the held-out tails after the steps before them (RecordedData.tail_windows, tail_batch);
+    of `records` in memory where given, else of data.path.
     """
     g = torch.Generator(device=device).manual_seed(config.train.seed + 1_000_003)
-    if validates_tails(config):
-        cfg, data = config.train, recorded_data(config.data)
+    if validates_tails(config, records):
+        cfg, data = config.train, recorded_data(config.data, records)
         if data.split == "time":
             windows, cuts = data.tail_windows(config.data, cfg.horizon, cfg.simulate_after)
         else:
@@ -201,7 +207,7 @@ def validation_batch(config: RunConfig, device: torch.device) -> tuple[Tensor, .
             cuts = torch.full((windows.shape[0],), min(cfg.simulate_after, cfg.horizon), dtype=torch.long)
         return tail_batch(windows.to(device), cuts, config.model.output_dim)
     if config.data is not None:
-        val = recorded_data(config.data).validation(config.data, config.train.horizon, device)
+        val = recorded_data(config.data, records).validation(config.data, config.train.horizon, device)
     else:  # (N, T, d_in), (N, T, m)[, (N, d, m)], against the outputs themselves
         outputs = dataclasses.replace(config, train=dataclasses.replace(config.train, target="outputs"))
         val = simulated_batch(make_family(config.system), NUM_VAL_SYSTEMS, outputs, g)

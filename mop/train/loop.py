@@ -48,6 +48,7 @@ from mop.train.optim import (
     train_step,
     validation_loss,
 )
+from mop.train.records import TrainingRecords
 from mop.train.rundir import (
     MetricsLog,
     check_run_dir,
@@ -111,6 +112,7 @@ def train(
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
     hooks: TrainHooks | None = None,
+    records: TrainingRecords | None = None,
 ) -> Path:
     """Train `config` into `out_dir` (resuming from its checkpoint if any); returns the run directory.
 
@@ -121,9 +123,11 @@ def train(
     estimated time (mop.train.estimate.plan_line; a few trial steps on a copy of the model).
     hooks: a recipe's steps around the loop (TrainHooks); a config naming train.init or
     train.shrink_correction is refused without them (mop.recipe.training.train hands them in).
+    records: config.data's records in memory (mop.train.records.TrainingRecords), read once by the caller;
+    None reads data.path.
     Temporaries of writes killed in an earlier run are removed first.
     """
-    _train(config, Path(out_dir), progress, wait, fresh, announce, hooks)
+    _train(config, Path(out_dir), progress, wait, fresh, announce, hooks, records)
     return Path(out_dir)
 
 
@@ -149,9 +153,12 @@ def _train(
     fresh: bool,
     announce: Callable[[str], None] | None = None,
     hooks: TrainHooks | None = None,
+    records: TrainingRecords | None = None,
 ) -> nn.Module | None:
     """The trained model, or None when `out_dir` holds a finished run of `config` (nothing is trained)."""
-    config = resolve_config(config)
+    if config.data is not None and records is None:  # a config naming its data: read once, here
+        records = TrainingRecords.read(config.data.path, config.data.validation_path or None)
+    config = resolve_config(config, records)
     if hooks is None:
         _check_no_recipe_keys(config)
         hooks = TrainHooks()
@@ -172,7 +179,7 @@ def _train(
             clean_orphans(out_dir)
             if fresh:
                 fresh_start(out_dir)
-        return _train_locked(config, out_dir, rank, world, progress, announce, hooks)
+        return _train_locked(config, out_dir, rank, world, progress, announce, hooks, records)
 
 
 def _check_no_recipe_keys(config: RunConfig) -> None:
@@ -193,11 +200,12 @@ def _train_locked(
     progress: bool,
     announce: Callable[[str], None] | None,
     hooks: TrainHooks,
+    records: TrainingRecords | None = None,
 ) -> nn.Module:
     device = setup_device(config.train, world)
     if rank == 0:
         write_config(out_dir, config)
-    state = _start(config, out_dir, device, rank, world, hooks)
+    state = _start(config, out_dir, device, rank, world, hooks, records)
     if announce is not None and rank == 0:
         announce(plan_line(config, state.model, device, state.step))
     try:
@@ -209,14 +217,20 @@ def _train_locked(
 
 
 def _start(
-    config: RunConfig, out_dir: Path, device: torch.device, rank: int, world: int, hooks: TrainHooks
+    config: RunConfig,
+    out_dir: Path,
+    device: torch.device,
+    rank: int,
+    world: int,
+    hooks: TrainHooks,
+    records: TrainingRecords | None = None,
 ) -> TrainState:
     """Seeded model, AdamW and data, restored from the checkpoint when there is one (else the recipe's
     initial weights, where it has them)."""
     torch.manual_seed(config.train.seed)
     model = build_model(config.model).to(device)
     optimizer = make_optimizer(model, config.train, device)
-    data = TrainingData(config, device)
+    data = TrainingData(config, device, records)
     step = restore_training_state(out_dir, model, optimizer, data.generator, device)
     if step == 0 and hooks.initial_weights is not None:
         hooks.initial_weights(config, model)
@@ -229,7 +243,7 @@ def _start(
         config, out_dir, device, model, loss_fn, optimizer, data, step, rank, world, hooks=hooks
     )
     if rank == 0:
-        state.val = validation_batch(config, device)
+        state.val = validation_batch(config, device, records)
         write_input_stats(out_dir, state.val[0])
         state.log = MetricsLog(out_dir, step)
         if config.train.keep_best:

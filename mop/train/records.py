@@ -16,6 +16,11 @@ Every part is an array (L, m + k) of [y_t, u_t] in the file's units. The validat
 MAX_VALIDATION_WINDOWS (for a model validated by simulation, mop.train.data.validates_tails, the "time"
 split's tails after the steps before them instead: tail_windows). Per-channel mean / std are fitted on the
 training parts only.
+
+The records themselves are read once, at the edge (`mop train`'s command, or the caller's own
+mop.read_records), and handed down as TrainingRecords: the recipe and the trainer split them
+(TrainingRecords.split) and never read a file again. recorded_data(cfg) reads cfg's files for a caller that
+has only a config (a run reloaded later, a config file naming its data).
 """
 
 from __future__ import annotations
@@ -85,31 +90,63 @@ def window_count(parts: list[np.ndarray], horizon: int) -> int:
     return sum(max(0, len(a) - horizon) for a in parts)
 
 
-class RecordedData:
-    """A file of recorded trajectories split into training and validation parts (see the module docstring).
+@dataclasses.dataclass(frozen=True, eq=False)
+class TrainingRecords:
+    """The records a run on recorded data trains on, in memory: the estimation records, the validation
+    records (`--val`; None: held out of the estimation records by data.split) and where they came from
+    (`source`, `validation_source`: the files' paths, or the records' names; data.path and
+    data.validation_path keep them as provenance only)."""
 
-    train_parts / val_parts: lists of (L, m + k) float64 arrays in the file's units; train_index / val_index:
-    the trajectories on each side of a "trajectory" split (None for the others).
+    records: tuple[Record, ...]
+    validation: tuple[Record, ...] | None = None
+    source: str = "records"
+    validation_source: str = ""
+    _splits: dict = dataclasses.field(default_factory=dict, repr=False)
+
+    @classmethod
+    def read(
+        cls, path: str | os.PathLike, validation_path: str | os.PathLike | None = None
+    ) -> TrainingRecords:
+        """The records of the file at `path` (and of the validation file), each read once: the edge."""
+        validation = None if not validation_path else tuple(read_records(validation_path))
+        return cls(tuple(read_records(path)), validation, str(path), str(validation_path or ""))
+
+    def split(self, cfg: DataConfig) -> RecordedData:
+        """The records split as cfg asks (data.validation_fraction, data.split_seed, data.split), made once
+        per split; callers must not modify it."""
+        key = (cfg.validation_fraction, cfg.split_seed, cfg.split)
+        if key not in self._splits:
+            self._splits[key] = RecordedData(cfg, self)
+        return self._splits[key]
+
+
+class RecordedData:
+    """Recorded trajectories split into training and validation parts (see the module docstring).
+
+    train_parts / val_parts: lists of (L, m + k) float64 arrays in the records' units; train_index /
+    val_index: the trajectories on each side of a "trajectory" split (None for the others). `given`: the
+    records in memory (TrainingRecords), kept as `given` (the whole records, before the split); it reads no
+    file (read_recorded reads cfg's).
     """
 
-    def __init__(self, cfg: DataConfig) -> None:
-        self.path = cfg.path
-        records = read_records(cfg.path)
-        self.output_dim, self.input_dim = _widths(cfg.path, records)
+    def __init__(self, cfg: DataConfig, given: TrainingRecords) -> None:
+        self.given, self.path = given, given.source
+        records = list(given.records)
+        self.output_dim, self.input_dim = _widths(self.path, records)
         self.num_trajectories = len(records)
         self.num_missing = int(sum(np.isnan(r.y).sum() for r in records))  # outputs missing in the file
         self.train_index = self.val_index = None
         parts = _joined(records)
-        if cfg.validation_path:
+        if given.validation is not None:
             self.split = "file"
-            self.train_parts, self.val_parts = parts, self._validation_file(cfg.validation_path)
+            self.train_parts = parts
+            self.val_parts = self._validation_file(given.validation_source, list(given.validation))
         else:
             self.split = choose_split(cfg.split, len(parts), cfg.validation_fraction)
             cut = self._by_trajectory if self.split == "trajectory" else self._in_time
             self.train_parts, self.val_parts = cut(parts, cfg)
 
-    def _validation_file(self, path: str) -> list[np.ndarray]:
-        records = read_records(path)
+    def _validation_file(self, path: str, records: list[Record]) -> list[np.ndarray]:
         widths = _widths(path, records)
         if widths != (self.output_dim, self.input_dim):
             raise MopError(
@@ -123,7 +160,7 @@ class RecordedData:
         n, n_val = len(parts), int(round(cfg.validation_fraction * len(parts)))
         if n < 2 or not 1 <= n_val <= n - 1:
             raise MopError(
-                f"{cfg.path}: {n} trajectories cannot be split into training and validation with "
+                f"{self.path}: {n} trajectories cannot be split into training and validation with "
                 f"data.validation_fraction={cfg.validation_fraction}; use data.split=time (or auto), or --val"
             )
         order = np.random.default_rng(cfg.split_seed).permutation(n)
@@ -306,8 +343,16 @@ def _count(n: int, one: str, many: str) -> str:
     return f"{n} {one if n == 1 else many}"
 
 
-def recorded_data(cfg: DataConfig) -> RecordedData:
-    """RecordedData of cfg (read once per file version and split; callers must not modify it)."""
+def read_recorded(cfg: DataConfig) -> RecordedData:
+    """RecordedData of cfg's files (data.path, data.validation_path), read here."""
+    return TrainingRecords.read(cfg.path, cfg.validation_path or None).split(cfg)
+
+
+def recorded_data(cfg: DataConfig, given: TrainingRecords | None = None) -> RecordedData:
+    """RecordedData of cfg's split: of the records `given` (in memory), else of cfg's files, read once per
+    file version and split (callers must not modify it)."""
+    if given is not None:
+        return given.split(cfg)
     files = tuple(_file_key(p) for p in (cfg.path, cfg.validation_path) if p)
     split = (cfg.validation_fraction, cfg.split_seed, cfg.split, cfg.validation_path)
     return _recorded(files, cfg.path, split)
@@ -322,7 +367,7 @@ def _file_key(path: str) -> tuple:
 @functools.lru_cache(maxsize=2)
 def _recorded(files: tuple, path: str, split: tuple) -> RecordedData:
     fraction, seed, how, validation_path = split
-    return RecordedData(
+    return read_recorded(
         DataConfig(
             path=path,
             validation_fraction=fraction,

@@ -37,7 +37,7 @@ from mop.runs import read_run_json, retrain_hint
 from mop.systems import FAMILIES, make_family
 from mop.train.auto import resolve_features
 from mop.train.data import validates_tails
-from mop.train.records import recorded_data
+from mop.train.records import TrainingRecords, recorded_data
 
 TRAINING_FILES = (
     "model.safetensors",
@@ -51,17 +51,17 @@ TRAINING_FILES = (
 )
 
 
-def resolve_config(config: RunConfig) -> RunConfig:
+def resolve_config(config: RunConfig, records: TrainingRecords | None = None) -> RunConfig:
     """Fill model.input_dim / output_dim (0 = from the system family or the data file): d_in = m + k
     (+ m with model.observation_mask, which training with drop-outs sets), d_out = m; for recorded data
     also the normalisation fitted on the training split (data.y_mean, ...); model.features=auto resolved
-    (mop.train.auto)."""
+    (mop.train.auto). records: the recorded data in memory (None: read from data.path)."""
     check_arch(config.model.arch)
     config = resolve_features(config)
     if config.train.drops_outputs and not config.model.observation_mask:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model, observation_mask=True))
     if config.data is not None:
-        return _resolve_data(config)
+        return _resolve_data(config, records)
     family = make_family(config.system)
     d_in, m = family.output_dim + family.input_dim, family.output_dim
     return _with_dims(config, d_in, m, f"the {config.system.family} family")
@@ -79,14 +79,14 @@ def _with_dims(config: RunConfig, d_in: int, m: int, source: str) -> RunConfig:
     return dataclasses.replace(config, model=dataclasses.replace(model, input_dim=d_in, output_dim=m))
 
 
-def _resolve_data(config: RunConfig) -> RunConfig:
-    data = recorded_data(config.data)
+def _resolve_data(config: RunConfig, records: TrainingRecords | None) -> RunConfig:
+    data = recorded_data(config.data, records)
     if data.num_missing and not config.model.observation_mask:
         raise MopError(
             f"{config.data.path} has {data.num_missing} missing outputs (NaN / empty cells); train a model "
             "that reads them with model.observation_mask=true (or train.missing_rate=0.1), or fill them"
         )
-    data.check_lengths(config.train.horizon, validates_tails(config))
+    data.check_lengths(config.train.horizon, validates_tails(config, records))
     kept = config.train.init and config.data.fitted  # fine-tuning keeps the source's normalisation
     stats = {} if kept else data.fit()
     for name, value in stats.items():

@@ -1,0 +1,57 @@
+"""What the records recipe decides for one record (mop.recipe.records.plan_records): the feature, its orders,
+the model, the windows and the steps, in one place.
+
+A records run is RECORDED_MODEL (a 1 x 32 network) reading the one-step prediction of an ARX(p, q) feature
+with an intercept, started from its least-squares fit on the record's training part, and predicting its
+residual: `cubes` of its output lags also cubed (a cubic NARX), or, for a long ARX (`fixed`), held at that
+fit; trained `steps` steps (the budget's plan) on windows of `horizon` steps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from mop.recipe.budget import BudgetPlan
+
+# The records recipe (docs/results/families.md: measured on examples/tank_records.py, one record of 1024
+# samples): a small network reading the fitted ARX's prediction and predicting its residual, so it starts as
+# that ARX; the 2 x 64 small-preset model trained 2500 steps overfits one record (one-step RMSE 2.5x ARX's)
+RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2}
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordsPlan:
+    """The records recipe's choice for one record (see the module docstring).
+
+    p, q: the feature's output and input lags; cubes: how many of the output lags are also cubed (0: linear);
+    fixed: the feature stays at its least-squares fit (a long ARX, mop.identify.long_arx); horizon: the
+    training windows' length, `longer` where the feature's orders asked for longer windows than the config's;
+    context: the model's context (at least horizon); budget: the steps the budget buys (budget.steps)."""
+
+    p: int
+    q: int
+    cubes: int
+    fixed: bool
+    horizon: int
+    longer: bool
+    context: int
+    budget: BudgetPlan
+
+    @property
+    def steps(self) -> int:
+        return self.budget.steps
+
+    def settings(self) -> dict[str, object]:
+        """The plan as the RunConfig's dotted keys (mop.config.apply_settings), as a records run trains it."""
+        longer = {"train.horizon": self.horizon, "model.context": self.context} if self.longer else {}
+        return {
+            **RECORDED_MODEL,
+            **longer,
+            **({"model.rls_fixed": True} if self.fixed else {}),
+            "train.steps": self.steps,
+            "model.rls_order": self.p,
+            "model.arx_order": self.q,
+            "model.rls_cubes": self.cubes,
+            "model.rls_offset": True,
+            "model.rls_prior": "fit",
+        }
