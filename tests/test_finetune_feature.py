@@ -56,10 +56,20 @@ def test_a_fine_tunes_feature_alone_is_the_fitted_arx_it_names(tmp_path):
         "model.rls_p0=1",
         "train.steps=1",
     ]
+    lines = []
     fitted = fit_record(
-        tmp_path / "ft", str(path), init="pretrained:lti-siso", overrides=overrides, progress=False
+        tmp_path / "ft",
+        str(path),
+        init="pretrained:lti-siso",
+        overrides=overrides,
+        progress=False,
+        announce=lines.append,
     )
     assert f"ARX({P}, {Q}) with an intercept" in feature_line(fitted.config)
     assert "fixed at its least-squares fit on the training part" in feature_line(fitted.config)
     gain0 = fitted.selection["network_rmse_by_gain"][fitted.selection["gains"].index(0.0)]
     assert gain0 == pytest.approx(arx_held_out_rmse(y, u), rel=2e-3)
+    said = {"arx": "keeps the fitted ARX", "network": "keeps the network"}[fitted.selection["kept"]]
+    if fitted.selection["gain"] == 0:
+        said = f"its feature alone, the ARX({P}, {Q}) with an intercept fixed at its least-squares fit"
+    assert said in lines[-1]

@@ -18,7 +18,7 @@ from mop.recipe.budget import DEFAULT_BUDGET_MINUTES
 from mop.recipe.finetune import records_start, within_budget
 from mop.recipe.layers import training_config
 from mop.recipe.records import budget_plan, feature_line, order_line
-from mop.recipe.selection import select_against_arx, selection_line
+from mop.recipe.selection import feature_alone, select_against_arx, selection_line, training_time
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
 from mop.runs import load_config, read_run_json
@@ -85,7 +85,7 @@ def fit_record(
         selection = select_against_arx(run_dir, config) if selects(config) else None
     if announce is not None:
         if selection is not None:
-            announce(selection_line(selection))
+            announce(selection_line(selection, feature_alone(config), training_time(run_dir)))
         shrunk = run_dir / SHRINK_FILE
         if config.train.shrink_correction and shrunk.is_file():
             announce(shrink_line(read_run_json(shrunk), config.data.path))
