@@ -58,12 +58,17 @@ class BudgetPlan:
 
 def check_budget(minutes: float) -> float:
     """`minutes` as a float; MopError unless it is a positive finite number."""
+    return check_minutes(minutes, "--budget")
+
+
+def check_minutes(minutes: float, option: str) -> float:
+    """`minutes` as a float; one-line MopError naming `option` unless it is a positive finite number."""
     try:
         value = float(minutes)
     except (TypeError, ValueError):
-        raise MopError(f"--budget must be a number of minutes, got {minutes!r}") from None
+        raise MopError(f"{option} must be a number of minutes, got {minutes!r}") from None
     if not (math.isfinite(value) and value > 0):
-        raise MopError(f"--budget must be a positive number of minutes, got {minutes!r}")
+        raise MopError(f"{option} must be a positive number of minutes, got {minutes!r}")
     return value
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from mop.config import RunConfig, parse_overrides
 from mop.io import reading_once
-from mop.recipe.budget import DEFAULT_BUDGET_MINUTES
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_minutes
 from mop.recipe.finetune import records_start, within_budget
 from mop.recipe.layers import training_config
 from mop.recipe.records import budget_plan, feature_line, order_line
@@ -23,17 +23,19 @@ from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
 from mop.runs import load_config, read_run_json
 from mop.train.data import validates_tails
+from mop.train.loop import clock as loop_clock
 from mop.train.records import recorded_data
 
 
 @dataclasses.dataclass(frozen=True)
 class FittedRun:
     """A finished run: its directory, the config it trained, and the held-out choice it made
-    (mop.recipe.selection's result; None where the run makes none)."""
+    (mop.recipe.selection's result; None where the run makes none, or has not finished)."""
 
     run_dir: Path
     config: RunConfig
     selection: dict | None
+    finished: bool = True  # False: stopped by max_minutes before its last step (resume by training again)
 
 
 def selects(config: RunConfig) -> bool:
@@ -57,6 +59,7 @@ def fit_record(
     wait: bool = True,
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
+    max_minutes: float | None = None,
 ) -> FittedRun:
     """Train the run `out_dir` as `mop train [SOURCE] [--preset P] [--data DATA [--val VAL]] [--init RUN]
     [--budget MINUTES] [key=value ...]` does, reading the record once: its config (training_config), the
@@ -68,7 +71,14 @@ def fit_record(
     (mop.recipe.finetune.records_start) the budget of the records recipe's plan instead.
     announce: given, it gets the lines `mop train` prints: the budget's plan, the record, its feature and
     orders before training; the loop's plan line; the held-out choice after it.
+    max_minutes: a wall-clock limit from this call on (check_minutes): the training checkpoints and stops
+    at the first step that ends past it, unfinished (FittedRun.finished False, no held-out choice yet;
+    mop.load warns that it is unfinished); calling fit_record again resumes it, and the held-out choice is
+    made when it finishes. The steps (and so the weights) do not depend on it.
     """
+    deadline = (
+        None if max_minutes is None else loop_clock() + 60 * check_minutes(max_minutes, "--max-minutes")
+    )
     overrides = list(overrides)
     if init is not None and records_start(load_config(init)):  # the records recipe's budget plans its steps
         budget, fine_tune_minutes = (fine_tune_minutes if budget is None else budget), None
@@ -81,15 +91,22 @@ def fit_record(
             chosen = source is not None or preset is not None
             for line in record_lines(config, overrides, init, chosen, budget):
                 announce(line)
-        run_dir = train(config, out_dir, progress=progress, wait=wait, fresh=fresh, announce=announce)
-        selection = select_against_arx(run_dir, config) if selects(config) else None
+        run_dir = train(
+            config, out_dir, progress=progress, wait=wait, fresh=fresh, announce=announce, deadline=deadline
+        )
+        finished = (run_dir / "done.json").is_file()
+        selection = select_against_arx(run_dir, config) if selects(config) and finished else None
+    if announce is not None and not finished and selects(config):
+        announce(
+            "held-out check: not yet; it chooses between the network and the fitted ARX when the run finishes"
+        )
     if announce is not None:
         if selection is not None:
             announce(selection_line(selection, feature_alone(config), training_time(run_dir)))
         shrunk = run_dir / SHRINK_FILE
         if config.train.shrink_correction and shrunk.is_file():
             announce(shrink_line(read_run_json(shrunk), config.data.path))
-    return FittedRun(run_dir, config, selection)
+    return FittedRun(run_dir, config, selection, finished)
 
 
 def record_lines(

@@ -47,8 +47,17 @@ def train(
     wait: bool = True,
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
+    deadline: float | None = None,
 ) -> Path:
-    """mop.train.train with RECIPE_HOOKS: train (or resume, or reuse) the run `out_dir` of `config`."""
+    """mop.train.train with RECIPE_HOOKS: train (or resume, or reuse) the run `out_dir` of `config`, stopping
+    unfinished at `deadline` (a time of mop.train.loop.clock) where one is given."""
     return train_loop(
-        config, out_dir, progress=progress, wait=wait, fresh=fresh, announce=announce, hooks=RECIPE_HOOKS
+        config,
+        out_dir,
+        progress=progress,
+        wait=wait,
+        fresh=fresh,
+        announce=announce,
+        hooks=RECIPE_HOOKS,
+        deadline=deadline,
     )
