@@ -16,7 +16,7 @@ from mop.config import RunConfig, parse_overrides
 from mop.io import reading_once
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_minutes
 from mop.recipe.finetune import records_start, within_budget
-from mop.recipe.layers import training_config
+from mop.recipe.layers import gaps_turn_off_recipe, training_config
 from mop.recipe.records import budget_plan, feature_line, order_line
 from mop.recipe.selection import feature_alone, select_against_arx, selection_line, training_time
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
@@ -121,7 +121,17 @@ def record_lines(
             lines.append(plan.line())
     if config.data is None:
         return lines
-    lines.append(recorded_data(config.data).summary(config.train.horizon, validates_tails(config)))
+    record = recorded_data(config.data)
+    lines.append(record.summary(config.train.horizon, validates_tails(config)))
+    if gaps_turn_off_recipe(config.data.path, overrides, chosen, init):
+        m, t = config.model, config.train
+        lines.append(
+            f"records recipe: off: {config.data.path} has {record.num_missing} missing output(s), and the "
+            "recipe's least-squares feature and its held-out check against `mop fit arx` need complete "
+            f"outputs; this run trains the preset's {m.arch} {m.num_layers} x {m.width} model for "
+            f"{t.steps} steps, with no --budget plan and no held-out check: fill the gaps to train with the "
+            "records recipe, or size this run with model keys and train.steps=N"
+        )
     lines.append(feature_line(config) or "feature: none (the network reads the record alone)")
     orders = order_line(config, overrides, init, chosen)
     if orders:

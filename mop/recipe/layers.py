@@ -52,10 +52,12 @@ from mop.recipe.finetune import (
     with_records_recipe,
     with_refitted_orders,
 )
+from mop.recipe.records import FEATURE_KEYS as RECIPE_FEATURE_KEYS
 from mop.recipe.records import with_recorded_features
 from mop.runs import load_config
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.auto import resolve_features
+from mop.train.records import recorded_data
 
 
 def base_config(source: str | None, preset: str | None) -> RunConfig:
@@ -119,6 +121,19 @@ def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
     return dataclasses.replace(config, model=dataclasses.replace(config.model, features="given"))
 
 
+def gaps_turn_off_recipe(data: str | None, overrides: list[str], chosen: bool, init: str | None) -> int:
+    """The missing outputs of the record `data` where they alone keep the records recipe off (no source,
+    --preset, --init or feature override chose the model; the record has inputs): its least-squares feature
+    and the held-out check against `mop fit arx` need complete outputs. 0 where the recipe applies or
+    something else turned it off."""
+    if data is None or chosen or init is not None:
+        return 0
+    if any(k in parse_overrides(list(overrides)) for k in RECIPE_FEATURE_KEYS):
+        return 0
+    record = recorded_data(DataConfig(path=data))
+    return record.num_missing if record.input_dim else 0
+
+
 def training_config(
     source: str | None,
     preset: str | None = None,
@@ -142,6 +157,13 @@ def training_config(
     if init is None:
         config = with_records(base_config(source, preset), data, val)
         chosen = source is not None or preset is not None
+        gaps = gaps_turn_off_recipe(data, list(overrides), chosen, init) if budget is not None else 0
+        if gaps:
+            raise MopError(
+                f"--budget plans the records recipe, which {data} cannot use: it has {gaps} missing "
+                "output(s), and the recipe's least-squares feature needs complete outputs; fill the gaps, or "
+                "drop --budget and set train.steps=N"
+            )
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
         config = with_recorded_features(config, list(overrides), chosen, minutes)
         config = apply_overrides(given_features(config, list(overrides)), list(overrides))
