@@ -269,7 +269,7 @@ def _loop(
             loss_sum += _step(state)
             state.step, since = state.step + 1, since + 1
             bar.update(1)
-            timed_out = deadline is not None and state.step < cfg.steps and _past(deadline, state.world)
+            timed_out = deadline is not None and state.step < cfg.steps and _past(deadline, state)
             # a stop on time logs its step too: the run says how far it trained (mop.runs.warn_if_unfinished)
             at_log = state.step % cfg.log_every == 0 or state.step == cfg.steps or timed_out
             at_ckpt = (
@@ -309,11 +309,11 @@ def _loop(
         write_done(state.out_dir, state.step, None if state.best is None else state.best[0])
 
 
-def _past(deadline: float, world: int) -> bool:
+def _past(deadline: float, state: TrainState) -> bool:
     """Whether clock() has reached `deadline`; under torchrun rank 0's clock decides for every rank."""
     past = clock() >= deadline
-    if world > 1:
-        flag = torch.tensor([float(past)])
+    if state.world > 1:
+        flag = torch.tensor([float(past)], device=state.device)
         dist.broadcast(flag, src=0)
         past = bool(flag.item())
     return past
