@@ -101,7 +101,7 @@ def test_a_network_that_cannot_beat_the_arx_ends_as_the_arx_exactly(tmp_path, ca
     printed = capsys.readouterr().out
     chosen = json.loads((run / SELECTION_FILE).read_text())
     assert chosen["kept"] == "arx" and chosen["arx_rmse"] <= chosen["network_rmse"]
-    assert "keeps the ARX" in printed
+    assert "keeps the fitted ARX" in printed
     assert main(["fit", "arx", str(rec), "--out", str(tmp_path / "arx")]) == 0
     fitted = load_fitted(tmp_path / "arx")
     _, data = read_trajectories(rec)

@@ -10,7 +10,7 @@ import argparse
 
 from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
-from mop.recipe.budget import check_budget
+from mop.recipe.budget import check_budget, check_minutes
 from mop.recipe.fit import fit_record
 from mop.recipe.layers import read_given
 
@@ -24,6 +24,7 @@ EPILOG = """examples:
   mop train --data record.csv --out runs/mine         # one long record: its last 10% validates
   mop train --data est.csv --val val.csv --out runs/mine   # an estimation and a validation record
   mop train --data record.csv --init pretrained:lti-siso --out runs/ft   # fine-tune a class model
+  mop train --data record.csv --budget 10 --max-minutes 30 --out runs/mine   # stop (resumable) after 30 min
   mop predict runs/mine new_runs.csv                             # predictions in the data's units
   torchrun --nproc_per_node 4 -m mop train --out runs/ddp        # DistributedDataParallel, rank 0 writes
   python -c "import mop; p = mop.load('runs/tiny'); print(p.name)"
@@ -69,9 +70,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=str,
         default=None,
         metavar="MINUTES",
-        help="with --data and the records recipe: the training time to plan for (default 5); the steps grow "
-        "with the record's length, up to what the budget buys at 20 ms a step (mop.recipe.budget), the same "
-        "steps on every machine; a train.steps=N override wins",
+        help="with --data and the records recipe: the steps MINUTES buy on a reference 2-core CPU (default "
+        "5), at a nominal 20 ms a step of the recipe's 1 x 32 model (more for longer windows), at most 70 "
+        "passes over the record, at least 1000 steps (mop.recipe.budget). The same steps, so the same "
+        "weights, on every machine: the time they take here depends on this machine and its load (the plan "
+        "line estimates it); --max-minutes limits the wall-clock time. A train.steps=N override wins",
+    )
+    parser.add_argument(
+        "--max-minutes",
+        type=str,
+        default=None,
+        metavar="MINUTES",
+        help="a wall-clock limit for this command: training checkpoints and stops at the first step that "
+        "ends past it, saying which step of how many; the run is usable as it stands (unfinished: mop.load "
+        "warns) and the same command resumes it to the weights it would have had unstopped (the held-out "
+        "check runs when it finishes). Not part of the run's config",
     )
     parser.add_argument(
         "--quiet", "--no-progress", dest="no_progress", action="store_true", help="no progress bar"
@@ -93,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
     if source is not None and "=" in source:  # no config file: the first word is an override
         source, overrides = None, [source, *overrides]
     budget = None if args.budget is None else check_budget(args.budget)
+    max_minutes = None if args.max_minutes is None else check_minutes(args.max_minutes, "--max-minutes")
     records = read_given(args.data, args.val)  # the record is read here, once; from here on it is in memory
     fitted = fit_record(
         args.out,
@@ -106,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
         wait=not args.no_wait,
         fresh=args.fresh,
         announce=print,
+        max_minutes=max_minutes,
     )
     out = fitted.run_dir
     print(f"run directory: {out}  (load with: mop.load({str(out)!r}))")

@@ -8,7 +8,9 @@
     data_steps = ceil(MAX_EPOCHS * windows / batch_size)          (no more passes over the record than this)
 
 so the same record, budget and seed train the same steps (and weights) on every machine: the plan is a pure
-function (plan_steps), and the wall time it takes is printed from the step time measured on this machine.
+function (plan_steps), and the wall time it takes is printed from the step time measured on this machine
+(mop.train.estimate); on a loaded or slower machine it takes longer than the budget, and
+`mop train --max-minutes` is the wall-clock limit.
 Records of up to about 1000 samples keep the MIN_STEPS the recipe was tuned with.
 NOMINAL_STEP_SECONDS is one step of the recipe's 1 x 32 model at batch 64 x 50 on a 2-core CPU (19-20 ms,
 measured with `mop train --data`'s trial steps); windows longer than NOMINAL_HORIZON (a long ARX feature's)
@@ -45,7 +47,8 @@ class BudgetPlan:
         """One line for the user: the plan, and the time it takes at `step_seconds` (measured here)."""
         passes = self.steps * self.batch_size / max(self.windows, 1)
         why = {
-            "budget": f"what {self.minutes:g} min buy at {self.step_seconds * 1e3:.0f} ms a step",
+            "budget": f"the steps {self.minutes:g} min buy on a reference 2-core CPU at "
+            f"{self.step_seconds * 1e3:.0f} ms a step, the same on every machine",
             "record": f"{MAX_EPOCHS} passes over the record's {self.windows} windows, within the budget",
             "minimum": f"the minimum of {MIN_STEPS} steps",
         }[self.limited_by]
@@ -58,12 +61,17 @@ class BudgetPlan:
 
 def check_budget(minutes: float) -> float:
     """`minutes` as a float; MopError unless it is a positive finite number."""
+    return check_minutes(minutes, "--budget")
+
+
+def check_minutes(minutes: float, option: str) -> float:
+    """`minutes` as a float; one-line MopError naming `option` unless it is a positive finite number."""
     try:
         value = float(minutes)
     except (TypeError, ValueError):
-        raise MopError(f"--budget must be a number of minutes, got {minutes!r}") from None
+        raise MopError(f"{option} must be a number of minutes, got {minutes!r}") from None
     if not (math.isfinite(value) and value > 0):
-        raise MopError(f"--budget must be a positive number of minutes, got {minutes!r}")
+        raise MopError(f"{option} must be a positive number of minutes, got {minutes!r}")
     return value
 
 

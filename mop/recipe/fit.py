@@ -16,26 +16,28 @@ from pathlib import Path
 
 from mop.config import RunConfig, parse_overrides
 from mop.errors import MopError
-from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget, check_minutes
 from mop.recipe.finetune import records_start, within_budget
-from mop.recipe.layers import records_config, split
+from mop.recipe.layers import gaps_turn_off_recipe, records_config, split
 from mop.recipe.records import budget_plan, feature_line, order_line
-from mop.recipe.selection import select_against_arx, selection_line
+from mop.recipe.selection import feature_alone, select_against_arx, selection_line, training_time
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
 from mop.runs import load_config, read_run_json
 from mop.train.data import validates_tails
+from mop.train.loop import clock as loop_clock
 from mop.train.records import RecordedData, TrainingRecords
 
 
 @dataclasses.dataclass(frozen=True)
 class FittedRun:
     """A finished run: its directory, the config it trained, and the held-out choice it made
-    (mop.recipe.selection's result; None where the run makes none)."""
+    (mop.recipe.selection's result; None where the run makes none, or has not finished)."""
 
     run_dir: Path
     config: RunConfig
     selection: dict | None
+    finished: bool = True  # False: stopped by max_minutes before its last step (resume by training again)
 
 
 def selects(config: RunConfig) -> bool:
@@ -58,6 +60,7 @@ def fit_record(
     wait: bool = True,
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
+    max_minutes: float | None = None,
 ) -> FittedRun:
     """Train the run `out_dir` as `mop train [SOURCE] [--preset P] [--data DATA [--val VAL]] [--init RUN]
     [--budget MINUTES] [key=value ...]` does: its config (records_config), the training with the recipe's
@@ -72,7 +75,14 @@ def fit_record(
     (mop.recipe.finetune.records_start) the budget of the records recipe's plan instead.
     announce: given, it gets the lines `mop train` prints: the budget's plan, the record, its feature and
     orders before training; the loop's plan line; the held-out choice after it.
+    max_minutes: a wall-clock limit from this call on (check_minutes): the training checkpoints and stops
+    at the first step that ends past it, unfinished (FittedRun.finished False, no held-out choice yet;
+    mop.load warns that it is unfinished); calling fit_record again resumes it, and the held-out choice is
+    made when it finishes. The steps (and so the weights) do not depend on it.
     """
+    deadline = (
+        None if max_minutes is None else loop_clock() + 60 * check_minutes(max_minutes, "--max-minutes")
+    )
     overrides = list(overrides)
     if budget is not None:  # before any file is read
         check_budget(budget)
@@ -87,32 +97,45 @@ def fit_record(
     record = split(config, records)  # the records split as the run trains on them
     if announce is not None:
         chosen = source is not None or preset is not None
-        for line in record_lines(config, record, overrides, init, chosen, budget):
+        for line in record_lines(config, record, records, overrides, init, chosen, budget):
             announce(line)
     run_dir = train(
-        config, out_dir, progress=progress, wait=wait, fresh=fresh, announce=announce, records=records
+        config,
+        out_dir,
+        progress=progress,
+        wait=wait,
+        fresh=fresh,
+        announce=announce,
+        records=records,
+        deadline=deadline,
     )
-    selection = select_against_arx(run_dir, config, record) if selects(config) else None
+    finished = (run_dir / "done.json").is_file()
+    selection = select_against_arx(run_dir, config, record) if selects(config) and finished else None
+    if announce is not None and not finished and selects(config):
+        announce(
+            "held-out check: not yet; it chooses between the network and the fitted ARX when the run finishes"
+        )
     if announce is not None:
         if selection is not None:
-            announce(selection_line(selection))
+            announce(selection_line(selection, feature_alone(config), training_time(run_dir)))
         shrunk = run_dir / SHRINK_FILE
         if config.train.shrink_correction and shrunk.is_file():
             announce(shrink_line(read_run_json(shrunk), config.data.path))
-    return FittedRun(run_dir, config, selection)
+    return FittedRun(run_dir, config, selection, finished)
 
 
 def record_lines(
     config: RunConfig,
     record: RecordedData | None,
+    given: TrainingRecords | None,
     overrides: list[str],
     init: str | None,
     chosen: bool,
     budget: float | None,
 ) -> list[str]:
-    """What `mop train` says before training on a record (`record`: config.data's records split as it asks;
-    None without data): the records recipe's budget plan (where the plan set train.steps), the record, the
-    feature, the orders and record_norm's prior."""
+    """What `mop train` says before training on a record (`record`: config.data's records split as it asks,
+    `given` the records in memory; None without data): the records recipe's budget plan (where the plan set
+    train.steps), the record, the feature, the orders and record_norm's prior, or why the recipe is off."""
     lines = []
     if record is None:
         return lines
@@ -122,6 +145,15 @@ def record_lines(
         if plan.steps == config.train.steps:
             lines.append(plan.line())
     lines.append(record.summary(config.train.horizon, validates_tails(config, record.given)))
+    if gaps_turn_off_recipe(given, overrides, chosen, init):
+        m, t = config.model, config.train
+        lines.append(
+            f"records recipe: off: {given.source} has {record.num_missing} missing output(s), and the "
+            "recipe's least-squares feature and its held-out check against `mop fit arx` need complete "
+            f"outputs; this run trains the preset's {m.arch} {m.num_layers} x {m.width} model for "
+            f"{t.steps} steps, with no --budget plan and no held-out check: fill the gaps to train with the "
+            "records recipe, or size this run with model keys and train.steps=N"
+        )
     lines.append(feature_line(config) or "feature: none (the network reads the record alone)")
     orders = order_line(config, overrides, init, chosen)
     if orders:

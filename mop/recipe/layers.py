@@ -32,6 +32,8 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
+
 from mop.config import (
     DataConfig,
     RunConfig,
@@ -52,6 +54,7 @@ from mop.recipe.finetune import (
     with_records_recipe,
     with_refitted_orders,
 )
+from mop.recipe.records import FEATURE_KEYS as RECIPE_FEATURE_KEYS
 from mop.recipe.records import with_recorded_features
 from mop.record import read_records
 from mop.runs import load_config
@@ -159,6 +162,22 @@ def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
     return dataclasses.replace(config, model=dataclasses.replace(config.model, features="given"))
 
 
+def gaps_turn_off_recipe(
+    data: TrainingRecords | None, overrides: list[str], chosen: bool, init: str | None
+) -> int:
+    """The missing outputs of the record `data` where they alone keep the records recipe off (no source,
+    --preset, --init or feature override chose the model; the record has inputs): its least-squares feature
+    and the held-out check against `mop fit arx` need complete outputs. 0 where the recipe applies or
+    something else turned it off."""
+    if data is None or chosen or init is not None:
+        return 0
+    if any(k in parse_overrides(list(overrides)) for k in RECIPE_FEATURE_KEYS):
+        return 0
+    if any(r.u is None for r in data.records):
+        return 0
+    return int(sum(np.isnan(r.y).sum() for r in data.records))
+
+
 def training_config(
     source: str | None,
     preset: str | None = None,
@@ -201,6 +220,13 @@ def records_config(
         records = run_records(records, base)
         config = with_records(base, records)
         chosen = source is not None or preset is not None
+        gaps = gaps_turn_off_recipe(records, list(overrides), chosen, init) if budget is not None else 0
+        if gaps:
+            raise MopError(
+                f"--budget plans the records recipe, which {records.source} cannot use: it has {gaps} "
+                "missing output(s), and the recipe's least-squares feature needs complete outputs; fill the "
+                "gaps, or drop --budget and set train.steps=N"
+            )
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
         config = with_recorded_features(config, split(config, records), list(overrides), chosen, minutes)
         config = apply_overrides(given_features(config, list(overrides)), list(overrides))

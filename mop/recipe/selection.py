@@ -31,6 +31,7 @@ from mop.identify.store import FILE as FITTED_FILE
 from mop.recipe.shrink import GAINS, best_gain, gain_scores, scale_correction
 from mop.records import divergence_step, simulate_all
 from mop.runs import load_predictor
+from mop.train.estimate import duration
 from mop.train.records import RecordedData
 
 SELECTION_FILE = "selection.json"
@@ -129,23 +130,76 @@ def select_against_arx(run_dir: str | Path, config: RunConfig, record: RecordedD
     return result
 
 
-def selection_line(result: dict) -> str:
-    """One line for the user: the held-out simulation RMSEs and what the run keeps."""
+def feature_alone(config: RunConfig) -> str:
+    """What a run's network reads as its feature, in words: what its correction at gain 0 leaves."""
+    m = config.model
+    kind = f"ARX({m.rls_order}, {m.arx_order})" if m.arx_order else f"RLS-AR({m.rls_order})"
+    if m.rls_cubes:
+        kind = f"cubic NARX ({kind} with the cubes of its first {m.rls_cubes} output lags)"
+    offset = " with an intercept" if m.rls_offset else ""
+    if m.rls_fixed:
+        how = "fixed at its least-squares fit on the training part"
+    elif m.rls_prior != "none":
+        how = "started from its least-squares fit on the training part, updated on the outputs it reads"
+    else:
+        how = "identified in context from the outputs it reads"
+    return f"the {kind}{offset} {how}"
+
+
+def training_time(run_dir: str | Path) -> str | None:
+    """'N steps, about T' of the training logged in run_dir's metrics.jsonl (every session of a resumed
+    run; the steps between logs at their logged rate), or None without a logged rate."""
+    path = Path(run_dir) / "metrics.jsonl"
+    if not path.is_file():
+        return None
+    seconds, last = 0.0, 0
+    for line in path.read_text().splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        rate = record.get("steps_per_s")
+        if rate and record.get("step", 0) > last:
+            seconds += (record["step"] - last) / rate
+            last = record["step"]
+    return f"{last} steps, about {duration(seconds)}" if last else None
+
+
+def selection_line(result: dict, feature: str | None = None, trained: str | None = None) -> str:
+    """One line for the user: the held-out simulation RMSEs and what the run keeps, in plain words.
+
+    feature: what the correction at gain 0 leaves (e.g. "the ARX(40, 40) with an intercept fixed at its
+    least-squares fit on the training part"; default "its input feature"); trained: the training it took
+    (e.g. "1875 steps, 1 min 02 s"). Where the best gain is 0 the network did not help: the line says the
+    model is the feature alone and what training that was. Where the network is kept at a gain above 0 it
+    names the gain and the held-out scores (at that gain, at 1, of the feature alone and of the fitted ARX).
+    """
     both = (
         f"held-out simulation ({result['held_out_steps']} steps after {result['init']} measured): "
         f"network RMSE {result['network_rmse']:.4g}, fitted ARX {result['arx_rmse']:.4g}"
     )
+    spent = f" ({trained} of training)" if trained else ""
+    orders = result.get("arx_orders") or {}
+    arx = f"ARX({orders['p']}, {orders.get('q', 0)})" if "p" in orders else "ARX"
     if result["kept"] == "network":
         gain = result.get("gain", 1.0)
         if gain == 1.0:
-            return f"{both}: the run keeps the network"
-        rmse = result["network_rmse_by_gain"][result["gains"].index(gain)]
-        alone = " (0: its in-context feature alone)" if gain == 0 else ""
+            return f"{both}: the run keeps the network as trained{spent}"
+        by_gain = dict(zip(result["gains"], result["network_rmse_by_gain"], strict=True))
+        if gain == 0:
+            alone = feature or "its input feature"
+            return (
+                f"{both}: the network's correction did not help: the run's model is its feature alone, "
+                f"{alone} (correction at gain 0, RMSE {by_gain[0.0]:.4g}); the training{spent} did not "
+                "improve on it"
+            )
         return (
-            f"{both}: the run keeps the network with its correction at gain {gain:g}{alone}, which simulates "
-            f"it best: RMSE {rmse:.4g}"
+            f"{both}: the run keeps the network with its correction at gain {gain:g} "
+            f"(RMSE {by_gain[gain]:.4g}; as trained, gain 1: {by_gain[1.0]:.4g}; its feature alone, gain 0: "
+            f"{by_gain[0.0]:.4g}){spent}"
         )
     return (
-        f"{both}: the network does not beat the ARX, so the run keeps the ARX (fitted.json, as `mop fit arx` "
-        "writes it): `mop predict` and mop.load use it"
+        f"{both}: the network does not beat the ARX, so the run keeps the fitted {arx} (fitted.json, as "
+        "`mop fit arx` "
+        f"writes it): `mop predict` and mop.load use it; the training{spent} did not improve on it"
     )

@@ -51,9 +51,11 @@ def train(
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
     records: TrainingRecords | None = None,
+    deadline: float | None = None,
 ) -> Path:
     """mop.train.train with RECIPE_HOOKS: train (or resume, or reuse) the run `out_dir` of `config`, on
-    config.data's `records` in memory where given (None: read from data.path)."""
+    config.data's `records` in memory where given (None: read from data.path), stopping unfinished at
+    `deadline` (a time of mop.train.loop.clock) where one is given."""
     hooks = RECIPE_HOOKS
     if records is not None:
         hooks = dataclasses.replace(hooks, after=functools.partial(apply_chosen_gain, records=records))
@@ -66,4 +68,5 @@ def train(
         announce=announce,
         hooks=hooks,
         records=records,
+        deadline=deadline,
     )

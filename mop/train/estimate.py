@@ -1,13 +1,18 @@
 """What a training will cost, said before its first step: the model's size, the steps and an estimated time.
 
-The time comes from TRIAL_STEPS AdamW steps of a copy of the model on random batches of the run's shape, on
-the run's device, timed after one untimed warm-up step: the run's own model, optimizer, data generator and
-torch's global random state are left untouched, so the training is the same with or without the estimate.
+The time comes from AdamW steps of a copy of the model on random batches of the run's shape, on the run's
+device: WARMUP_STEPS untimed (the first steps allocate and pick kernels), then each of at least
+MIN_TRIAL_STEPS and at most TRIAL_STEPS steps timed alone, until TRIAL_SECONDS have passed; the estimate is
+their median, so one step slowed by other work (or a collection) does not multiply the whole estimate (two
+steps after one warm-up estimated 14 min for a run that took 2 min 31 s, issue #66). The run's own model,
+optimizer, data generator and torch's global random state are left untouched, so the training is the same
+with or without the estimate.
 """
 
 from __future__ import annotations
 
 import copy
+import statistics
 import time
 
 import torch
@@ -16,13 +21,17 @@ from mop.config import RunConfig
 from mop.train.auto import describe_features
 from mop.train.optim import LossModule, make_optimizer, train_step
 
-TRIAL_STEPS = 2
+WARMUP_STEPS = 2
+MIN_TRIAL_STEPS = 3
+TRIAL_STEPS = 30
+TRIAL_SECONDS = 1.5
 
 
 def step_seconds(
     config: RunConfig, model: torch.nn.Module, device: torch.device, steps: int = TRIAL_STEPS
 ) -> float:
-    """Mean wall-clock seconds of one training step of `config` (uncompiled; see the module docstring)."""
+    """Median wall-clock seconds of one training step of `config` over at most `steps` timed steps
+    (uncompiled; see the module docstring)."""
     cfg = config.train
     trial = copy.deepcopy(model).to(device)
     optimizer = make_optimizer(trial, cfg, device)
@@ -31,16 +40,20 @@ def step_seconds(
     shape = (cfg.batch_size, cfg.horizon)
     inputs = torch.randn(*shape, config.model.input_dim, generator=g, device=device)
     targets = torch.randn(*shape, config.model.output_dim, generator=g, device=device)
+    sync = torch.cuda.synchronize if device.type == "cuda" else lambda _device: None
+    times: list[float] = []
     with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
-        train_step(trial, loss_fn, optimizer, inputs, targets, cfg, device)  # warm-up, untimed
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-        start = time.perf_counter()
-        for _ in range(steps):
+        for _ in range(WARMUP_STEPS):  # untimed
             train_step(trial, loss_fn, optimizer, inputs, targets, cfg, device)
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-    return (time.perf_counter() - start) / steps
+        sync(device)
+        while len(times) < max(1, min(steps, MIN_TRIAL_STEPS)) or (
+            len(times) < steps and sum(times) < TRIAL_SECONDS
+        ):
+            start = time.perf_counter()
+            train_step(trial, loss_fn, optimizer, inputs, targets, cfg, device)
+            sync(device)
+            times.append(time.perf_counter() - start)
+    return statistics.median(times)
 
 
 def duration(seconds: float) -> str:
@@ -66,6 +79,6 @@ def plan_line(config: RunConfig, model: torch.nn.Module, device: torch.device, s
     return (
         f"model: {params:,} parameters ({shape}); {resumed}{left} steps of batch "
         f"{t.batch_size} x {t.horizon} on {device.type}: roughly {duration(seconds * left)} "
-        f"({1000 * seconds:.0f} ms per step, timed on {TRIAL_STEPS} trial steps under the present load; "
-        "other work on the machine changes it)"
+        f"({1000 * seconds:.0f} ms per step: the median of up to {TRIAL_STEPS} trial steps after "
+        f"{WARMUP_STEPS} untimed, under the present load; other work on the machine changes it)"
     )

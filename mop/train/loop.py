@@ -3,7 +3,9 @@
 Every checkpoint_every steps (and at the end) rank 0 logs the validation loss and writes the whole training
 state, so a run stopped anywhere resumes to the same weights as one never stopped (bit for bit on CPU).
 SIGINT/SIGTERM checkpoint and stop (run the same command to resume); a non-finite loss stops with the last
-good checkpoint kept.
+good checkpoint kept. A deadline (a time of `clock()`: `mop train --max-minutes`) checkpoints and stops
+cleanly after the step that reaches it, with a line saying where; the run resumes from there as from a
+signal, to the same weights as one never stopped.
 
 DDP: under `torchrun --nproc_per_node N` every rank draws the same global batch and trains on its slice
 (rank r takes rows [r b, (r+1) b), b = batch_size / N); gradients are averaged by DistributedDataParallel,
@@ -38,7 +40,7 @@ from mop.progress import progress as make_progress
 from mop.runs import load_model
 from mop.train.data import TrainingData, validation_batch
 from mop.train.device import init_distributed, setup_device
-from mop.train.estimate import plan_line
+from mop.train.estimate import duration, plan_line
 from mop.train.lock import run_lock
 from mop.train.optim import (
     LossModule,
@@ -79,6 +81,11 @@ class TrainHooks:
     after: Callable[[RunConfig, nn.Module, Path], None] | None = None
 
 
+def clock() -> float:
+    """The loop's clock (seconds, monotonic) for deadlines: `train(..., deadline=clock() + seconds)`."""
+    return time.monotonic()
+
+
 # config keys whose meaning is a recipe's step: a config naming one trains with that recipe's TrainHooks
 RECIPE_KEYS = ("init", "shrink_correction")
 
@@ -113,6 +120,7 @@ def train(
     announce: Callable[[str], None] | None = None,
     hooks: TrainHooks | None = None,
     records: TrainingRecords | None = None,
+    deadline: float | None = None,
 ) -> Path:
     """Train `config` into `out_dir` (resuming from its checkpoint if any); returns the run directory.
 
@@ -125,9 +133,12 @@ def train(
     train.shrink_correction is refused without them (mop.recipe.training.train hands them in).
     records: config.data's records in memory (mop.train.records.TrainingRecords), read once by the caller;
     None reads data.path.
+    deadline: a time of clock() (not part of the config): the first step that ends at or after it
+    checkpoints and stops the run unfinished (no done.json, no `after` hook), announcing the step it reached
+    and how to resume; running it again resumes it to the weights of a run never stopped.
     Temporaries of writes killed in an earlier run are removed first.
     """
-    _train(config, Path(out_dir), progress, wait, fresh, announce, hooks, records)
+    _train(config, Path(out_dir), progress, wait, fresh, announce, hooks, records, deadline)
     return Path(out_dir)
 
 
@@ -154,6 +165,7 @@ def _train(
     announce: Callable[[str], None] | None = None,
     hooks: TrainHooks | None = None,
     records: TrainingRecords | None = None,
+    deadline: float | None = None,
 ) -> nn.Module | None:
     """The trained model, or None when `out_dir` holds a finished run of `config` (nothing is trained)."""
     if config.data is not None and records is None:  # a config naming its data: read once, here
@@ -179,7 +191,7 @@ def _train(
             clean_orphans(out_dir)
             if fresh:
                 fresh_start(out_dir)
-        return _train_locked(config, out_dir, rank, world, progress, announce, hooks, records)
+        return _train_locked(config, out_dir, rank, world, progress, announce, hooks, records, deadline)
 
 
 def _check_no_recipe_keys(config: RunConfig) -> None:
@@ -201,6 +213,7 @@ def _train_locked(
     announce: Callable[[str], None] | None,
     hooks: TrainHooks,
     records: TrainingRecords | None = None,
+    deadline: float | None = None,
 ) -> nn.Module:
     device = setup_device(config.train, world)
     if rank == 0:
@@ -209,7 +222,7 @@ def _train_locked(
     if announce is not None and rank == 0:
         announce(plan_line(config, state.model, device, state.step))
     try:
-        _loop(state, progress)
+        _loop(state, progress, deadline, announce)
     finally:
         if state.log is not None:
             state.log.close()
@@ -253,8 +266,14 @@ def _start(
     return state
 
 
-def _loop(state: TrainState, progress: bool) -> None:
+def _loop(
+    state: TrainState,
+    progress: bool,
+    deadline: float | None = None,
+    announce: Callable[[str], None] | None = None,
+) -> None:
     cfg = state.config.train
+    began, started = clock(), state.step
     state.model.train()
     bar = make_progress(cfg.steps, "train", initial=state.step, disable=not (state.rank == 0 and progress))
     loss_sum = torch.zeros((), device=state.device)
@@ -264,8 +283,12 @@ def _loop(state: TrainState, progress: bool) -> None:
             loss_sum += _step(state)
             state.step, since = state.step + 1, since + 1
             bar.update(1)
-            at_log = state.step % cfg.log_every == 0 or state.step == cfg.steps
-            at_ckpt = state.step % cfg.checkpoint_every == 0 or state.step == cfg.steps or flag["stop"]
+            timed_out = deadline is not None and state.step < cfg.steps and _past(deadline, state)
+            # a stop on time logs its step too: the run says how far it trained (mop.runs.warn_if_unfinished)
+            at_log = state.step % cfg.log_every == 0 or state.step == cfg.steps or timed_out
+            at_ckpt = (
+                state.step % cfg.checkpoint_every == 0 or state.step == cfg.steps or flag["stop"] or timed_out
+            )
             if not (at_log or at_ckpt):
                 continue
             mean_loss = float(loss_sum) / since
@@ -281,6 +304,11 @@ def _loop(state: TrainState, progress: bool) -> None:
             if at_ckpt:
                 _checkpoint(state)
                 last_good = state.step
+            if timed_out and not flag["stop"]:
+                bar.close()
+                if announce is not None and state.rank == 0:
+                    announce(_timed_out(state, clock() - began, started))
+                return
             if flag["stop"]:
                 raise MopError(
                     f"stopped by {flag['stop']} at step {state.step}; checkpoint saved in {state.out_dir}, "
@@ -293,6 +321,28 @@ def _loop(state: TrainState, progress: bool) -> None:
         state.hooks.after(state.config, state.model, state.out_dir)
     if state.rank == 0:
         write_done(state.out_dir, state.step, None if state.best is None else state.best[0])
+
+
+def _past(deadline: float, state: TrainState) -> bool:
+    """Whether clock() has reached `deadline`; under torchrun rank 0's clock decides for every rank."""
+    past = clock() >= deadline
+    if state.world > 1:
+        flag = torch.tensor([float(past)], device=state.device)
+        dist.broadcast(flag, src=0)
+        past = bool(flag.item())
+    return past
+
+
+def _timed_out(state: TrainState, seconds: float, started: int) -> str:
+    """The line of a run stopped by its deadline: the step it reached, the time, how to resume."""
+    cfg = state.config.train
+    weights = "the lowest validation loss's weights so far" if cfg.keep_best else "the weights of that step"
+    return (
+        f"time limit: stopped at step {state.step} of {cfg.steps} ({state.step - started} steps in "
+        f"{duration(seconds)}); the checkpoint is saved in {state.out_dir}: run the same command to resume "
+        f"from step {state.step} (with or without a time limit). Meanwhile the run predicts with "
+        f"{weights} (mop.load and `mop predict` warn that it is unfinished)"
+    )
 
 
 def _diverged(state: TrainState, loss: float, since: int, last_good: int) -> str:

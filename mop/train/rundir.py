@@ -24,12 +24,13 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
 from mop.atomic import write_json, write_text
 from mop.checkpoint import load_checkpoint, save_checkpoint, save_model
-from mop.config import RunConfig, to_dict
+from mop.config import DataConfig, RunConfig, to_dict
 from mop.errors import MopError
 from mop.models import check_arch
 from mop.plugins import PLUGINS_FILE, plugin_file
@@ -37,7 +38,7 @@ from mop.runs import read_run_json, retrain_hint
 from mop.systems import FAMILIES, make_family
 from mop.train.auto import resolve_features
 from mop.train.data import validates_tails
-from mop.train.records import TrainingRecords, recorded_data
+from mop.train.records import RecordedData, TrainingRecords, recorded_data
 
 TRAINING_FILES = (
     "model.safetensors",
@@ -102,9 +103,26 @@ def _resolve_data(config: RunConfig, records: TrainingRecords | None) -> RunConf
         theta = data.fit_prior(
             config.data, model.rls_order, model.arx_order, model.rls_offset, model.rls_cubes
         )
-        config = dataclasses.replace(config, model=dataclasses.replace(model, rls_prior=theta))
+        fill = model.rls_fill_range
+        if model.record_norm == "causal" and fill is None:
+            fill = training_range(data, config.data)
+        model = dataclasses.replace(model, rls_prior=theta, rls_fill_range=fill)
+        config = dataclasses.replace(config, model=model)
     d_in, m = data.output_dim + data.input_dim, data.output_dim
     return _with_dims(config, d_in, m, f"the data file {config.data.path}")
+
+
+def training_range(data: RecordedData, cfg: DataConfig) -> list[float]:
+    """model.rls_fill_range of a class model whose feature starts at the fit on the training part: each
+    output's least then greatest value over the normalised training parts (the fit's units). Its feature's
+    free run is held within those outputs widened by twice their span (mop.filters.rls.fill_bounds), as a
+    `--context` reading's is (mop.incontext.with_context_range), not within the few outputs measured before
+    a simulation: a held-out tail simulated after 50 outputs of a plant at rest would otherwise hold the
+    fitted ARX within a few of their spans, so the feature alone (the correction at gain 0) would not be
+    the fitted ARX the run names."""
+    m = data.output_dim
+    outputs = np.concatenate([a[:, :m] for a in data.normalised(cfg, data.train_parts)])
+    return [*map(float, np.nanmin(outputs, 0)), *map(float, np.nanmax(outputs, 0))]
 
 
 def check_run_dir(out_dir: Path, config: RunConfig) -> bool:

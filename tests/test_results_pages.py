@@ -1,0 +1,63 @@
+"""Results pages show what their committed results files hold: every table of a generated page is marked
+with the results.json files `mop benchmark` wrote and equals the table rendered from them
+(mop.benchmarks.pages), and the renderer writes those files' numbers in the field's units."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from mop.benchmarks.pages import expected, render, rewrite, tables
+
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+GENERATED = ["benchmarks.md"]  # the pages whose every table comes from results files
+
+
+@pytest.mark.parametrize("page", GENERATED)
+def test_every_table_of_the_page_is_its_results_files(page):
+    found = tables(RESULTS / page)
+    assert found, f"{page} has no table"
+    for marker, bench, files, table in found:
+        assert bench, f"{page}: the table after line {marker + 1} names no results files"
+        for f in files:
+            if f.suffix == ".json":
+                provenance = json.loads(f.read_text())["provenance"]
+                assert provenance["commit"] != "unknown" and provenance["command"].startswith("mop benchmark")
+        assert table == expected(bench, files), f"{page}: the table after line {marker + 1} is not its files'"
+
+
+def test_a_table_is_rendered_from_its_files_in_the_fields_units(tmp_path):
+    result = {
+        "silverbox": {
+            "test_multisine": {"mop": {"rmse": 0.0009, "n": 50}, "arx": {"rmse": 0.00713, "n": 50}},
+            "test_arrow_full": {"mop": {"rmse": float("inf"), "n": 50}, "arx": {"rmse": 0.01493, "n": 50}},
+        },
+        "provenance": {"command": "mop benchmark silverbox --seed 2", "commit": "abc"},
+    }
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(result))  # inf as Infinity, as mop's write_json writes it
+    assert render("silverbox", [path]) == [
+        "| predictor (mV) | test_multisine (n = 50) | test_arrow_full (n = 50) |",
+        "|---|---|---|",
+        "| mop, seed 2 | 0.9 | diverged |",
+        "| arx | 7.13 | 14.93 |",
+        "| best published baseline (Champneys et al. 2024) | 1.5 (LSTM, GRU) | 2.4 (OLSTM) |",
+        "| state of the art (black box) | 0.26 | 1.41 |",
+    ]
+    page = tmp_path / "page.md"
+    page.write_text("# x\n\n<!-- results-table: silverbox r.json -->\n| stale |\n|---|\n| 1 |\n\ntext\n")
+    rewrite(page)
+    ((_, bench, files, table),) = tables(page)
+    assert table == render("silverbox", files) and page.read_text().endswith("\ntext\n")
+
+
+def test_a_copied_table_is_the_files_kth_table(tmp_path):
+    (tmp_path / "summary.md").write_text(
+        "# s\n\n| a | b |\n|---|---|\n| 1 | 2 |\n\ntext\n\n| c |\n|---|\n| 3 |\n"
+    )
+    page = tmp_path / "page.md"
+    page.write_text("<!-- results-copy: summary.md#2 -->\n| c |\n|---|\n| 4 |\n")
+    ((_, kind, files, table),) = tables(page)
+    assert kind == "copy:2" and table != expected(kind, files)  # a number the file does not give
+    rewrite(page)
+    assert tables(page)[0][3] == ["| c |", "|---|", "| 3 |"]

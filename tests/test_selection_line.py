@@ -1,0 +1,62 @@
+"""The held-out check's line says what the run keeps in plain words (issue #66, C): where the correction's
+best gain is 0 the network did not help and the model is the feature it names, with the training that
+took; where the network is kept at a gain the line names it and the held-out scores; where the ARX wins it
+says so."""
+
+import json
+
+from mop.config import RunConfig, apply_overrides
+from mop.recipe.selection import feature_alone, selection_line, training_time
+
+FEATURE = "the ARX(40, 40) with an intercept fixed at its least-squares fit on the training part"
+
+
+def result(kept: str, gain: float | None) -> dict:
+    return {
+        "format": 2,
+        "held_out_steps": 600,
+        "init": 50,
+        "gains": [0.0, 0.25, 0.5, 0.75, 1.0],
+        "network_rmse_by_gain": [0.0111, 0.0112, 0.0113, 0.0114, 0.0115],
+        "gain": gain,
+        "network_rmse": 0.0115,
+        "arx_rmse": 0.0120,
+        "arx_orders": {"p": 7, "q": 5},
+        "kept": kept,
+    }
+
+
+def test_gain_zero_says_the_network_did_not_help_and_names_the_feature_and_the_training():
+    line = selection_line(result("network", 0.0), FEATURE, "1875 steps, about 2 min 31 s")
+    assert "the network's correction did not help" in line
+    assert f"the run's model is its feature alone, {FEATURE}" in line
+    assert "RMSE 0.0111" in line and "1875 steps, about 2 min 31 s of training" in line
+    assert "keeps the network" not in line
+
+
+def test_a_kept_network_names_its_gain_and_the_held_out_scores():
+    line = selection_line(result("network", 0.5), FEATURE, "100 steps, about 5 s")
+    assert "keeps the network with its correction at gain 0.5" in line
+    assert all(f"{v:.4g}" in line for v in (0.0113, 0.0115, 0.0111, 0.0120))
+    assert "did not help" not in line
+    assert "keeps the network as trained" in selection_line(result("network", 1.0))
+
+
+def test_a_kept_arx_says_so():
+    line = selection_line(result("arx", None), FEATURE, "100 steps, about 5 s")
+    assert "keeps the fitted ARX(7, 5)" in line and "did not improve on it" in line
+    assert "keeps the network" not in line
+
+
+def test_the_feature_and_the_training_time_in_words(tmp_path):
+    fixed = apply_overrides(
+        RunConfig(),
+        ["model.rls_order=40", "model.arx_order=40", "model.rls_offset=true", "model.rls_prior=fit"]
+        + ["model.rls_fixed=true"],
+    )
+    assert feature_alone(fixed) == FEATURE
+    lines = [{"step": 50, "loss": 1.0, "steps_per_s": 10.0}, {"step": 50, "val_loss": 1.0}]
+    lines.append({"step": 100, "loss": 1.0, "steps_per_s": 50.0})
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    assert training_time(tmp_path) == "100 steps, about 6 s"  # 50 / 10 + 50 / 50 seconds
+    assert training_time(tmp_path / "none") is None
