@@ -32,6 +32,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.benchmarks",),  # the benchmarks' splits and protocol
     ("mop.filters",),
     ("mop.identify",),  # fitted identifiers: built on the filters' subspace code, loaded by mop predict
+    ("mop.simulators",),  # learned simulators fitted on their simulation error (deep LRU)
     ("mop.models", "mop.runs"),
     ("mop.evaluate",),
     ("mop.train",),
