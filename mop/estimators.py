@@ -54,6 +54,7 @@ from mop.recipe.selection import selection_line
 from mop.record import Record, as_pairs, read_records
 from mop.records import predict_all, simulate_all
 from mop.runs import load_predictor
+from mop.simulators import SimulatorConfig, fit_simulator
 from mop.systems.base import Trajectories
 from mop.train.records import TrainingRecords
 
@@ -209,6 +210,31 @@ class N4SID(_Identified):
 
     def __init__(self, order: int | None = None, select: str = SIMULATION, max_order: int = 10) -> None:
         super().__init__(None if order is None else {"n": order}, select, max_order)
+
+
+class LRU(Estimator):
+    """A deep-LRU simulator fitted on its simulation error (mop.simulators): the plant's outputs from its
+    inputs, started from the `init_window` measured steps before a simulation. options: the other fields of
+    mop.simulators.SimulatorConfig (steps, subsection, width, state, layers, batch, lr, seed, ...)."""
+
+    name = "LRU"
+
+    def __init__(self, init_window: int = 50, **options: Any) -> None:
+        super().__init__()
+        fields = {f.name for f in dataclasses.fields(SimulatorConfig)}
+        unknown = sorted(set(options) - fields)
+        if unknown:
+            raise MopError(
+                f"LRU: unknown option(s) {', '.join(unknown)}; choose from {', '.join(sorted(fields))}"
+            )
+        self.config = SimulatorConfig(init_window=init_window, **options)
+
+    def fit(self, data: Records) -> Estimator:
+        """Fit on `data` (its last holdout share chooses the weights, mop.simulators.fit)."""
+        records, _ = as_records(data)
+        self._fitted_on(records)
+        self.predictor_ = fit_simulator(records, self.config)
+        return self
 
 
 # the identifiers' estimators by mop.identify's kind (`mop fit KIND`)

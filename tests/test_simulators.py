@@ -114,3 +114,40 @@ def test_bad_records_are_one_line():
         fit_simulator([Record(y=np.zeros(500))], SMALL)
     with pytest.raises(MopError, match="too short"):
         fit_simulator([plant(30, 0)], SMALL)
+
+
+def test_mop_benchmark_scores_the_simulator_under_the_protocol(tmp_path, monkeypatch, capsys):
+    import functools
+    import json
+
+    from mop.cli import main
+    from mop.commands import benchmark
+    from mop.record import write_records
+
+    small = functools.partial(SimulatorConfig, subsection=30, width=4, state=4, layers=1, steps=20, batch=4)
+    monkeypatch.setattr(benchmark, "SimulatorConfig", small)
+    write_records([Record(y=plant(600, 0).y, u=plant(600, 0).u, name="est")], tmp_path / "est.csv")
+    write_records([Record(y=plant(300, 1).y, u=plant(300, 1).u, name="val")], tmp_path / "val.csv")
+    argv = ["benchmark", "--est", str(tmp_path / "est.csv"), "--test", str(tmp_path / "val.csv")]
+    assert (
+        main([*argv, "--init-window", "10", "--predictors", "lru", "--out", str(tmp_path / "b"), "--quiet"])
+        == 0
+    )
+    score = json.loads((tmp_path / "b" / "results.json").read_text())["est"]["val"]["lru"]
+    written = np.genfromtxt(tmp_path / "b" / "est" / "val_lru.csv", delimiter=",", names=True)
+    assert written["t"][0] == 10 and score["n"] == 10
+    assert np.sqrt(np.mean((written["y0"] - written["ysim0"]) ** 2)) == pytest.approx(score["rmse"], rel=1e-5)
+    assert "deep LRU (1 x 4, state 4)" in (tmp_path / "b" / "report.md").read_text()
+
+
+def test_the_estimator_face_simulates_a_record_in_its_units():
+    from mop.estimators import LRU as LRUEstimator
+
+    est, val = plant(800, 4).split(0.3)
+    model = LRUEstimator(init_window=10, steps=5, subsection=40, width=4, state=4, layers=1, batch=4).fit(est)
+    sim = model.simulate(val, init=10)
+    assert np.isnan(sim[:10]).all() and np.isfinite(sim[10:]).all()
+    traj = Trajectories(y=torch.from_numpy(val.y)[None], u=torch.from_numpy(val.u)[None])
+    np.testing.assert_allclose(sim[10:], model.predictor_.simulate(traj, 10)[0].numpy(), atol=1e-5)
+    with pytest.raises(MopError, match="unknown option"):
+        LRUEstimator(steps=5, depth=3)

@@ -44,8 +44,14 @@ from mop.recipe.records import feature_line
 from mop.recipe.selection import selection_line
 from mop.record import as_pairs, read_records
 from mop.runs import load_config, load_predictor
+from mop.simulators import SimulatorConfig, fit_simulator, simulator_line
 
-PREDICTORS = ("arx", "n4sid", "mop")  # and pretrained:NAME, a shipped model in context (mop.incontext),
+PREDICTORS = (
+    "arx",
+    "n4sid",
+    "mop",
+    "lru",
+)  # and pretrained:NAME, a shipped model in context (mop.incontext),
 # and finetune:NAME, that model fine-tuned on the estimation part (`mop train --data --init pretrained:NAME`)
 SHIPPED_KINDS = ("pretrained:", "finetune:")
 
@@ -85,9 +91,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="MOP's training seed (0)")
     parser.add_argument(
         "--predictors",
-        default=",".join(PREDICTORS),
-        help="comma-separated: arx, n4sid, mop, pretrained:NAME (in context), finetune:NAME (pretrained:NAME "
-        "fine-tuned on the estimation part within --budget)",
+        default="arx,n4sid,mop",
+        help="comma-separated: arx, n4sid, mop, lru (a deep-LRU simulator trained on its simulation error, "
+        "mop.simulators), pretrained:NAME (in context), finetune:NAME (pretrained:NAME fine-tuned on the "
+        "estimation part within --budget); default arx,n4sid,mop",
     )
     parser.add_argument(
         "--est", default=None, help="your estimation record (.csv / .npz) instead of a benchmark"
@@ -230,6 +237,10 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
             notes.append(f"{name}: {feature_line(load_config(learned.run_dir_)) or 'no input feature'}")
             if getattr(learned, "selection_", None):
                 notes.append(f"{name}: {selection_line(learned.selection_)}")
+        elif name == "lru":
+            cfg = SimulatorConfig(init_window=min(max(t.init_window, 1) for t in split.tests), seed=args.seed)
+            models[name] = fit_simulator(split.estimation, cfg)
+            notes.append(f"lru: {simulator_line(models[name])}")
         else:
             models[name] = _fitted(name, split, warnings)
         seconds[name] = time.perf_counter() - start

@@ -7,7 +7,7 @@ scan equal to its step-by-step loop. mop.simulators.fit: the training on the sim
 predictor it gives (a mop Predictor: simulate(traj, context) in the record's units).
 """
 
-from mop.simulators.fit import SimulatorConfig, SimulatorPredictor, fit_simulator
+from mop.simulators.fit import SimulatorConfig, SimulatorPredictor, fit_simulator, simulator_line
 from mop.simulators.lru import LRU, DeepLRU
 
-__all__ = ["LRU", "DeepLRU", "SimulatorConfig", "SimulatorPredictor", "fit_simulator"]
+__all__ = ["LRU", "DeepLRU", "SimulatorConfig", "SimulatorPredictor", "fit_simulator", "simulator_line"]

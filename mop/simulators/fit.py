@@ -203,3 +203,16 @@ class SimulatorPredictor:
         for t in range(y.shape[1]):
             out[:, t] = self.model.simulate_segment(self._window(y, u, max(t, 1)), u[:, t : t + 1])[:, 0]
         return torch.from_numpy(out.numpy() * self.scaling.y_std + self.scaling.y_mean).to(traj.y.dtype)
+
+
+def simulator_line(predictor: SimulatorPredictor) -> str:
+    """One line on what was fitted: the deep LRU's size, the training and the held-out choice."""
+    cfg, info = predictor.cfg, predictor.info
+    best = min(info["history"], key=lambda h: h[2], default=(0, 0.0, info["held_out_rmse"]))
+    return (
+        f"a deep LRU ({cfg.layers} x {cfg.width}, state {cfg.state}) fitted on its simulation error over "
+        f"subsections of {cfg.subsection} steps after {cfg.init_window} measured, {cfg.steps} steps of batch "
+        f"{cfg.batch}, seed {cfg.seed}; held-out simulation RMSE (normalised) {info['held_out_rmse']:.4g} "
+        f"(step {best[0] if best[2] == info['held_out_rmse'] else 0}; at the start "
+        f"{info['initial_held_out_rmse']:.4g})"
+    )
