@@ -186,3 +186,14 @@ def test_inputs_far_outside_the_fit_are_flagged_naming_the_channel_and_the_model
     with warnings.catch_warnings():
         warnings.simplefilter("error", MopWarning)
         mop.load("model").simulate(val, init=20)  # inputs like the estimation record's: no warning
+
+
+def test_learned_says_what_the_held_out_check_kept(records, capsys):
+    from mop.estimators import Learned
+
+    est = plant(1200, 5)
+    model = Learned(progress=True, train__steps=3).fit(est)
+    err = capsys.readouterr().err
+    assert "Learned: held-out simulation" in err and model.selection_["kept"] in ("network", "arx")
+    Learned(progress=False, train__steps=3).fit(est)
+    assert "Learned:" not in capsys.readouterr().err
