@@ -8,6 +8,7 @@ with mop.experiments, which `mop reproduce` imports.
 import importlib
 
 import mop.filters  # noqa: F401  (the classical predictors; imports mop.systems, the families)
+import mop.runs  # noqa: F401  (the learned predictors, one per model architecture)
 from mop.record import Record, read_records
 
 __version__ = "0.1.0"

@@ -48,6 +48,8 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
     ("mop.bench.freerun", "mop"): "the program it runs as a subprocess",
     ("mop.commands.benchmark", "mop"): "the learned model trained on the estimation part (--predictors mop)",
     ("mop.commands.benchmark", "rmse"): "results.json's RMSE key",
+    ("mop.benchmarks.pages", "rmse"): "results.json's RMSE key, read to write the results pages' tables",
+    ("mop.benchmarks.pages", "mop"): "`mop benchmark --predictors mop`, whose rows name their training seed",
     ("mop.commands.benchmark", "wiener-hammerstein"): "the benchmark whose table reads in mV",
     ("mop.checkpoint", "mop"): "the checkpoint file's metadata key",
     ("mop.network_config", "gru"): "model.arch's name for the GRU's network section (the config layer)",
