@@ -49,7 +49,7 @@ from mop.identify.store import load as load_fitted
 from mop.incontext import simulate_with_context
 from mop.predictors import Predictor
 from mop.pretrained import dimensions
-from mop.recipe.fit import fit_record
+from mop.recipe.fit import fine_tune_record, fit_record
 from mop.recipe.selection import selection_line
 from mop.record import Record, as_pairs, read_records
 from mop.records import predict_all, simulate_all
@@ -267,15 +267,23 @@ class Learned(Estimator):
         )
         base = self.out_dir or self._temporary_dir()
         base.mkdir(parents=True, exist_ok=True)
-        run = fit_record(
-            base / "run",
-            given,
-            overrides=self.overrides,
-            init=self.init,
-            budget=self.budget_minutes if self.init is None else None,
-            fine_tune_minutes=self.budget_minutes if self.init is not None else None,
-            progress=self.progress,
-        )
+        if self.init is None:
+            run = fit_record(
+                base / "run",
+                given,
+                overrides=self.overrides,
+                budget=self.budget_minutes,
+                progress=self.progress,
+            )
+        else:
+            run = fine_tune_record(
+                base / "run",
+                given,
+                self.init,
+                overrides=self.overrides,
+                fine_tune_minutes=self.budget_minutes,
+                progress=self.progress,
+            )
         self.run_dir_ = run.run_dir
         if run.selection is not None:
             self.selection_ = run.selection
