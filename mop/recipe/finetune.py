@@ -126,7 +126,7 @@ def with_record_prior(
         orders = record_orders(record)
         if orders is not None:
             longest = config.train.horizon // 2  # the windows stay at least twice the orders
-            p, q = fitted_long_orders(record, *orders, max_order=longest)
+            p, q = fitted_long_orders(record.training_part, *orders, max_order=longest)
             long = (p, q) != orders  # a long ARX stays at its fit (model.rls_fixed), as the records recipe's
             model = dataclasses.replace(model, rls_order=p, arx_order=q, rls_fixed=long)
     own_units = source.data is None or not source.data.fitted
@@ -164,7 +164,7 @@ def with_records_recipe(
     config = dataclasses.replace(config, train=dataclasses.replace(config.train, batch_size=base.batch_size))
     train = dataclasses.replace(
         config.train,
-        steps=budget_plan(record, config.train.batch_size, config.train.horizon, minutes).steps,
+        steps=budget_plan(record.training_part, config.train.batch_size, config.train.horizon, minutes).steps,
         lr=base.lr,
         lr_schedule=base.lr_schedule,
         warmup_steps=base.warmup_steps,
@@ -173,7 +173,7 @@ def with_records_recipe(
     named = parse_overrides(overrides)
     if not record.input_dim or record.num_missing or any(k in named for k in RECIPE_FEATURE_KEYS):
         return config
-    plan = plan_records(record, config, minutes)
+    plan = plan_records(record.training_part, config, minutes)
     model = dataclasses.replace(
         config.model,
         rls_order=plan.p,

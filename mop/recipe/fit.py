@@ -198,7 +198,7 @@ def record_lines(
         return lines
     if selects(config) and (init is None or records_start(load_config(init))):
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        plan = budget_plan(record, config.train.batch_size, config.train.horizon, minutes)
+        plan = budget_plan(record.training_part, config.train.batch_size, config.train.horizon, minutes)
         if plan.steps == config.train.steps:
             lines.append(plan.line())
     lines.append(record.summary(config.train.horizon, validates_tails(config, record.given)))
