@@ -256,14 +256,17 @@ class Learned(Estimator):
     def fit(self, data: Records, val: Records | None = None) -> Estimator:
         """Train on `data` (its last 10% validates, as `mop train --data`), or on all of it with `val` the
         validation records (--val). The run directory is run_dir_."""
+        # where the records came from, for the run's config (data.path: provenance only): the file given,
+        # else the first record's name ("record" without one); named before the one read of the file
+        source, val_source = _path_of(data), _path_of(val)
         records, _ = as_records(data)
         self._fitted_on(records)
         val_records = None if val is None else tuple(as_records(val, "validation data")[0])
         given = TrainingRecords(
             tuple(records),
             val_records,
-            _source(data, records),
-            "" if val is None else _source(val, val_records),
+            source or records[0].name or "record",
+            "" if val is None else val_source or val_records[0].name or "record",
         )
         base = self.out_dir or self._temporary_dir()
         base.mkdir(parents=True, exist_ok=True)
@@ -301,12 +304,9 @@ class Learned(Estimator):
         return path
 
 
-def _source(data: Records, records: Sequence[Record]) -> str:
-    """Where records came from, for the run's config (data.path: provenance only): the file given, else the
-    first record's name ("record" without one)."""
-    if isinstance(data, (str, os.PathLike)):
-        return str(data)
-    return records[0].name or "record"
+def _path_of(data: Records | None) -> str | None:
+    """The path `data` names where it is a file, else None (records in memory)."""
+    return str(data) if isinstance(data, (str, os.PathLike)) else None
 
 
 class Loaded(Estimator):
