@@ -16,9 +16,10 @@ y_<c and the inputs alone (NaN for t < c), exactly the numbers `mop predict MODE
 (init=0: from the record's start, y_0 its initial condition, t >= 1).
 
 ARX and N4SID are mop.identify's fits (`mop fit arx|n4sid`); Learned trains through the path `mop train --data
-FILE [--init RUN]` takes (mop.recipe.fit.fit_record: the config, the training, the held-out choice), on the
-records in memory: no file is written but the run (in out_dir, or in a temporary directory removed with the
-estimator); the run's config names where the records came from (the file, or the first record's name).
+FILE [--init RUN]` takes (mop.recipe.fit.fit_record, or fine_tune_record with init: the config, the
+training, the held-out choice), on the records in memory: no file is written but the run (in out_dir, or in
+a temporary directory removed with the estimator); the run's config names where the records came from (the
+file, or the first record's name).
 """
 
 from __future__ import annotations

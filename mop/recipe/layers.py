@@ -14,7 +14,10 @@ Layers, later wins:
    train.keep_best: its one-step validation loss on one record's last 10% picked step 500 of seed 1 on
    tank_records --plant 5, which simulates at 1.009 against 0.49 at step 1000);
 4. the dotted key=value overrides.
-With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.recipe.source) the base is the
+A run from scratch takes them in one downward sequence (scratch_config): the records named (mop.recipe.given),
+split once, the plan made on the split's training part, the overrides, the features resolved.
+With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.recipe.source; its own sequence,
+mop.recipe.finetune.fine_tune_config) the base is the
 source's own RunConfig (its model, so the architecture is the source's; its data normalisation kept, where
 it was trained on recorded data), layer 3 is skipped, and FINE_TUNE sets a short schedule before the
 overrides: FINE_TUNE_STEPS steps at a tenth of the source's learning rate, constant, no warm-up (the weights
@@ -23,7 +26,7 @@ they learned; 125 steps of batch 16 on a 2-core CPU take seconds to a minute), k
 lowest validation loss, the source's at step 0 included (train.keep_best: never worse than the source there).
 After the overrides, a feature whose orders they changed is refitted on the record (with_refitted_orders), a
 class model's in-context ARX feature starts from the record's least-squares ARX (with_record_prior), and its
-windows fit the record's split (_record_horizon).
+windows fit the record's split (record_horizon).
 """
 
 from __future__ import annotations
