@@ -21,8 +21,8 @@ from mop.errors import MopError
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget, check_minutes
 from mop.recipe.finetune import fine_tune_config, records_start, within_budget
 from mop.recipe.given import split
-from mop.recipe.layers import gaps_turn_off_recipe, scratch_config
-from mop.recipe.records import budget_plan, feature_line, order_line
+from mop.recipe.layers import scratch_config
+from mop.recipe.records import budget_plan, feature_line, gaps_turn_off_recipe, order_line
 from mop.recipe.selection import feature_alone, select_against_arx, selection_line, training_time
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train

@@ -35,8 +35,6 @@ import dataclasses
 import json
 from pathlib import Path
 
-import numpy as np
-
 from mop.config import (
     RunConfig,
     apply_overrides,
@@ -50,8 +48,7 @@ from mop.experiments.presets import default_preset, preset_config
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.finetune import fine_tune_config
 from mop.recipe.given import named_records, read_given, run_records, split, with_records
-from mop.recipe.records import FEATURE_KEYS as RECIPE_FEATURE_KEYS
-from mop.recipe.records import with_recorded_features
+from mop.recipe.records import gaps_turn_off_recipe, with_recorded_features
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.auto import resolve_features
 from mop.train.records import RecordedData, TrainingRecords
@@ -102,22 +99,6 @@ def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
     if "model.features" in named or not any(k.startswith("model.") and k[6:] in AUTO_KEYS for k in named):
         return config
     return dataclasses.replace(config, model=dataclasses.replace(config.model, features="given"))
-
-
-def gaps_turn_off_recipe(
-    data: TrainingRecords | None, overrides: list[str], chosen: bool, init: str | None
-) -> int:
-    """The missing outputs of the record `data` where they alone keep the records recipe off (no source,
-    --preset, --init or feature override chose the model; the record has inputs): its least-squares feature
-    and the held-out check against `mop fit arx` need complete outputs. 0 where the recipe applies or
-    something else turned it off."""
-    if data is None or chosen or init is not None:
-        return 0
-    if any(k in parse_overrides(list(overrides)) for k in RECIPE_FEATURE_KEYS):
-        return 0
-    if any(r.u is None for r in data.records):
-        return 0
-    return int(sum(np.isnan(r.y).sum() for r in data.records))
 
 
 def training_config(

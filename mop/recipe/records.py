@@ -13,6 +13,8 @@ After training: the held-out choice between the network's correction at each gai
 
 from __future__ import annotations
 
+import numpy as np
+
 from mop.config import (
     RunConfig,
     apply_settings,
@@ -27,7 +29,7 @@ from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_windows
 from mop.recipe.plan import RECORDED_MODEL, RecordsPlan
 from mop.record import RecordsLike
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
-from mop.train.records import RecordedData, TrainingPart
+from mop.train.records import RecordedData, TrainingPart, TrainingRecords
 
 __all__ = ["RECORDED_MODEL", "RecordsPlan", "plan_records"]
 
@@ -111,6 +113,22 @@ def plan_records(
         context=max(config.model.context, horizon),
         budget=plan_windows(budget, part.lengths, config.train.batch_size, horizon),
     )
+
+
+def gaps_turn_off_recipe(
+    data: TrainingRecords | None, overrides: list[str], chosen: bool, init: str | None
+) -> int:
+    """The missing outputs of the record `data` where they alone keep the records recipe off (no source,
+    --preset, --init or feature override chose the model; the record has inputs): its least-squares feature
+    and the held-out check against `mop fit arx` need complete outputs. 0 where the recipe applies or
+    something else turned it off."""
+    if data is None or chosen or init is not None:
+        return 0
+    if any(k in parse_overrides(list(overrides)) for k in FEATURE_KEYS):
+        return 0
+    if any(r.u is None for r in data.records):
+        return 0
+    return int(sum(np.isnan(r.y).sum() for r in data.records))
 
 
 def with_recorded_features(
