@@ -16,9 +16,10 @@ y_<c and the inputs alone (NaN for t < c), exactly the numbers `mop predict MODE
 (init=0: from the record's start, y_0 its initial condition, t >= 1).
 
 ARX and N4SID are mop.identify's fits (`mop fit arx|n4sid`); Learned trains through the path `mop train --data
-FILE [--init RUN]` takes (mop.recipe.fit.fit_record: the config, the training, the held-out choice), on the
-records in memory: no file is written but the run (in out_dir, or in a temporary directory removed with the
-estimator); the run's config names where the records came from (the file, or the first record's name).
+FILE [--init RUN]` takes (mop.recipe.fit.fit_record, or fine_tune_record with init: the config, the
+training, the held-out choice), on the records in memory: no file is written but the run (in out_dir, or in
+a temporary directory removed with the estimator); the run's config names where the records came from (the
+file, or the first record's name).
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ from mop.identify.store import load as load_fitted
 from mop.incontext import simulate_with_context
 from mop.predictors import Predictor
 from mop.pretrained import dimensions
-from mop.recipe.fit import fit_record
+from mop.recipe.fit import fine_tune_record, fit_record
 from mop.recipe.selection import selection_line
 from mop.record import Record, as_pairs, read_records
 from mop.records import predict_all, simulate_all
@@ -282,26 +283,37 @@ class Learned(Estimator):
     def fit(self, data: Records, val: Records | None = None) -> Estimator:
         """Train on `data` (its last 10% validates, as `mop train --data`), or on all of it with `val` the
         validation records (--val). The run directory is run_dir_."""
+        # where the records came from, for the run's config (data.path: provenance only): the file given,
+        # else the first record's name ("record" without one); named before the one read of the file
+        source, val_source = _path_of(data), _path_of(val)
         records, _ = as_records(data)
         self._fitted_on(records)
         val_records = None if val is None else tuple(as_records(val, "validation data")[0])
         given = TrainingRecords(
             tuple(records),
             val_records,
-            _source(data, records),
-            "" if val is None else _source(val, val_records),
+            source or records[0].name or "record",
+            "" if val is None else val_source or val_records[0].name or "record",
         )
         base = self.out_dir or self._temporary_dir()
         base.mkdir(parents=True, exist_ok=True)
-        run = fit_record(
-            base / "run",
-            given,
-            overrides=self.overrides,
-            init=self.init,
-            budget=self.budget_minutes if self.init is None else None,
-            fine_tune_minutes=self.budget_minutes if self.init is not None else None,
-            progress=self.progress,
-        )
+        if self.init is None:
+            run = fit_record(
+                base / "run",
+                given,
+                overrides=self.overrides,
+                budget=self.budget_minutes,
+                progress=self.progress,
+            )
+        else:
+            run = fine_tune_record(
+                base / "run",
+                given,
+                self.init,
+                overrides=self.overrides,
+                fine_tune_minutes=self.budget_minutes,
+                progress=self.progress,
+            )
         self.run_dir_ = run.run_dir
         if run.selection is not None:
             self.selection_ = run.selection
@@ -319,12 +331,9 @@ class Learned(Estimator):
         return path
 
 
-def _source(data: Records, records: Sequence[Record]) -> str:
-    """Where records came from, for the run's config (data.path: provenance only): the file given, else the
-    first record's name ("record" without one)."""
-    if isinstance(data, (str, os.PathLike)):
-        return str(data)
-    return records[0].name or "record"
+def _path_of(data: Records | None) -> str | None:
+    """The path `data` names where it is a file, else None (records in memory)."""
+    return str(data) if isinstance(data, (str, os.PathLike)) else None
 
 
 class Loaded(Estimator):

@@ -6,7 +6,7 @@ plant at rest (the free run is then not held within the span of those few output
 import numpy as np
 import pytest
 
-from mop.recipe.fit import fit_record
+from mop.recipe.fit import fine_tune_record
 from mop.recipe.records import feature_line
 from mop.record import Record, write_records
 from mop.train.records import TrainingRecords
@@ -58,10 +58,10 @@ def test_a_fine_tunes_feature_alone_is_the_fitted_arx_it_names(tmp_path):
         "train.steps=1",
     ]
     lines = []
-    fitted = fit_record(
+    fitted = fine_tune_record(
         tmp_path / "ft",
         TrainingRecords.read(path),
-        init="pretrained:lti-siso",
+        "pretrained:lti-siso",
         overrides=overrides,
         progress=False,
         announce=lines.append,

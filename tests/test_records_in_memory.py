@@ -53,10 +53,10 @@ def test_the_plan_of_a_record_in_memory_is_the_plan_of_its_file(tmp_path, reads)
     records = [plant(400, 0, "a"), plant(300, 1, "b")]
     config = training_config(None, "small")
     cfg = DataConfig(path="in memory")
-    in_memory = plan_records(TrainingRecords(tuple(records)).split(cfg), config, budget=1.0)
+    in_memory = plan_records(TrainingRecords(tuple(records)).split(cfg).training_part, config, budget=1.0)
     assert reads == []  # the recipe read nothing from disk
     path = write_records(records, tmp_path / "r.csv")
-    from_file = plan_records(TrainingRecords.read(path).split(cfg), config, budget=1.0)
+    from_file = plan_records(TrainingRecords.read(path).split(cfg).training_part, config, budget=1.0)
     assert isinstance(in_memory, RecordsPlan) and in_memory == from_file
     assert in_memory.settings()["model.rls_order"] == in_memory.p > 0 and in_memory.steps >= 1000
     # the whole config: the same but for where the records came from

@@ -11,8 +11,8 @@ import argparse
 from mop.commands import OverridesAnywhere
 from mop.experiments.presets import PRESETS
 from mop.recipe.budget import check_budget, check_minutes
-from mop.recipe.fit import fit_record
-from mop.recipe.layers import read_given
+from mop.recipe.fit import fine_tune_record, fit_record
+from mop.recipe.given import read_given
 
 EPILOG = """examples:
   mop train --out runs/linear                        # the linear family: CPU preset small, GPU paper
@@ -108,13 +108,10 @@ def run(args: argparse.Namespace) -> int:
     budget = None if args.budget is None else check_budget(args.budget)
     max_minutes = None if args.max_minutes is None else check_minutes(args.max_minutes, "--max-minutes")
     records = read_given(args.data, args.val)  # the record is read here, once; from here on it is in memory
-    fitted = fit_record(
-        args.out,
-        records,
+    common = dict(
         source=source,
         preset=args.preset,
         overrides=overrides,
-        init=args.init,
         budget=budget,
         progress=not args.no_progress,
         wait=not args.no_wait,
@@ -122,6 +119,10 @@ def run(args: argparse.Namespace) -> int:
         announce=print,
         max_minutes=max_minutes,
     )
+    if args.init is None:
+        fitted = fit_record(args.out, records, **common)
+    else:
+        fitted = fine_tune_record(args.out, records, args.init, **common)
     out = fitted.run_dir
     print(f"run directory: {out}  (load with: mop.load({str(out)!r}))")
     return 0

@@ -107,7 +107,11 @@ def check_length(kind: str, identifier: Any, data: Arrays, est: Arrays, max_orde
 
 def feasible_order(kind: str, data: RecordsLike, max_order: int = 10, source: str = "record") -> int:
     """The largest P <= max_order for which `fit(kind, data, max_order=P)` has enough steps (0: none)."""
-    record = complete_record(to_records(data), source)
+    return largest_order(kind, complete_record(to_records(data), source), max_order)
+
+
+def largest_order(kind: str, record: Arrays, max_order: int = 10) -> int:
+    """feasible_order on complete arrays [(y (T, m), u (T, k))]."""
     est = [(y[: holdout_cut(len(y))], u[: holdout_cut(len(y))]) for y, u in record]
     return largest_feasible(IDENTIFIERS.get(kind), est, max_order)
 
@@ -124,11 +128,34 @@ def fit(
     if not isinstance(max_order, int) or max_order < 1:
         raise MopError(f"--max-order must be an integer >= 1, got {max_order!r}")
     record = complete_record(to_records(data), source)
-    est = [(y[: holdout_cut(len(y))], u[: holdout_cut(len(y))]) for y, u in record]
-    check_length(kind, identifier, record, est, max_order, source)
     info = {"estimation": Path(source).name, "select": select, "max_order": max_order, "holdout": HOLDOUT}
     info["fingerprint"] = fingerprint(record)  # mop predict warns when it is asked to score this record
     info["input_range"] = input_range(record)
+    best, candidates, scores = _grid_choice(kind, record, info, select, max_order, source)
+    fitted = identifier.fit_grid(record, [best], info, max_order)[0]
+    # a diverged order's score is written as null (JSON has no inf)
+    rmse = [s if math.isfinite(s) else None for s in scores]
+    fitted.info["grid"] = [{**c, SCORE: s} for c, s in zip(candidates, rmse, strict=True)]
+    fitted.info[POLE_RADIUS] = pole_radius(fitted.model.A)
+    return fitted
+
+
+def chosen_orders(
+    kind: str, record: Arrays, max_order: int = 10, source: str = "record", select: str = SIMULATION
+) -> dict[str, int]:
+    """The orders `fit` chooses on complete arrays [(y (T, m), u (T, k))], without its refit on the whole
+    record or its provenance (a planner's question: which orders, not which model)."""
+    return _grid_choice(kind, record, {}, select, max_order, source)[0]
+
+
+def _grid_choice(
+    kind: str, record: Arrays, info: dict[str, Any], select: str, max_order: int, source: str
+) -> tuple[dict[str, int], list[dict[str, int]], list[float]]:
+    """(the chosen orders, the candidates, their held-out scores): every candidate up to max_order fitted on
+    the record's first 80% and scored on the rest (`select`), the smallest within TOLERANCE of the best."""
+    identifier = IDENTIFIERS.get(kind)
+    est = [(y[: holdout_cut(len(y))], u[: holdout_cut(len(y))]) for y, u in record]
+    check_length(kind, identifier, record, est, max_order, source)
     candidates = identifier.candidates(max_order, record[0][1].shape[1])
     grid = identifier.fit_grid(est, candidates, info, max_order)
     scores = [score(p, record, select) for p in grid]
@@ -139,12 +166,7 @@ def fit(
     m, k = record[0][0].shape[1], record[0][1].shape[1]
     spread = float(np.concatenate([y for y, _ in record]).std())
     best = choose(candidates, scores, lambda c: identifier.size(c, m, k), spread)
-    fitted = identifier.fit_grid(record, [best], info, max_order)[0]
-    # a diverged order's score is written as null (JSON has no inf)
-    rmse = [s if math.isfinite(s) else None for s in scores]
-    fitted.info["grid"] = [{**c, SCORE: s} for c, s in zip(candidates, rmse, strict=True)]
-    fitted.info[POLE_RADIUS] = pole_radius(fitted.model.A)
-    return fitted
+    return best, candidates, scores
 
 
 def fit_orders(

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 
 from mop.errors import MopError
 
@@ -86,3 +87,11 @@ def plan_steps(minutes: float, windows: int, batch_size: int, horizon: int = NOM
     if steps < MIN_STEPS:
         steps, why = MIN_STEPS, "minimum"
     return BudgetPlan(minutes, windows, batch_size, steps, why, step_seconds)
+
+
+def plan_windows(
+    minutes: float, lengths: Sequence[int], batch_size: int, horizon: int = NOMINAL_HORIZON
+) -> BudgetPlan:
+    """plan_steps on training parts of these `lengths`: each part of L steps holds L - horizon windows of
+    horizon + 1 steps (mop.train.records.window_count, counted from the lengths alone)."""
+    return plan_steps(minutes, sum(max(0, n - horizon) for n in lengths), batch_size, horizon)

@@ -19,14 +19,18 @@ import math
 from mop.config import (
     RunConfig,
     TrainConfig,
+    apply_overrides,
     parse_overrides,
 )
+from mop.errors import MopError
 from mop.experiments.presets import default_preset, preset_config
 from mop.models import build_model
-from mop.recipe.budget import DEFAULT_BUDGET_MINUTES
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
+from mop.recipe.given import named_records, run_records, split, with_records
 from mop.recipe.records import FEATURE_KEYS as RECIPE_FEATURE_KEYS
 from mop.recipe.records import budget_plan, fitted_long_orders, plan_records, record_orders
 from mop.recipe.source import PRIOR_KEYS
+from mop.runs import load_config
 from mop.train import resolve_config, resolve_device
 from mop.train.estimate import step_seconds
 from mop.train.records import RecordedData, TrainingRecords
@@ -122,7 +126,7 @@ def with_record_prior(
         orders = record_orders(record)
         if orders is not None:
             longest = config.train.horizon // 2  # the windows stay at least twice the orders
-            p, q = fitted_long_orders(record, *orders, max_order=longest)
+            p, q = fitted_long_orders(record.training_part, *orders, max_order=longest)
             long = (p, q) != orders  # a long ARX stays at its fit (model.rls_fixed), as the records recipe's
             model = dataclasses.replace(model, rls_order=p, arx_order=q, rls_fixed=long)
     own_units = source.data is None or not source.data.fitted
@@ -160,7 +164,7 @@ def with_records_recipe(
     config = dataclasses.replace(config, train=dataclasses.replace(config.train, batch_size=base.batch_size))
     train = dataclasses.replace(
         config.train,
-        steps=budget_plan(record, config.train.batch_size, config.train.horizon, minutes).steps,
+        steps=budget_plan(record.training_part, config.train.batch_size, config.train.horizon, minutes).steps,
         lr=base.lr,
         lr_schedule=base.lr_schedule,
         warmup_steps=base.warmup_steps,
@@ -169,7 +173,7 @@ def with_records_recipe(
     named = parse_overrides(overrides)
     if not record.input_dim or record.num_missing or any(k in named for k in RECIPE_FEATURE_KEYS):
         return config
-    plan = plan_records(record, config, minutes)
+    plan = plan_records(record.training_part, config, minutes)
     model = dataclasses.replace(
         config.model,
         rls_order=plan.p,
@@ -240,3 +244,43 @@ def within_budget(config: RunConfig, minutes: float, records: TrainingRecords | 
     seconds = step_seconds(resolved, build_model(resolved.model), device)
     steps = max(1, min(config.train.steps, int(minutes * 60 / max(seconds, 1e-9))))
     return dataclasses.replace(config, train=dataclasses.replace(config.train, steps=steps))
+
+
+def fine_tune_config(
+    source: str | None,
+    preset: str | None,
+    records: TrainingRecords | None,
+    overrides: list[str],
+    init: str,
+    budget: float | None,
+) -> tuple[RunConfig, TrainingRecords | None]:
+    """(config, the records it trains on) of `mop train --data FILE --init SOURCE [key=value ...]`: the
+    source's RunConfig with the records named (mop.recipe.given), the fine-tuning layer (with_fine_tuning;
+    a records start's records recipe, with_records_recipe), the overrides, then the steps that fit the
+    feature and the windows to the record's split (see mop.recipe.layers' docstring)."""
+    if budget is not None:
+        check_budget(budget)
+    if budget is not None and records is None:
+        raise MopError("--budget MINUTES plans training on a record: give --data FILE too (or train.steps=N)")
+    if budget is not None and not records_start(load_config(init)):
+        raise MopError(
+            "--budget plans the records recipe; a fine-tune (--init) has its own schedule: drop it"
+        )
+    if source is not None or preset is not None:
+        given = source if source is not None else f"--preset {preset}"
+        raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
+    base = load_config(init)
+    records = run_records(records, base)
+    config = with_fine_tuning(with_records(base, records), base, init)
+    if records_start(base) and config.data is not None:
+        minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
+        config = with_records_recipe(config, split(config, records), list(overrides), minutes)
+    config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
+    records = named_records(records, config)
+    record = split(config, records)  # the split the overrides ask for (data.validation_fraction, data.split)
+    config = with_record_prior(config, record, list(overrides), base)
+    if record is not None and "train.horizon" not in parse_overrides(list(overrides)):
+        # the windows fit that split
+        fraction = config.data.validation_fraction
+        config = dataclasses.replace(config, train=record_horizon(config.train, record, fraction))
+    return config, records

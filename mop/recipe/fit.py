@@ -1,8 +1,10 @@
 """From a user's record to a trained run, in one sequence: the config (mop.recipe.layers), the training with
 the recipe's hooks (mop.recipe.training), then the held-out choice (mop.recipe.selection).
 
-`mop train` and mop.estimators.Learned both call fit_record, so a record trains the same way from the command
-line and from Python; the command line hands it `print` to announce what it does. Both read the record
+`mop train` and mop.estimators.Learned both call fit_record (from scratch) or fine_tune_record (--init), so a
+record trains the same way from the command line and from Python; the command line hands it `print` to
+announce what it does. The two share only their end (train_and_choose): a run from scratch never passes
+the fine-tune's steps. Both read the record
 before (`mop train --data FILE` once, at the command; Learned takes it in memory) and hand it in as
 TrainingRecords: from here the recipe plans on it and the trainer trains on it, and no step reads it again.
 """
@@ -17,9 +19,10 @@ from pathlib import Path
 from mop.config import RunConfig, parse_overrides
 from mop.errors import MopError
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget, check_minutes
-from mop.recipe.finetune import records_start, within_budget
-from mop.recipe.layers import gaps_turn_off_recipe, records_config, split
-from mop.recipe.records import budget_plan, feature_line, order_line
+from mop.recipe.finetune import fine_tune_config, records_start, within_budget
+from mop.recipe.given import split
+from mop.recipe.layers import scratch_config
+from mop.recipe.records import budget_plan, feature_line, gaps_turn_off_recipe, order_line
 from mop.recipe.selection import feature_alone, select_against_arx, selection_line, training_time
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
@@ -53,7 +56,49 @@ def fit_record(
     source: str | None = None,
     preset: str | None = None,
     overrides: Sequence[str] = (),
-    init: str | None = None,
+    budget: float | None = None,
+    progress: bool = True,
+    wait: bool = True,
+    fresh: bool = False,
+    announce: Callable[[str], None] | None = None,
+    max_minutes: float | None = None,
+) -> FittedRun:
+    """Train the run `out_dir` from scratch as `mop train [SOURCE] [--preset P] [--data DATA [--val VAL]]
+    [--budget MINUTES] [key=value ...]` does, in one downward sequence on one set of records in memory: its
+    config and the records' split (mop.recipe.layers.scratch_config: the records recipe plans on that
+    split), the training with the recipe's hooks, then, for a records recipe, the held-out choice between
+    the network and the fitted ARX (select_against_arx). A fine-tune (--init) is fine_tune_record's.
+
+    records: the records of --data (and --val) in memory, read by the caller (TrainingRecords.read at the
+    command line; Learned takes them as given); None without --data.
+    announce: given, it gets the lines `mop train` prints: the budget's plan, the record, its feature and
+    orders before training; the loop's plan line; the held-out choice after it.
+    max_minutes: a wall-clock limit from this call on (check_minutes): the training checkpoints and stops
+    at the first step that ends past it, unfinished (FittedRun.finished False, no held-out choice yet;
+    mop.load warns that it is unfinished); calling fit_record again resumes it, and the held-out choice is
+    made when it finishes. The steps (and so the weights) do not depend on it.
+    """
+    deadline = _deadline(max_minutes)
+    overrides = list(overrides)
+    if budget is not None:  # before any file is read
+        check_budget(budget)
+    _in_memory(records)
+    config, records, record = scratch_config(source, preset, records, overrides, budget)
+    if announce is not None:
+        chosen = source is not None or preset is not None
+        for line in record_lines(config, record, records, overrides, None, chosen, budget):
+            announce(line)
+    return train_and_choose(config, out_dir, records, record, progress, wait, fresh, announce, deadline)
+
+
+def fine_tune_record(
+    out_dir: str | os.PathLike,
+    records: TrainingRecords | None,
+    init: str,
+    *,
+    source: str | None = None,
+    preset: str | None = None,
+    overrides: Sequence[str] = (),
     budget: float | None = None,
     fine_tune_minutes: float | None = None,
     progress: bool = True,
@@ -62,43 +107,55 @@ def fit_record(
     announce: Callable[[str], None] | None = None,
     max_minutes: float | None = None,
 ) -> FittedRun:
-    """Train the run `out_dir` as `mop train [SOURCE] [--preset P] [--data DATA [--val VAL]] [--init RUN]
-    [--budget MINUTES] [key=value ...]` does: its config (records_config), the training with the recipe's
-    hooks, then, for a records recipe or a fine-tune with a fitted feature, the held-out choice between the
-    network and the fitted ARX (select_against_arx), all on one set of records in memory.
+    """Fine-tune `init` (a run directory or pretrained:NAME) into the run `out_dir` as `mop train --data DATA
+    --init SOURCE [key=value ...]` does: its config (mop.recipe.finetune.fine_tune_config), the training
+    from the source's weights, then, with a fitted feature, the held-out choice; as fit_record otherwise.
 
-    records: the records of --data (and --val) in memory, read by the caller (TrainingRecords.read at the
-    command line; Learned takes them as given); None without --data.
-
-    fine_tune_minutes: a fine-tune's train.steps cut to what these minutes allow at the measured time of one
-    step (within_budget; machine-dependent), unless an override sets train.steps; for a records start
+    fine_tune_minutes: train.steps cut to what these minutes allow at the measured time of one step
+    (within_budget; machine-dependent), unless an override sets train.steps; for a records start
     (mop.recipe.finetune.records_start) the budget of the records recipe's plan instead.
-    announce: given, it gets the lines `mop train` prints: the budget's plan, the record, its feature and
-    orders before training; the loop's plan line; the held-out choice after it.
-    max_minutes: a wall-clock limit from this call on (check_minutes): the training checkpoints and stops
-    at the first step that ends past it, unfinished (FittedRun.finished False, no held-out choice yet;
-    mop.load warns that it is unfinished); calling fit_record again resumes it, and the held-out choice is
-    made when it finishes. The steps (and so the weights) do not depend on it.
     """
-    deadline = (
-        None if max_minutes is None else loop_clock() + 60 * check_minutes(max_minutes, "--max-minutes")
-    )
+    deadline = _deadline(max_minutes)
     overrides = list(overrides)
     if budget is not None:  # before any file is read
         check_budget(budget)
-    if init is not None and records_start(load_config(init)):  # the records recipe's budget plans its steps
+    if records_start(load_config(init)):  # the records recipe's budget plans its steps
         budget, fine_tune_minutes = (fine_tune_minutes if budget is None else budget), None
-    if records is not None and not isinstance(records, TrainingRecords):
-        raise MopError("fit_record takes the records in memory: give TrainingRecords.read(PATH), not a path")
-    config, records = records_config(source, preset, records, overrides, init, budget)
-    steps_given = "train.steps" in parse_overrides(overrides)
-    if init is not None and fine_tune_minutes is not None and not steps_given:
+    _in_memory(records)
+    config, records = fine_tune_config(source, preset, records, overrides, init, budget)
+    if fine_tune_minutes is not None and "train.steps" not in parse_overrides(overrides):
         config = within_budget(config, fine_tune_minutes, records)
     record = split(config, records)  # the records split as the run trains on them
     if announce is not None:
         chosen = source is not None or preset is not None
         for line in record_lines(config, record, records, overrides, init, chosen, budget):
             announce(line)
+    return train_and_choose(config, out_dir, records, record, progress, wait, fresh, announce, deadline)
+
+
+def _deadline(max_minutes: float | None) -> float | None:
+    """The loop clock's time at which a run of --max-minutes stops (None: no limit)."""
+    return None if max_minutes is None else loop_clock() + 60 * check_minutes(max_minutes, "--max-minutes")
+
+
+def _in_memory(records: TrainingRecords | None) -> None:
+    if records is not None and not isinstance(records, TrainingRecords):
+        raise MopError("fit_record takes the records in memory: give TrainingRecords.read(PATH), not a path")
+
+
+def train_and_choose(
+    config: RunConfig,
+    out_dir: str | os.PathLike,
+    records: TrainingRecords | None,
+    record: RecordedData | None,
+    progress: bool,
+    wait: bool,
+    fresh: bool,
+    announce: Callable[[str], None] | None,
+    deadline: float | None,
+) -> FittedRun:
+    """The training of `config` on `records` (mop.recipe.training.train), then the held-out choice on its
+    split `record` where the run makes one (selects) and has finished, each announced where `announce`."""
     run_dir = train(
         config,
         out_dir,
@@ -141,7 +198,7 @@ def record_lines(
         return lines
     if selects(config) and (init is None or records_start(load_config(init))):
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        plan = budget_plan(record, config.train.batch_size, config.train.horizon, minutes)
+        plan = budget_plan(record.training_part, config.train.batch_size, config.train.horizon, minutes)
         if plan.steps == config.train.steps:
             lines.append(plan.line())
     lines.append(record.summary(config.train.horizon, validates_tails(config, record.given)))

@@ -14,7 +14,10 @@ Layers, later wins:
    train.keep_best: its one-step validation loss on one record's last 10% picked step 500 of seed 1 on
    tank_records --plant 5, which simulates at 1.009 against 0.49 at step 1000);
 4. the dotted key=value overrides.
-With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.recipe.source) the base is the
+A run from scratch takes them in one downward sequence (scratch_config): the records named (mop.recipe.given),
+split once, the plan made on the split's training part, the overrides, the features resolved.
+With `--init SOURCE` (a run directory or pretrained:NAME; fine-tuning, mop.recipe.source; its own sequence,
+mop.recipe.finetune.fine_tune_config) the base is the
 source's own RunConfig (its model, so the architecture is the source's; its data normalisation kept, where
 it was trained on recorded data), layer 3 is skipped, and FINE_TUNE sets a short schedule before the
 overrides: FINE_TUNE_STEPS steps at a tenth of the source's learning rate, constant, no warm-up (the weights
@@ -23,7 +26,7 @@ they learned; 125 steps of batch 16 on a 2-core CPU take seconds to a minute), k
 lowest validation loss, the source's at step 0 included (train.keep_best: never worse than the source there).
 After the overrides, a feature whose orders they changed is refitted on the record (with_refitted_orders), a
 class model's in-context ARX feature starts from the record's least-squares ARX (with_record_prior), and its
-windows fit the record's split (_record_horizon).
+windows fit the record's split (record_horizon).
 """
 
 from __future__ import annotations
@@ -32,10 +35,7 @@ import dataclasses
 import json
 from pathlib import Path
 
-import numpy as np
-
 from mop.config import (
-    DataConfig,
     RunConfig,
     apply_overrides,
     from_dict,
@@ -46,18 +46,9 @@ from mop.experiments import get_experiment, run_config
 from mop.experiments.files import is_experiment_file, load_experiment
 from mop.experiments.presets import default_preset, preset_config
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
-from mop.recipe.finetune import (
-    record_horizon,
-    records_start,
-    with_fine_tuning,
-    with_record_prior,
-    with_records_recipe,
-    with_refitted_orders,
-)
-from mop.recipe.records import FEATURE_KEYS as RECIPE_FEATURE_KEYS
-from mop.recipe.records import with_recorded_features
-from mop.record import read_records
-from mop.runs import load_config
+from mop.recipe.finetune import fine_tune_config
+from mop.recipe.given import named_records, read_given, run_records, split, with_records
+from mop.recipe.records import gaps_turn_off_recipe, with_recorded_features
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.auto import resolve_features
 from mop.train.records import RecordedData, TrainingRecords
@@ -101,58 +92,6 @@ def _named_experiment(name: str, preset: str | None) -> RunConfig:
     return run_config(exp, preset or default_preset())
 
 
-def with_records(config: RunConfig, records: TrainingRecords | None) -> RunConfig:
-    """Layer 2: --data and --val, as data.path and data.validation_path (where the records came from: their
-    provenance); the normalisation is left to the trainer (a saved config's is refitted)."""
-    if records is None:
-        return config
-    unfitted = dict.fromkeys(("y_mean", "y_std", "u_mean", "u_std"))
-    base = config.data or DataConfig(path=records.source)
-    val = records.validation_source if records.validation is not None else base.validation_path
-    return dataclasses.replace(
-        config, data=dataclasses.replace(base, path=records.source, validation_path=val, **unfitted)
-    )
-
-
-def run_records(records: TrainingRecords | None, base: RunConfig) -> TrainingRecords | None:
-    """The records the run trains on: those given (--data, --val), else those of the base config's own
-    data (a RunConfig file or an --init source naming data.path), read here once; --data without --val on a
-    config naming its validation file (data.validation_path) validates on that file, as the config says."""
-    if base.data is None:
-        return records
-    if records is None:
-        return TrainingRecords.read(base.data.path, base.data.validation_path or None)
-    if records.validation is not None or not base.data.validation_path:
-        return records
-    path = base.data.validation_path
-    return TrainingRecords(records.records, tuple(read_records(path)), records.source, path)
-
-
-def named_records(records: TrainingRecords | None, config: RunConfig) -> TrainingRecords | None:
-    """run_records after the overrides, which may name the data (data.path, data.validation_path); a
-    data.path override beside --data is refused in one line (the record is named once)."""
-    if records is not None and config.data is not None and config.data.path != records.source:
-        raise MopError(f"data.path={config.data.path} beside --data {records.source}: name the record once")
-    return run_records(records, config)
-
-
-def split(config: RunConfig, records: TrainingRecords | None) -> RecordedData | None:
-    """The records split as config.data asks (None without data): the record a recipe's step looks at."""
-    return None if config.data is None else records.split(config.data)
-
-
-def read_given(data: str | TrainingRecords | None, val: str | None) -> TrainingRecords | None:
-    """The records of `mop train --data FILE [--val FILE]`, read once here (the edge), or those given in
-    memory; None without --data. One-line MopError for --val without --data."""
-    if data is None:
-        if val is not None:
-            raise MopError("--val FILE is the validation record of --data FILE: give --data too")
-        return None
-    if isinstance(data, TrainingRecords):
-        return data
-    return TrainingRecords.read(data, val)
-
-
 def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
     """config with model.features="given" where an override names a feature key (model.rls_order, ...)
     and none names model.features: the named keys, not the preset's auto, set the features."""
@@ -160,22 +99,6 @@ def given_features(config: RunConfig, overrides: list[str]) -> RunConfig:
     if "model.features" in named or not any(k.startswith("model.") and k[6:] in AUTO_KEYS for k in named):
         return config
     return dataclasses.replace(config, model=dataclasses.replace(config.model, features="given"))
-
-
-def gaps_turn_off_recipe(
-    data: TrainingRecords | None, overrides: list[str], chosen: bool, init: str | None
-) -> int:
-    """The missing outputs of the record `data` where they alone keep the records recipe off (no source,
-    --preset, --init or feature override chose the model; the record has inputs): its least-squares feature
-    and the held-out check against `mop fit arx` need complete outputs. 0 where the recipe applies or
-    something else turned it off."""
-    if data is None or chosen or init is not None:
-        return 0
-    if any(k in parse_overrides(list(overrides)) for k in RECIPE_FEATURE_KEYS):
-        return 0
-    if any(r.u is None for r in data.records):
-        return 0
-    return int(sum(np.isnan(r.y).sum() for r in data.records))
 
 
 def training_config(
@@ -205,48 +128,42 @@ def records_config(
     budget: float | None = None,
 ) -> tuple[RunConfig, TrainingRecords | None]:
     """(config, the records it trains on): training_config on the records in memory (`records`; None: no
-    --data); no file is read here but a config's own (run_records: a RunConfig file or --init source naming
-    its data)."""
+    --data): scratch_config, or with --init the fine-tune's (mop.recipe.finetune.fine_tune_config). No file
+    is read here but a config's own (run_records: a RunConfig file or --init source naming its data)."""
+    if init is not None:
+        return fine_tune_config(source, preset, records, overrides, init, budget)
+    return scratch_config(source, preset, records, overrides, budget)[:2]
+
+
+def scratch_config(
+    source: str | None,
+    preset: str | None,
+    records: TrainingRecords | None,
+    overrides: list[str],
+    budget: float | None,
+) -> tuple[RunConfig, TrainingRecords | None, RecordedData | None]:
+    """(config, the records it trains on, their split as it trains on them; None without data) of a run
+    from scratch, in one downward sequence: the base (layer 1), the records named (layer 2), the records
+    recipe's plan on the record split once (layer 3), the overrides (layer 4), the features resolved."""
     if budget is not None:
         check_budget(budget)
     if budget is not None and records is None:
         raise MopError("--budget MINUTES plans training on a record: give --data FILE too (or train.steps=N)")
-    if budget is not None and init is not None and not records_start(load_config(init)):
-        raise MopError(
-            "--budget plans the records recipe; a fine-tune (--init) has its own schedule: drop it"
-        )
-    if init is None:
-        base = base_config(source, preset)
-        records = run_records(records, base)
-        config = with_records(base, records)
-        chosen = source is not None or preset is not None
-        gaps = gaps_turn_off_recipe(records, list(overrides), chosen, init) if budget is not None else 0
-        if gaps:
-            raise MopError(
-                f"--budget plans the records recipe, which {records.source} cannot use: it has {gaps} "
-                "missing output(s), and the recipe's least-squares feature needs complete outputs; fill the "
-                "gaps, or drop --budget and set train.steps=N"
-            )
-        minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        config = with_recorded_features(config, split(config, records), list(overrides), chosen, minutes)
-        config = apply_overrides(given_features(config, list(overrides)), list(overrides))
-        steps = "train.steps" not in parse_overrides(list(overrides))
-        return resolve_features(config, scale_steps=steps), named_records(records, config)
-    if source is not None or preset is not None:
-        given = source if source is not None else f"--preset {preset}"
-        raise MopError(f"--init {init} fixes the model and its recipe: drop {given} (override keys instead)")
-    base = load_config(init)
+    base = base_config(source, preset)
     records = run_records(records, base)
-    config = with_fine_tuning(with_records(base, records), base, init)
-    if records_start(base) and config.data is not None:
-        minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        config = with_records_recipe(config, split(config, records), list(overrides), minutes)
-    config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
+    config = with_records(base, records)
+    chosen = source is not None or preset is not None
+    gaps = gaps_turn_off_recipe(records, list(overrides), chosen, None) if budget is not None else 0
+    if gaps:
+        raise MopError(
+            f"--budget plans the records recipe, which {records.source} cannot use: it has {gaps} "
+            "missing output(s), and the recipe's least-squares feature needs complete outputs; fill the "
+            "gaps, or drop --budget and set train.steps=N"
+        )
+    minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
+    config = with_recorded_features(config, split(config, records), list(overrides), chosen, minutes)
+    config = apply_overrides(given_features(config, list(overrides)), list(overrides))
+    steps = "train.steps" not in parse_overrides(list(overrides))
     records = named_records(records, config)
-    record = split(config, records)  # the split the overrides ask for (data.validation_fraction, data.split)
-    config = with_record_prior(config, record, list(overrides), base)
-    if record is not None and "train.horizon" not in parse_overrides(list(overrides)):
-        # the windows fit that split
-        fraction = config.data.validation_fraction
-        config = dataclasses.replace(config, train=record_horizon(config.train, record, fraction))
-    return config, records
+    config = resolve_features(config, scale_steps=steps)
+    return config, records, split(config, records)

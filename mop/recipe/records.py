@@ -1,14 +1,14 @@
 """The records recipe: what `mop train --data FILE` trains on one user's record when nothing else is named.
 
 Before training (plan_records, layer 3 of mop.recipe.layers): the ARX orders `mop fit arx` chooses on the
-record's training part (fitted_orders), cubed output lags where a cubic NARX simulates the held-out end of
-that part better (fitted_cubes, mop.identify.cubic), else a longer ARX where a long record supports one
-(fitted_long_orders, mop.identify.long_arx; windows of at least twice its orders; fixed at its fit,
-model.rls_fixed, as the recursion would cost most of each step), the feature started from their
-least-squares fit, the model RECORDED_MODEL and the steps its budget buys on the record (budget_plan,
-mop.recipe.budget): a RecordsPlan (mop.recipe.plan), planned from the record in memory (nothing here reads
-a file). After training: the held-out choice between the network's correction at each gain and the fitted
-ARX (mop.recipe.selection). feature_line and order_line say what was chosen and why.
+record's training part, cubed output lags where a cubic NARX simulates the held-out end of that part better
+(mop.identify.cubic), else a longer ARX where a long record supports one (mop.identify.long_arx; windows of
+at least twice its orders; fixed at its fit, model.rls_fixed, as the recursion would cost most of each
+step), the feature started from their least-squares fit, the model RECORDED_MODEL and the steps its budget
+buys on the record (mop.recipe.budget): a RecordsPlan (mop.recipe.plan), planned from the record's training
+part handed over once (mop.train.records.TrainingPart: nothing here reads a file or asks the record again).
+After training: the held-out choice between the network's correction at each gain and the fitted ARX
+(mop.recipe.selection). feature_line and order_line say what was chosen and why.
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from __future__ import annotations
 import numpy as np
 
 from mop.config import (
-    DataConfig,
     RunConfig,
     apply_settings,
     parse_overrides,
@@ -25,12 +24,12 @@ from mop.errors import MopError
 from mop.identify.arx import ARX
 from mop.identify.cubic import EXTRA_LAGS, choose_cubes
 from mop.identify.long_arx import LONG_ORDERS, choose_long_orders
-from mop.identify.select import feasible_order, fit
-from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_steps
+from mop.identify.select import chosen_orders, feasible_order, fit, largest_order
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_windows
 from mop.recipe.plan import RECORDED_MODEL, RecordsPlan
 from mop.record import RecordsLike
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
-from mop.train.records import RecordedData, window_count
+from mop.train.records import RecordedData, TrainingPart, TrainingRecords
 
 __all__ = ["RECORDED_MODEL", "RecordsPlan", "plan_records"]
 
@@ -49,43 +48,13 @@ def arx_orders(data: RecordsLike, source: str) -> tuple[int, int] | None:
     return orders["p"], orders["q"]
 
 
-def fitted_orders(record: RecordedData) -> tuple[int, int]:
-    """(p, q): arx_orders on the record's training part (the records recipe's feature)."""
-    orders = arx_orders(record.records(record.train_parts), record.path)
-    if orders is None:
-        raise MopError(
-            f"{record.path}: its training part is too short to fit the records recipe's ARX feature; give a "
-            "longer record, or name the model's feature (model.rls_order=0 for none)"
-        )
-    return orders
-
-
-def training_pairs(record: RecordedData) -> list[tuple[np.ndarray, np.ndarray]] | None:
-    """[(y (L, m), u (L, k))] of the record's training parts, normalised as the network reads them; None
-    where outputs are missing (the candidates' least squares need them all)."""
-    if record.num_missing:
-        return None
-    m = record.output_dim
-    parts = record.normalised(DataConfig(path=record.path, **record.fit()), record.train_parts)
-    return [(a[:, :m], a[:, m:]) for a in parts]
-
-
-def fitted_cubes(record: RecordedData, p: int, q: int) -> tuple[int, int]:
-    """(p, c): the output lags and cubed lags of the records recipe's feature, by held-out free-run
-    simulation of cubic NARX candidates on the record's training part (mop.identify.cubic.choose_cubes,
-    training_pairs); (p, 0) keeps the ARX(p, q) `mop fit arx` chose."""
-    pairs = training_pairs(record)
-    return (p, 0) if pairs is None else choose_cubes(pairs, p, q)[:2]
-
-
 def fitted_long_orders(
-    record: RecordedData, p: int, q: int, max_order: int = max(LONG_ORDERS)
+    part: TrainingPart, p: int, q: int, max_order: int = max(LONG_ORDERS)
 ) -> tuple[int, int]:
     """(p, q): the ARX orders of the records recipe's linear feature, `mop fit arx`'s (p, q) or a longer
     ARX(P, P), P <= max_order, where the record is long enough and it simulates the last 20% of the training
-    part better (mop.identify.long_arx.choose_long_orders on training_pairs)."""
-    pairs = training_pairs(record)
-    return (p, q) if pairs is None else choose_long_orders(pairs, p, q, max_order)[:2]
+    part better (mop.identify.long_arx.choose_long_orders on the normalised training part)."""
+    return (p, q) if part.normalised is None else choose_long_orders(part.normalised, p, q, max_order)[:2]
 
 
 def record_orders(record: RecordedData) -> tuple[int, int] | None:
@@ -95,11 +64,11 @@ def record_orders(record: RecordedData) -> tuple[int, int] | None:
 
 
 def budget_plan(
-    record: RecordedData, batch_size: int, horizon: int, minutes: float = DEFAULT_BUDGET_MINUTES
+    part: TrainingPart, batch_size: int, horizon: int, minutes: float = DEFAULT_BUDGET_MINUTES
 ) -> BudgetPlan:
-    """The steps `minutes` buy on the record's training windows of `horizon` steps, `batch_size` windows a
-    step (mop.recipe.budget.plan_steps)."""
-    return plan_steps(minutes, window_count(record.train_parts, horizon), batch_size, horizon)
+    """The steps `minutes` buy on the training part's windows of `horizon` steps, `batch_size` windows a
+    step (mop.recipe.budget.plan_windows)."""
+    return plan_windows(minutes, part.lengths, batch_size, horizon)
 
 
 def feature_horizon(horizon: int, p: int, q: int) -> int:
@@ -109,19 +78,30 @@ def feature_horizon(horizon: int, p: int, q: int) -> int:
 
 
 def plan_records(
-    record: RecordedData, config: RunConfig, budget: float = DEFAULT_BUDGET_MINUTES, cubes: bool = True
+    part: TrainingPart, config: RunConfig, budget: float = DEFAULT_BUDGET_MINUTES, cubes: bool = True
 ) -> RecordsPlan:
-    """The records recipe's plan for `record` (a RecordedData: the record split as config.data asks; nothing
-    is read from disk): the ARX orders `mop fit arx` chooses on the training part (fitted_orders), cubed
-    output lags where a cubic NARX simulates the held-out end of the training part better (fitted_cubes),
-    else the longer ARX orders a long record supports (fitted_long_orders) with windows of feature_horizon,
-    the feature started from their least-squares fit, RECORDED_MODEL, and the steps the budget (minutes)
-    buys on the record (budget_plan: longer records train longer). config gives the windows' length, the
-    batch size and the model's context the plan starts from."""
-    p, q = fitted_orders(record)
-    p, c = fitted_cubes(record, p, q) if cubes else (p, 0)
-    if c == 0:
-        p, q = fitted_long_orders(record, p, q)
+    """The records recipe's plan for a record's training part (`part`: RecordedData.training_part, the
+    arrays the plan needs, made once; nothing is read from disk and nothing is asked of the record again),
+    in one sequence: the ARX orders `mop fit arx` chooses on the training part (mop.identify.select), cubed
+    output lags where a cubic NARX simulates the held-out end of the training part better
+    (mop.identify.cubic.choose_cubes, on the part normalised as the network reads it), else the longer ARX
+    orders a long record supports (mop.identify.long_arx.choose_long_orders) with windows of
+    feature_horizon, the feature started from their least-squares fit, RECORDED_MODEL, and the steps the
+    budget (minutes) buys on the record (mop.recipe.budget.plan_windows: longer records train longer).
+    config gives the windows' length, the batch size and the model's context the plan starts from. A pure
+    function of its arguments: the same part gives the same plan."""
+    largest = largest_order(ARX.kind, part.pairs)
+    if largest == 0:
+        raise MopError(
+            f"{part.source}: its training part is too short to fit the records recipe's ARX feature; give a "
+            "longer record, or name the model's feature (model.rls_order=0 for none)"
+        )
+    orders = chosen_orders(ARX.kind, part.pairs, max_order=largest, source=part.source)
+    p, q, c = orders["p"], orders["q"], 0
+    if cubes and part.normalised is not None:  # (p, 0) keeps the ARX(p, q) `mop fit arx` chose
+        p, c = choose_cubes(part.normalised, p, q)[:2]
+    if c == 0 and part.normalised is not None:
+        p, q = choose_long_orders(part.normalised, p, q, max(LONG_ORDERS))[:2]
     horizon = feature_horizon(config.train.horizon, p, q)
     return RecordsPlan(
         p=p,
@@ -131,8 +111,24 @@ def plan_records(
         horizon=horizon,
         longer=horizon > config.train.horizon,
         context=max(config.model.context, horizon),
-        budget=budget_plan(record, config.train.batch_size, horizon, budget),
+        budget=plan_windows(budget, part.lengths, config.train.batch_size, horizon),
     )
+
+
+def gaps_turn_off_recipe(
+    data: TrainingRecords | None, overrides: list[str], chosen: bool, init: str | None
+) -> int:
+    """The missing outputs of the record `data` where they alone keep the records recipe off (no source,
+    --preset, --init or feature override chose the model; the record has inputs): its least-squares feature
+    and the held-out check against `mop fit arx` need complete outputs. 0 where the recipe applies or
+    something else turned it off."""
+    if data is None or chosen or init is not None:
+        return 0
+    if any(k in parse_overrides(list(overrides)) for k in FEATURE_KEYS):
+        return 0
+    if any(r.u is None for r in data.records):
+        return 0
+    return int(sum(np.isnan(r.y).sum() for r in data.records))
 
 
 def with_recorded_features(
@@ -152,8 +148,10 @@ def with_recorded_features(
         return config
     if record.input_dim == 0 or record.num_missing:
         return config
-    plan = plan_records(record, config, budget, cubes="model.rls_cubes" not in named)
-    return apply_settings(config, plan.settings())
+    settings = plan_records(
+        record.training_part, config, budget, cubes="model.rls_cubes" not in named
+    ).settings()
+    return apply_settings(config, settings)
 
 
 def feature_line(config: RunConfig) -> str | None:

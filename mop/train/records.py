@@ -91,6 +91,20 @@ def window_count(parts: list[np.ndarray], horizon: int) -> int:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
+class TrainingPart:
+    """The training part of a split record as a recipe plans from it, made once (RecordedData.training_part)
+    and handed down whole, so the planner never calls back for more: `pairs` [(y (L, m), u (L, k))] in the
+    record's units, `normalised` the same pairs as the network reads them (normalised on the training part's
+    moments; None where outputs are missing), `lengths` the parts' lengths (the windows a budget buys) and
+    `source` where the record came from (for messages)."""
+
+    source: str
+    pairs: list[tuple[np.ndarray, np.ndarray]]
+    normalised: list[tuple[np.ndarray, np.ndarray]] | None
+    lengths: tuple[int, ...]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class TrainingRecords:
     """The records a run on recorded data trains on, in memory: the estimation records, the validation
     records (`--val`; None: held out of the estimation records by data.split) and where they came from
@@ -296,6 +310,17 @@ class RecordedData:
             gaps = f"{self.path}: model.rls_prior=fit needs complete outputs; fill the gaps"
             raise MopError(gaps) from None
         return [float(v) for v in theta.reshape(-1)]
+
+    @functools.cached_property
+    def training_part(self) -> TrainingPart:
+        """The training part handed to a recipe's planner (TrainingPart), made once per split."""
+        m = self.output_dim
+        normalised = None
+        if not self.num_missing:
+            z = self.normalised(DataConfig(path=self.path, **self.fit()), self.train_parts)
+            normalised = [(a[:, :m], a[:, m:]) for a in z]
+        pairs = [(a[:, :m], a[:, m:]) for a in self.train_parts]
+        return TrainingPart(self.path, pairs, normalised, tuple(len(a) for a in self.train_parts))
 
     def records(self, parts: list[np.ndarray]) -> list[Record]:
         """`parts` (train_parts, val_parts, or normalised ones) as records: y their first m columns, u the
