@@ -37,7 +37,7 @@ from mop.errors import MopError
 
 MARKER = re.compile(r"^<!-- results-table: (\S+) (.+?) -->$")
 COPY = re.compile(r"^<!-- results-copy: (\S+?)(?:#(\d+))? -->$")
-LEARNED = ("mop", "finetune:")  # predictors whose result depends on the training seed
+LEARNED = ("mop", "finetune:", "lru")  # predictors whose result depends on the training seed
 
 
 def _seed(command: str) -> int | None:
