@@ -147,7 +147,7 @@ def feature_alone(config: RunConfig) -> str:
 
 
 def training_time(run_dir: str | Path) -> str | None:
-    """'N steps, about T' of the training logged in run_dir's metrics.jsonl (every session of a resumed
+    """'N steps, about T' of the training logged in run_dir's metrics.jsonl (every part of a resumed
     run; the steps between logs at their logged rate), or None without a logged rate."""
     path = Path(run_dir) / "metrics.jsonl"
     if not path.is_file():

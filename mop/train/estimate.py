@@ -4,7 +4,7 @@ The time comes from AdamW steps of a copy of the model on random batches of the 
 device: WARMUP_STEPS untimed (the first steps allocate and pick kernels), then each of at least
 MIN_TRIAL_STEPS and at most TRIAL_STEPS steps timed alone, until TRIAL_SECONDS have passed; the estimate is
 their median, so one step slowed by other work (or a collection) does not multiply the whole estimate (two
-steps after one warm-up estimated 14 min for a run that took 2 min 31 s, issue #66). The run's own model,
+steps after one warm-up estimated 14 min for a run that took 2 min 31 s). The run's own model,
 optimizer, data generator and torch's global random state are left untouched, so the training is the same
 with or without the estimate.
 """
