@@ -173,7 +173,7 @@ class _Identified(Estimator):
         for a path, else the first record's name."""
         records, _ = as_records(data)
         self._fitted_on(records)
-        source = str(data) if isinstance(data, (str, os.PathLike)) else records[0].name or "record"
+        source = _source(data, records)
         if self.orders is None:
             self.predictor_ = fit(self.kind, records, self.select, self.max_order, source=source)
         else:
@@ -336,6 +336,11 @@ def _path_of(data: Records | None) -> str | None:
     return str(data) if isinstance(data, (str, os.PathLike)) else None
 
 
+def _source(data: Records, records: Sequence[Record]) -> str:
+    """Where fitted records came from, for a fit's info: the file given, else the first record's name."""
+    return _path_of(data) or records[0].name or "record"
+
+
 class Loaded(Estimator):
     """A saved model as an estimator (`mop.load`): a trained run, `pretrained:NAME` or a `mop fit` folder,
     with the face of ARX() / Learned(): predict, forecast and simulate on a Record (or a list, a file,
@@ -403,11 +408,12 @@ class Loaded(Estimator):
         """Train further on `data`: a fitted folder is fitted anew with its kind and orders; a run or shipped
         model is fine-tuned (Learned(init=spec, **options), `mop train --data --init`)."""
         if isinstance(self.predictor_, FittedPredictor):
-            kind, orders = self.predictor_.kind, dict(self.predictor_.orders)
-            refit = IDENTIFIED[kind]
-            est = refit.__new__(refit)
-            _Identified.__init__(est, orders, SIMULATION, int(self.predictor_.info.get("max_order", 10)))
-            self.predictor_ = est.fit(data).predictor_
+            records, _ = as_records(data)
+            fitted = self.predictor_
+            max_order = int(fitted.info.get("max_order", 10))
+            self.predictor_ = fit_orders(
+                fitted.kind, records, dict(fitted.orders), max_order, source=_source(data, records)
+            )
             return self
         learned = Learned(init=self.spec, **options).fit(data)
         self.predictor_, self.run_dir_ = learned.predictor_, learned.run_dir_

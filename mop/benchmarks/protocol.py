@@ -114,6 +114,7 @@ def test_figure(
     span = float(np.nanmax(y) - np.nanmin(y)) or 1.0
     low, high = float(np.nanmin(y)) - 0.25 * span, float(np.nanmax(y)) + 0.25 * span
     worst = 0.0
+    edges = np.nanquantile(np.abs(y), np.linspace(0, 1, 11))  # deciles of |y|, the third panel's bins
     for name, sim in sims.items():
         rmse, step = simulation_rmse(test.y, sim)
         ys = sim[:, 0] * scale
@@ -134,7 +135,6 @@ def test_figure(
                 ms=9,
                 label=f"{name} diverged at step {n + step}",
             )
-        edges = np.nanquantile(np.abs(y), np.linspace(0, 1, 11))
         which = np.clip(np.digitize(np.abs(y[:end]), edges[1:-1]), 0, 9)
         with warnings.catch_warnings():  # a bin whose outputs are all missing is NaN, without a warning
             warnings.simplefilter("ignore", RuntimeWarning)
