@@ -248,8 +248,8 @@ class Learned(Estimator):
     budget_minutes: the records recipe's budget (`mop train --budget`: steps planned from the minutes and the
     record's length, the same on every machine, mop.recipe.budget); for a fine-tune (init), train.steps is
     cut to the minutes over a measured step time (mop.train.estimate.step_seconds; machine-dependent).
-    After a records-recipe fit, selection_ holds the held-out comparison with the fitted ARX
-    (mop.recipe.selection): where the ARX wins, predictor_ is that ARX, as mop.load(run_dir_) gives.
+    After a records-recipe fit, selection_ holds the held-out comparison with the fitted ARX and N4SID
+    (mop.recipe.selection): where a linear model wins, predictor_ is that model, as mop.load(run_dir_) gives.
     init: fine-tune a run directory or pretrained:NAME (--init).
     overrides: dotted config keys, as keyword arguments with "__" for "." (train__steps=200) or as a dict
     (**{"train.steps": 200}). progress: the training's progress bar and the held-out check's verdict on

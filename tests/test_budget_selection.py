@@ -1,5 +1,6 @@
 """The records recipe's budget (a pure plan from minutes and the record's windows) and its held-out
-comparison with the fitted ARX (never worse than `mop fit arx`: the ARX is kept, exactly, where it wins)."""
+comparison with the fitted linear models (never worse than `mop fit arx` and `mop fit n4sid`: the better of
+them is kept, exactly, where it wins)."""
 
 import dataclasses
 import json
@@ -14,12 +15,13 @@ from mop.errors import MopError
 from mop.identify import load as load_fitted
 from mop.identify.select import fit
 from mop.io import read_trajectories
+from mop.recipe import selection
 from mop.recipe.budget import MAX_EPOCHS, MIN_STEPS, NOMINAL_STEP_SECONDS, plan_steps
 from mop.recipe.layers import training_config
 from mop.recipe.selection import (
     SELECTION_FILE,
     held_out_stretches,
-    select_against_arx,
+    select_against_linear,
     simulation_rmse,
     stretches_rmse,
 )
@@ -89,10 +91,10 @@ def test_a_simulation_that_turns_non_finite_scores_inf_not_its_finite_steps(tmp_
     assert simulation_rmse(unstable, data, 50) == math.inf
 
 
-def test_a_network_that_cannot_beat_the_arx_ends_as_the_arx_exactly(tmp_path, capsys):
+def test_a_network_that_cannot_beat_the_linear_models_ends_as_the_better_one_exactly(tmp_path, capsys):
     """A linear ARX plant and a network ruined on purpose (learning rate 3, 40 steps) whose correction cannot
-    be scaled (a Gaussian read-out): the run keeps the ARX, and predicts exactly what `mop fit arx` fitted on
-    the same record predicts."""
+    be scaled (a Gaussian read-out): the run keeps the linear model that simulates the held-out tail best,
+    and predicts exactly what `mop fit KIND` fitted on the same record predicts."""
     rec = arx_plant(tmp_path / "rec.csv")
     run = tmp_path / "run"
     argv = ["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=40", "train.lr=3"]
@@ -100,10 +102,12 @@ def test_a_network_that_cannot_beat_the_arx_ends_as_the_arx_exactly(tmp_path, ca
     assert main(argv) == 0
     printed = capsys.readouterr().out
     chosen = json.loads((run / SELECTION_FILE).read_text())
-    assert chosen["kept"] == "arx" and chosen["arx_rmse"] <= chosen["network_rmse"]
-    assert "keeps the fitted ARX" in printed
-    assert main(["fit", "arx", str(rec), "--out", str(tmp_path / "arx")]) == 0
-    fitted = load_fitted(tmp_path / "arx")
+    kind = min(chosen["linear_rmse"], key=chosen["linear_rmse"].get)
+    assert chosen["kept"] == kind and chosen["linear_rmse"][kind] <= chosen["network_rmse"]
+    assert set(chosen["linear_rmse"]) == {"arx", "n4sid"}
+    assert f"keeps the fitted {kind.upper()}" in printed
+    assert main(["fit", kind, str(rec), "--out", str(tmp_path / kind)]) == 0
+    fitted = load_fitted(tmp_path / kind)
     _, data = read_trajectories(rec)
     from_run = simulate_all(mop.load(run), data, 50)[0]
     np.testing.assert_array_equal(from_run, simulate_all(fitted, data, 50)[0])
@@ -123,29 +127,35 @@ def test_a_network_that_beats_the_arx_is_kept(tmp_path, capsys):
     run = tmp_path / "run"
     assert main(["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=300"]) == 0
     chosen = json.loads((run / SELECTION_FILE).read_text())
-    assert chosen["kept"] == "network" and chosen["network_rmse"] < chosen["arx_rmse"]
+    assert chosen["kept"] == "network" and chosen["network_rmse"] < min(chosen["linear_rmse"].values())
     assert not (run / "fitted.json").exists()
     assert type(mop.load(run).predictor_).__name__ == "LearnedPredictor"
 
 
-def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predicts(tmp_path, capsys):
-    """The same ruined network with the mean read-out: its correction's gains and the ARX are scored on the
-    held-out tail, the best is kept (never worse than the ARX), the scaled weights are on disk, so loading
-    the run simulates the held-out stretches at the recorded RMSE; asking again changes nothing."""
+def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predicts(
+    tmp_path, capsys, monkeypatch
+):
+    """The same ruined network with the mean read-out, against the ARX alone: its correction's gains and the
+    ARX are scored on the held-out tail, the best is kept (never worse than the ARX), the scaled weights are
+    on disk, so loading the run simulates the held-out stretches at the recorded RMSE; asking again changes
+    nothing."""
+    monkeypatch.setattr(selection, "LINEAR", selection.LINEAR[:1])
     rec = arx_plant(tmp_path / "rec.csv")
     run = tmp_path / "run"
     argv = ["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=40", "train.lr=3"]
     assert main(argv) == 0
     chosen = json.loads((run / SELECTION_FILE).read_text())
-    scores = chosen["network_rmse_by_gain"] + [chosen["arx_rmse"]]
+    assert list(chosen["linear_rmse"]) == ["arx"]
+    scores = chosen["network_rmse_by_gain"] + [chosen["linear_rmse"]["arx"]]
     assert chosen["network_rmse"] > 2 * min(scores)  # the ruined correction at gain 1 is far off
-    kept = chosen["arx_rmse"] if chosen["kept"] == "arx" else scores[chosen["gains"].index(chosen["gain"])]
-    assert kept == min(scores) and kept <= chosen["arx_rmse"]
+    assert chosen["kept"] == "network" and chosen["passed_over"] == []  # its feature alone ties the ARX
+    kept = scores[chosen["gains"].index(chosen["gain"])]
+    assert kept == min(scores)
     config = load_config(run)
     stretches = held_out_stretches(recorded_data(config.data))
     assert stretches_rmse(mop.load(run), stretches) == pytest.approx(kept, rel=1e-6)
     weights = (run / "model.safetensors").read_bytes()
-    assert select_against_arx(run, config, recorded_data(config.data)) == chosen
+    assert select_against_linear(run, config, recorded_data(config.data)) == chosen
     assert (run / "model.safetensors").read_bytes() == weights
 
 

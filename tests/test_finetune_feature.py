@@ -70,7 +70,8 @@ def test_a_fine_tunes_feature_alone_is_the_fitted_arx_it_names(tmp_path):
     assert "fixed at its least-squares fit on the training part" in feature_line(fitted.config)
     gain0 = fitted.selection["network_rmse_by_gain"][fitted.selection["gains"].index(0.0)]
     assert gain0 == pytest.approx(arx_held_out_rmse(y, u), rel=2e-3)
-    said = {"arx": "keeps the fitted ARX", "network": "keeps the network"}[fitted.selection["kept"]]
+    kept = fitted.selection["kept"]
+    said = {"arx": "keeps the fitted ARX", "n4sid": "keeps the fitted N4SID"}.get(kept, "keeps the network")
     if fitted.selection["gain"] == 0:
         said = f"its feature alone, the ARX({P}, {Q}) with an intercept fixed at its least-squares fit"
     assert said in lines[-1]

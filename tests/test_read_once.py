@@ -8,7 +8,7 @@ import pytest
 import mop.io
 from mop.cli import main
 from mop.recipe.layers import training_config
-from mop.recipe.selection import select_against_arx
+from mop.recipe.selection import select_against_linear
 from mop.recipe.training import train
 from mop.record import Record, write_records
 from mop.train.records import recorded_data
@@ -52,7 +52,8 @@ def test_a_fine_tune_reads_the_file_once_and_trains_the_same_weights(tmp_path, c
     assert len(counted) == 1
     # each step handed the path alone (no records in memory) reads the file itself
     config = training_config(None, data=data, init="pretrained:cascaded-tanks", overrides=["train.steps=2"])
-    select_against_arx(train(config, tmp_path / "each", progress=False), config, recorded_data(config.data))
+    each_run = train(config, tmp_path / "each", progress=False)
+    select_against_linear(each_run, config, recorded_data(config.data))
     assert len(counted) >= 3
     once, each = ((tmp_path / d / "model.safetensors").read_bytes() for d in ("once", "each"))
     assert once == each

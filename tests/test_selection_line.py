@@ -13,15 +13,16 @@ FEATURE = "the ARX(40, 40) with an intercept fixed at its least-squares fit on t
 
 def result(kept: str, gain: float | None) -> dict:
     return {
-        "format": 2,
+        "format": 3,
         "held_out_steps": 600,
         "init": 50,
         "gains": [0.0, 0.25, 0.5, 0.75, 1.0],
         "network_rmse_by_gain": [0.0111, 0.0112, 0.0113, 0.0114, 0.0115],
         "gain": gain,
         "network_rmse": 0.0115,
-        "arx_rmse": 0.0120,
-        "arx_orders": {"p": 7, "q": 5},
+        "linear_rmse": {"arx": 0.0120, "n4sid": 0.0130},
+        "linear_orders": {"arx": {"p": 7, "q": 5}, "n4sid": {"n": 4}},
+        "passed_over": [],
         "kept": kept,
     }
 
@@ -42,10 +43,18 @@ def test_a_kept_network_names_its_gain_and_the_held_out_scores():
     assert "keeps the network as trained" in selection_line(result("network", 1.0))
 
 
-def test_a_kept_arx_says_so():
+def test_a_kept_linear_model_says_which():
     line = selection_line(result("arx", None), FEATURE, "100 steps, about 5 s")
     assert "keeps the fitted ARX(7, 5)" in line and "did not improve on it" in line
-    assert "keeps the network" not in line
+    assert "keeps the network" not in line and "fitted N4SID(n=4) 0.013" in line
+    assert "keeps the fitted N4SID(n=4) (fitted.json, as `mop fit n4sid` writes it)" in selection_line(
+        result("n4sid", None)
+    )
+
+
+def test_a_candidate_passed_over_for_its_divergence_is_named():
+    diverged = {**result("network", 0.5), "passed_over": ["network at gain 1"]}
+    assert "whole record diverged: network at gain 1" in selection_line(diverged)
 
 
 def test_the_feature_and_the_training_time_in_words(tmp_path):

@@ -93,17 +93,18 @@ def test_a_fine_tune_keeps_the_gain_that_simulates_its_record_best(tmp_path, cap
 
 def test_fine_tunes_choose_their_gain_on_held_out_data_unless_shrink_is_asked_for(tmp_path, capsys):
     """A fine-tune keeps the records recipe's held-out choice (selection.json: the gain whose simulation of
-    the held-out tail is best, or the fitted ARX); train.shrink_correction=true chooses on the whole record
-    instead, and then no held-out choice is made."""
+    the held-out tail is best, or the better fitted linear model); train.shrink_correction=true chooses on
+    the whole record instead, and then no held-out choice is made."""
     data = nearly_linear_record(tmp_path / "est.npz")
     assert not training_config(None, data=data, init=SOURCE).train.shrink_correction
     fine_tune(tmp_path, data, "held")
     choice = json.loads((tmp_path / "held" / "selection.json").read_text())
     scored = choice["network_rmse_by_gain"]
     if choice["kept"] == "network":
-        assert choice["gain"] == choice["gains"][int(np.argmin(scored))] and min(scored) <= choice["arx_rmse"]
+        best_linear = min(choice["linear_rmse"].values())
+        assert choice["gain"] == choice["gains"][int(np.argmin(scored))] and min(scored) <= best_linear
     else:
-        assert choice["arx_rmse"] < min(scored)
+        assert choice["linear_rmse"][choice["kept"]] < min(scored)
     assert "held-out simulation" in capsys.readouterr().out
     fine_tune(tmp_path, data, "whole", "train.shrink_correction=true")
     assert (tmp_path / "whole" / SHRINK_FILE).is_file() and not (

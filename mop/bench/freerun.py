@@ -97,16 +97,16 @@ def measure(args: argparse.Namespace, work: Path) -> dict[str, object]:
             mop_command(
                 "train", "--data", str(est), "--out", run, "--no-progress", f"train.steps={args.train_steps}"
             )
-            # the bench times the network: where the run's held-out check kept the ARX
-            # (mop.recipe.selection), `mop predict RUN` would load that ARX instead
+            # the bench times the network: where the run's held-out check kept a linear model
+            # (mop.recipe.selection), `mop predict RUN` would load it instead
             (Path(run) / FITTED_FILE).unlink(missing_ok=True)
         if arx is None:
             arx = str(work / "arx")
             mop_command("fit", "arx", str(est), "--out", arx)
     if (Path(run) / FITTED_FILE).exists():
         raise MopError(
-            f"{run} keeps the fitted ARX (its held-out check, {FITTED_FILE}), "
-            "so `mop predict` would time an ARX: "
+            f"{run} keeps a fitted linear model (its held-out check, {FITTED_FILE}), "
+            "so `mop predict` would time that model: "
             "give a run that keeps its network"
         )
     times: dict[str, list[float]] = {"arx": [], "mop": []}

@@ -62,8 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "normalisation, 125 steps at a tenth of its learning rate (key=value overrides win); a class "
         "model's ARX feature starts from the record's least-squares fit, its moments from the record's "
         "(model.record_prior_steps=100), a simulation model trains tails from step 1, and the run keeps "
-        "its correction at the gain in 0..1 (or the fitted ARX) that simulates the record's held-out tail "
-        "best",
+        "its correction at the gain in 0..1 (or the better of the fitted ARX and N4SID) that simulates the "
+        "record's held-out tail best",
     )
     parser.add_argument(
         "--budget",

@@ -5,7 +5,8 @@
   scratch in one downward sequence (scratch_config);
 - records: the records recipe before training (orders, the cubic NARX choice, model and budget);
 - plan: what the records recipe decides for one record (RecordsPlan);
-- selection: the records recipe after training (the network's gain or the fitted ARX, on held-out data);
+- selection: the records recipe after training (the network's gain or the better fitted linear model, on
+  held-out data);
 - finetune: the fine-tune recipe of `--init SOURCE`: its config (fine_tune_config);
 - source: the fine-tune's source (its architecture check, its weights at step 0);
 - shrink: the correction's gain chosen after a fine-tune (train.shrink_correction);

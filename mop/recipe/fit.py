@@ -23,7 +23,7 @@ from mop.recipe.finetune import fine_tune_config, records_start, within_budget
 from mop.recipe.given import split
 from mop.recipe.layers import scratch_config
 from mop.recipe.records import budget_plan, feature_line, gaps_turn_off_recipe, order_line
-from mop.recipe.selection import feature_alone, select_against_arx, selection_line, training_time
+from mop.recipe.selection import feature_alone, select_against_linear, selection_line, training_time
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
 from mop.runs import load_config, read_run_json
@@ -67,7 +67,8 @@ def fit_record(
     [--budget MINUTES] [key=value ...]` does, in one downward sequence on one set of records in memory: its
     config and the records' split (mop.recipe.layers.scratch_config: the records recipe plans on that
     split), the training with the recipe's hooks, then, for a records recipe, the held-out choice between
-    the network and the fitted ARX (select_against_arx). A fine-tune (--init) is fine_tune_record's.
+    the network and the fitted linear models (select_against_linear). A fine-tune (--init) is
+    fine_tune_record's.
 
     records: the records of --data (and --val) in memory, read by the caller (TrainingRecords.read at the
     command line; Learned takes them as given); None without --data.
@@ -167,10 +168,11 @@ def train_and_choose(
         deadline=deadline,
     )
     finished = (run_dir / "done.json").is_file()
-    selection = select_against_arx(run_dir, config, record) if selects(config) and finished else None
+    selection = select_against_linear(run_dir, config, record) if selects(config) and finished else None
     if announce is not None and not finished and selects(config):
         announce(
-            "held-out check: not yet; it chooses between the network and the fitted ARX when the run finishes"
+            "held-out check: not yet; it chooses between the network and the fitted ARX and N4SID when the "
+            "run finishes"
         )
     if announce is not None:
         if selection is not None:

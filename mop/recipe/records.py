@@ -7,7 +7,7 @@ at least twice its orders; fixed at its fit, model.rls_fixed, as the recursion w
 step), the feature started from their least-squares fit, the model RECORDED_MODEL and the steps its budget
 buys on the record (mop.recipe.budget): a RecordsPlan (mop.recipe.plan), planned from the record's training
 part handed over once (mop.train.records.TrainingPart: nothing here reads a file or asks the record again).
-After training: the held-out choice between the network's correction at each gain and the fitted ARX
+After training: the held-out choice between the network's correction at each gain and the fitted ARX and N4SID
 (mop.recipe.selection). feature_line and order_line say what was chosen and why.
 """
 

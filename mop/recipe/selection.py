@@ -1,18 +1,24 @@
-"""Never worse than the fitted linear model: the choice a records run makes after training.
+"""Never worse than the fitted linear models: the choice a records run makes after training.
 
 After a records-recipe run has trained, its network with the correction at each gain of
-mop.recipe.shrink.GAINS (1: as trained; 0: its in-context feature alone) and the ARX that `mop fit arx`
-chooses on the same training part simulate the held-out data (held_out_stretches: the last 10% of a record
-after the 50 measured steps before it, or the held-out trajectories, or --val) from the inputs alone, and
-are scored by the RMSE of the simulated steps (a simulation that diverges scores inf:
-mop.records.divergence_step).
+mop.recipe.shrink.GAINS (1: as trained; 0: its in-context feature alone) and the linear models `mop fit
+arx` and `mop fit n4sid` choose on the same training part (LINEAR) simulate the held-out data
+(held_out_stretches: the last 10% of a record after the n measured steps before it, or the held-out
+trajectories, or --val) from the inputs alone, and are scored by the RMSE of the simulated steps (a
+simulation that diverges scores inf: mop.records.divergence_step). n is the records' initialization window
+(Record.init_window, as a benchmark's test is simulated) where they give one, else INIT_WINDOW.
+
+The best score wins, unless its free run over a whole record diverges: every record is simulated from its
+first n outputs to its end, as long a free run as a test of the record's length asks, and a candidate that
+leaves the record's range there (divergence_step) is passed over for the next best. A held-out tail of a
+short record is a few hundred steps; a correction that is stable there and diverges at step 400 of a test
+is what this catches.
 selection.json in the run directory holds every score and the one kept:
-- the network at the best gain where it simulates at least as well as the ARX: a gain below 1 is written
-  into the run's weights;
-- the ARX otherwise: the run directory also holds that ARX refitted on the whole estimation record, exactly
-  what `mop fit arx FILE` writes (fitted.json), and `mop predict RUN`, `mop.load(RUN)` load it (they read a
-  directory with fitted.json as a fitted model),
-so a user never gets a run that simulates its held-out data worse than the linear model would have.
+- the network at its gain: a gain below 1 is written into the run's weights;
+- a linear model otherwise: the run directory also holds it refitted on the whole estimation record,
+  exactly what `mop fit KIND FILE` writes (fitted.json), and `mop predict RUN`, `mop.load(RUN)` load it
+  (they read a directory with fitted.json as a fitted model),
+so a user never gets a run that simulates its held-out data worse than the better linear model would have.
 """
 
 from __future__ import annotations
@@ -26,16 +32,21 @@ import numpy as np
 from mop.atomic import write_json
 from mop.checkpoint import save_model
 from mop.config import RunConfig
+from mop.errors import MopError
+from mop.identify.arx import ARX
+from mop.identify.n4sid import N4SID
 from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
-from mop.recipe.shrink import GAINS, best_gain, gain_scores, scale_correction
+from mop.recipe.shrink import GAINS, gain_scores, scale_correction
 from mop.records import divergence_step, simulate_all
 from mop.runs import load_predictor
 from mop.train.estimate import duration
 from mop.train.records import RecordedData
 
 SELECTION_FILE = "selection.json"
-INIT_WINDOW = 50  # measured outputs a held-out simulation starts from (the benchmarks' usual n)
+INIT_WINDOW = 50  # measured outputs a held-out simulation starts from where the records give none
+LINEAR = (ARX.kind, N4SID.kind)  # the fitted linear models the network must beat, preferred in this order
+NAMES = {ARX.kind: "ARX", N4SID.kind: "N4SID"}
 
 
 def simulation_rmse(predictor, data: list[tuple[np.ndarray, np.ndarray]], init: int) -> float:
@@ -55,21 +66,41 @@ def stretches_rmse(predictor, stretches: list[tuple[np.ndarray, np.ndarray, int]
     return float(np.sqrt(np.nanmean(np.concatenate(errors) ** 2)))
 
 
-def held_out_stretches(record: RecordedData) -> list[tuple[np.ndarray, np.ndarray, int]]:
+def init_window(record: RecordedData) -> int:
+    """n, the measured outputs a held-out simulation starts from: the largest initialization window the
+    given records name (Record.init_window, e.g. a benchmark's n), else INIT_WINDOW."""
+    named = [r.init_window for r in record.given.records if r.init_window > 0]
+    return max(named) if named else INIT_WINDOW
+
+
+def held_out_stretches(
+    record: RecordedData, n: int | None = None
+) -> list[tuple[np.ndarray, np.ndarray, int]]:
     """(y, u, init) of each held-out stretch: where one record is split in time, its held-out tail after the
-    INIT_WINDOW measured steps before it (as a test record is simulated after its initialisation window), so
-    every held-out step is scored; held-out records (--val, or whole trajectories) from their own first
-    min(INIT_WINDOW, L/2) outputs."""
+    n (init_window) measured steps before it (as a test record is simulated after its initialisation
+    window), so every held-out step is scored; held-out records (--val, or whole trajectories) from their
+    own first min(n, L/2) outputs."""
+    n = init_window(record) if n is None else n
     m = record.output_dim
     pairs = lambda a: (a[:, :m], a[:, m:])  # noqa: E731
     if record.split == "time":
         stretches = []
         for train, val in zip(record.train_parts, record.val_parts, strict=True):
-            init = min(INIT_WINDOW, len(train))
+            init = min(n, len(train))
             stretches.append((*pairs(np.concatenate([train[len(train) - init :], val])), init))
         return stretches
-    init = max(1, min(INIT_WINDOW, min(len(a) for a in record.val_parts) // 2))
+    init = max(1, min(n, min(len(a) for a in record.val_parts) // 2))
     return [(*pairs(a), init) for a in record.val_parts]
+
+
+def diverges_over_records(predictor, record: RecordedData, n: int) -> bool:
+    """Whether `predictor`'s free run over a whole given record, from its first n outputs to its end,
+    leaves the record's range (mop.records.divergence_step) on any record."""
+    for r in record.given.records:
+        init = min(n, len(r.y) - 1)
+        if divergence_step(r.y, simulate_all(predictor, [(r.y, r.u)], init)[0]) is not None:
+            return True
+    return False
 
 
 def _gains_apply(predictor) -> bool:
@@ -79,35 +110,80 @@ def _gains_apply(predictor) -> bool:
     return cfg is not None and getattr(cfg, "rls_order", 0) > 0 and getattr(cfg, "readout", "") == "mean"
 
 
-def select_against_arx(run_dir: str | Path, config: RunConfig, record: RecordedData) -> dict:
-    """Choose what the finished run in `run_dir` predicts with, by free-run simulation of its held-out data
-    (held_out_stretches): the network with its correction at each gain of mop.recipe.shrink.GAINS (1: as
-    trained; 0: its in-context feature alone), or `mop fit arx`'s ARX fitted on the training part. On
-    a tie the network at the larger gain is kept. Writes SELECTION_FILE; a gain below 1 is written into
-    the run's model.safetensors, and where the ARX wins the run also holds it refitted on the whole record
-    (fitted.json, as `mop fit arx` writes it). A run that already holds SELECTION_FILE keeps its choice.
+def _fit_linear(train: list, source: str) -> dict:
+    """{kind: the fitted model} of LINEAR on the training part; a kind that cannot be fitted there (a
+    record too short for N4SID's Hankel matrices) is left out."""
+    fitted = {}
+    for kind in LINEAR:
+        try:
+            fitted[kind] = fit(kind, train, source=source)
+        except MopError:
+            if kind == LINEAR[0]:
+                raise
+    return fitted
+
+
+def _at_gain(network, gain: float, action):
+    """action() with the network's correction scaled by `gain`, its read-out restored after."""
+    kept = {k: v.clone() for k, v in network.model.read_out.state_dict().items()}
+    try:
+        scale_correction(network.model, gain)
+        return action()
+    finally:
+        network.model.read_out.load_state_dict(kept)
+
+
+def select_against_linear(run_dir: str | Path, config: RunConfig, record: RecordedData) -> dict:
+    """Choose what the finished run in `run_dir` predicts with (see the module docstring): the network with
+    its correction at a gain of mop.recipe.shrink.GAINS, or a linear model of LINEAR fitted on the training
+    part, by free-run simulation of the held-out data after n measured outputs (init_window), passing over
+    a candidate whose free run over a whole record diverges. On a tie the network at the larger gain, then
+    the ARX, is kept. Writes SELECTION_FILE; a gain below 1 is written into the run's model.safetensors,
+    and where a linear model wins the run also holds it refitted on the whole record (fitted.json, as `mop
+    fit KIND` writes it). A run that already holds SELECTION_FILE keeps its choice.
     record: config.data's records in memory, split as it asks (mop.train.records.RecordedData)."""
     run_dir = Path(run_dir)
     done = run_dir / SELECTION_FILE
     if done.is_file():
         previous = json.loads(done.read_text())
-        if previous.get("format") == 2:
+        if previous.get("format") == 3:
             return previous
     m = record.output_dim
     train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
-    stretches = held_out_stretches(record)
-    arx = fit("arx", train, source=config.data.path)
+    n = init_window(record)
+    stretches = held_out_stretches(record, n)
+    linear = _fit_linear(train, config.data.path)
     network = load_predictor(run_dir)
+    network.model.eval()
     score = lambda: stretches_rmse(network, stretches)  # noqa: E731
     gains = GAINS if _gains_apply(network) else (1.0,)
     by_gain = gain_scores(network.model, score) if len(gains) > 1 else [score()]
-    gain = best_gain(by_gain) if len(gains) > 1 else 1.0
-    best_rmse = by_gain[gains.index(gain)]
-    arx_rmse = stretches_rmse(arx, stretches)
-    kept = "network" if best_rmse <= arx_rmse and math.isfinite(best_rmse) else "arx"
+    linear_rmse = {kind: stretches_rmse(model, stretches) for kind, model in linear.items()}
+    # candidates in order of preference on a tie: the network at the larger gain, then LINEAR's order
+    candidates = [("network", g, s) for g, s in sorted(zip(gains, by_gain, strict=True), reverse=True)]
+    candidates += [(kind, None, linear_rmse[kind]) for kind in linear]
+    ranked = sorted(range(len(candidates)), key=lambda i: (candidates[i][2], i))
+    passed_over = []
+    kept, gain = None, None
+    for i in ranked:
+        name, g, s = candidates[i]
+        if not math.isfinite(s):
+            break
+        model = linear.get(name)
+        diverged = (
+            _at_gain(network, g, lambda: diverges_over_records(network, record, n))
+            if name == "network"
+            else diverges_over_records(model, record, n)
+        )
+        if not diverged:
+            kept, gain = name, g
+            break
+        passed_over.append(name if g is None else f"network at gain {g:g}")
+    if kept is None:  # nothing simulates the records: the linear model with the best held-out score
+        kept = min(linear, key=lambda k: (linear_rmse[k], LINEAR.index(k)))
     fitted = run_dir / FITTED_FILE
-    if kept == "arx":
-        whole = fit("arx", list(record.given.records), source=config.data.path)
+    if kept != "network":
+        whole = fit(kept, list(record.given.records), source=config.data.path)
         write_json(fitted, {"format": 1, **whole.to_json()})
     else:
         fitted.unlink(missing_ok=True)
@@ -115,15 +191,16 @@ def select_against_arx(run_dir: str | Path, config: RunConfig, record: RecordedD
             scale_correction(network.model, gain)
             save_model(run_dir / "model.safetensors", network.model)
     result = {
-        "format": 2,
+        "format": 3,
         "held_out_steps": int(sum(len(y) - init for y, _, init in stretches)),
-        "init": int(stretches[0][2]),
+        "init": int(n),
         "gains": list(gains),
         "network_rmse_by_gain": by_gain,
         "gain": gain if kept == "network" else None,
         "network_rmse": by_gain[gains.index(1.0)],
-        "arx_rmse": arx_rmse,
-        "arx_orders": dict(arx.orders),
+        "linear_rmse": linear_rmse,
+        "linear_orders": {kind: dict(model.orders) for kind, model in linear.items()},
+        "passed_over": passed_over,
         "kept": kept,
     }
     write_json(done, result)
@@ -165,6 +242,15 @@ def training_time(run_dir: str | Path) -> str | None:
     return f"{last} steps, about {duration(seconds)}" if last else None
 
 
+def _linear_name(result: dict, kind: str) -> str:
+    """'ARX(7, 5)' / 'N4SID(4)': a fitted linear model of the selection with its orders."""
+    orders = result.get("linear_orders", {}).get(kind) or {}
+    if not orders:
+        return NAMES[kind]
+    shown = [str(v) if kind == ARX.kind else f"{k}={v}" for k, v in orders.items()]
+    return f"{NAMES[kind]}({', '.join(shown)})"
+
+
 def selection_line(result: dict, feature: str | None = None, trained: str | None = None) -> str:
     """One line for the user: the held-out simulation RMSEs and what the run keeps, in plain words.
 
@@ -172,15 +258,18 @@ def selection_line(result: dict, feature: str | None = None, trained: str | None
     least-squares fit on the training part"; default "its input feature"); trained: the training it took
     (e.g. "1875 steps, 1 min 02 s"). Where the best gain is 0 the network did not help: the line says the
     model is the feature alone and what training that was. Where the network is kept at a gain above 0 it
-    names the gain and the held-out scores (at that gain, at 1, of the feature alone and of the fitted ARX).
+    names the gain and the held-out scores (at that gain, at 1, of the feature alone and of the fitted linear
+    models). A candidate passed over because its free run over the whole record diverged is named.
     """
+    linear = ", ".join(f"fitted {_linear_name(result, k)} {v:.4g}" for k, v in result["linear_rmse"].items())
     both = (
         f"held-out simulation ({result['held_out_steps']} steps after {result['init']} measured): "
-        f"network RMSE {result['network_rmse']:.4g}, fitted ARX {result['arx_rmse']:.4g}"
+        f"network RMSE {result['network_rmse']:.4g}, {linear}"
     )
+    if result.get("passed_over"):
+        diverged = ", ".join(result["passed_over"])
+        both += f"; passed over as its free run over the whole record diverged: {diverged}"
     spent = f" ({trained} of training)" if trained else ""
-    orders = result.get("arx_orders") or {}
-    arx = f"ARX({orders['p']}, {orders.get('q', 0)})" if "p" in orders else "ARX"
     if result["kept"] == "network":
         gain = result.get("gain", 1.0)
         if gain == 1.0:
@@ -198,8 +287,9 @@ def selection_line(result: dict, feature: str | None = None, trained: str | None
             f"(RMSE {by_gain[gain]:.4g}; as trained, gain 1: {by_gain[1.0]:.4g}; its feature alone, gain 0: "
             f"{by_gain[0.0]:.4g}){spent}"
         )
+    kind = result["kept"]
     return (
-        f"{both}: the network does not beat the ARX, so the run keeps the fitted {arx} (fitted.json, as "
-        "`mop fit arx` "
-        f"writes it): `mop predict` and mop.load use it; the training{spent} did not improve on it"
+        f"{both}: the network does not beat the linear models, so the run keeps the fitted "
+        f"{_linear_name(result, kind)} (fitted.json, as `mop fit {kind}` writes it): `mop predict` and "
+        f"mop.load use it; the training{spent} did not improve on it"
     )
