@@ -275,6 +275,10 @@ class TrainConfig:
     missing_burst_length: int = 5  # steps of each burst (every channel missing)
     score_dropped: bool = False
     simulate_after: int = 0  # c > 0: y_s.. dropped and scored, s ~ U{c..T}: a simulation loss (data.py)
+    # c > 0: the loss is each window's free run after its first c outputs, the predictions fed back
+    # (mop.train.rollout_loss), for the last rollout_share of the steps; the steps before, one step ahead
+    rollout_after: int = 0
+    rollout_share: float = 1.0
     init: str = ""  # a run directory or pretrained:NAME whose weights step 0 starts from (mop.recipe.source)
     # True: model.safetensors holds the weights of the lowest validation loss, step 0's included (so a model
     # that starts as its feature ends no worse than it on the validation systems), not the last (loop.py)
@@ -313,6 +317,11 @@ class TrainConfig:
             check_int(f"train.{name}", getattr(self, name), 1)
         check_int("train.simulate_after", self.simulate_after, 0, self.horizon, " (at most train.horizon)")
         check_int("train.context_prefix", self.context_prefix, 0)
+        check_int("train.rollout_after", self.rollout_after, 0, self.horizon - 1, " (below train.horizon)")
+        check(
+            isinstance(self.rollout_share, (int, float)) and 0 < self.rollout_share <= 1,
+            f"train.rollout_share must be in (0, 1], got {self.rollout_share!r}",
+        )
         check(
             isinstance(self.context_prefix_share, (int, float)) and 0 < self.context_prefix_share <= 1,
             f"train.context_prefix_share must be in (0, 1], got {self.context_prefix_share!r}",

@@ -51,6 +51,7 @@ from mop.train.optim import (
     validation_loss,
 )
 from mop.train.records import TrainingRecords
+from mop.train.rollout_loss import RolloutLoss, check_rollout, rollout_start
 from mop.train.rundir import (
     MetricsLog,
     check_run_dir,
@@ -108,6 +109,7 @@ class TrainState:
     log: MetricsLog | None = None
     best: tuple[int, float] | None = None  # train.keep_best: (step, val_loss) of model.safetensors' weights
     hooks: TrainHooks = TrainHooks()
+    rollout_fn: nn.Module | None = None  # train.rollout_after: the simulation loss (mop.train.rollout_loss)
 
 
 def train(
@@ -250,11 +252,15 @@ def _start(
     if world > 1:
         dist.barrier()
     loss_fn = maybe_compile(LossModule(model), config.train, device)
+    check_rollout(config)
+    rollout_fn = RolloutLoss(model, config.train.rollout_after) if config.train.rollout_after else None
     if world > 1:
         loss_fn = nn.parallel.DistributedDataParallel(loss_fn)
+        rollout_fn = rollout_fn and nn.parallel.DistributedDataParallel(rollout_fn)
     state = TrainState(
         config, out_dir, device, model, loss_fn, optimizer, data, step, rank, world, hooks=hooks
     )
+    state.rollout_fn = rollout_fn
     if rank == 0:
         state.val = validation_batch(config, device, records)
         write_input_stats(out_dir, state.val[0])
@@ -362,9 +368,9 @@ def _step(state: TrainState) -> Tensor:
     batch = state.data.batch()  # (B, T, d_in), (B, T, m)[, fitted (B, d, m)]: the global batch
     b, r = cfg.batch_size // state.world, state.rank
     inputs, targets, *fitted = (a[r * b : (r + 1) * b] for a in batch)
-    return train_step(
-        state.model, state.loss_fn, state.optimizer, inputs, targets, cfg, state.device, *fitted
-    )
+    start = rollout_start(state.config)
+    loss_fn = state.rollout_fn if start is not None and state.step >= start else state.loss_fn
+    return train_step(state.model, loss_fn, state.optimizer, inputs, targets, cfg, state.device, *fitted)
 
 
 def _checkpoint(state: TrainState) -> None:
