@@ -11,6 +11,7 @@ Imports neither the trainer nor TensorBoard, so `mop.load` and `mop predict` sta
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import warnings
@@ -29,6 +30,8 @@ from mop.plugins import PLUGINS_FILE, import_plugin
 from mop.predictors import PREDICTORS, Predictor
 from mop.pretrained import resolve_run_dir
 from mop.systems import FAMILIES
+
+SELECTION_FILE = "selection.json"  # a records run's held-out choice (mop.recipe.selection)
 
 
 def retrain_hint(run_dir: str | os.PathLike) -> str:
@@ -112,10 +115,20 @@ def load_predictor(
     source = str(run_dir)
     run_dir = resolve_run_dir(run_dir)
     model, config = load_model(run_dir, device)
+    reading = chosen_reading(Path(run_dir))
+    if reading is not None and reading != model.cfg.forecast_mode:
+        model.cfg = dataclasses.replace(model.cfg, forecast_mode=reading)
     warn_if_unfinished(Path(run_dir), load_config(run_dir))
     name = predictor_names().get(config.arch, config.arch)  # the predictor its architecture registered
     norm, stats = load_normalization(run_dir), load_input_stats(run_dir)
     return LearnedPredictor(model, name=name, mode=mode, normalization=norm, input_stats=stats, source=source)
+
+
+def chosen_reading(run_dir: Path) -> str | None:
+    """The forecast_mode a records run's held-out check chose (SELECTION_FILE's "reading",
+    mop.recipe.selection), or None where it chose none."""
+    path = run_dir / SELECTION_FILE
+    return json.loads(path.read_text()).get("reading") if path.is_file() else None
 
 
 def warn_if_unfinished(run_dir: Path, config: RunConfig) -> None:

@@ -102,9 +102,10 @@ def test_a_network_that_cannot_beat_the_linear_models_ends_as_the_better_one_exa
     assert main(argv) == 0
     printed = capsys.readouterr().out
     chosen = json.loads((run / SELECTION_FILE).read_text())
-    kind = min(chosen["linear_rmse"], key=chosen["linear_rmse"].get)
-    assert chosen["kept"] == kind and chosen["linear_rmse"][kind] <= chosen["network_rmse"]
-    assert set(chosen["linear_rmse"]) == {"arx", "n4sid"}
+    linear = {k: v["score"] for k, v in chosen["linear_models"].items()}
+    kind = min(linear, key=linear.get)
+    assert chosen["kept"] == kind and linear[kind] <= chosen["network_rmse"]
+    assert set(linear) == {"arx", "n4sid"}
     assert f"keeps the fitted {kind.upper()}" in printed
     assert main(["fit", kind, str(rec), "--out", str(tmp_path / kind)]) == 0
     fitted = load_fitted(tmp_path / kind)
@@ -127,7 +128,8 @@ def test_a_network_that_beats_the_arx_is_kept(tmp_path, capsys):
     run = tmp_path / "run"
     assert main(["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=300"]) == 0
     chosen = json.loads((run / SELECTION_FILE).read_text())
-    assert chosen["kept"] == "network" and chosen["network_rmse"] < min(chosen["linear_rmse"].values())
+    best_linear = min(v["score"] for v in chosen["linear_models"].values())
+    assert chosen["kept"] == "network" and chosen["network_rmse"] < best_linear
     assert not (run / "fitted.json").exists()
     assert type(mop.load(run).predictor_).__name__ == "LearnedPredictor"
 
@@ -135,25 +137,28 @@ def test_a_network_that_beats_the_arx_is_kept(tmp_path, capsys):
 def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predicts(
     tmp_path, capsys, monkeypatch
 ):
-    """The same ruined network with the mean read-out, against the ARX alone: its correction's gains and the
-    ARX are scored on the held-out tail, the best is kept (never worse than the ARX), the scaled weights are
-    on disk, so loading the run simulates the held-out stretches at the recorded RMSE; asking again changes
+    """The same ruined network with the mean read-out, without the linear models: its readings and
+    correction's gains are scored, the best is kept, the scaled weights are on disk, so loading the run simulates the held-out stretches at the recorded RMSE; asking again changes
     nothing."""
-    monkeypatch.setattr(selection, "LINEAR", selection.LINEAR[:1])
+    monkeypatch.setattr(selection, "LINEAR", ())  # the network's readings and gains alone
     rec = arx_plant(tmp_path / "rec.csv")
     run = tmp_path / "run"
     argv = ["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=40", "train.lr=3"]
     assert main(argv) == 0
     chosen = json.loads((run / SELECTION_FILE).read_text())
-    assert list(chosen["linear_rmse"]) == ["arx"]
-    scores = chosen["network_rmse_by_gain"] + [chosen["linear_rmse"]["arx"]]
+    assert chosen["linear_models"] == {}
+    reading = load_config(run).model.forecast_mode
+    by_gain = [s["score"] for s in chosen["network"][reading]]
+    scores = [s["score"] for by in chosen["network"].values() for s in by]
     assert chosen["network_rmse"] > 2 * min(scores)  # the ruined correction at gain 1 is far off
-    assert chosen["kept"] == "network" and chosen["passed_over"] == []  # its feature alone ties the ARX
-    kept = scores[chosen["gains"].index(chosen["gain"])]
-    assert kept == min(scores)
+    assert chosen["kept"] == "network"
+    kept = chosen["network"][chosen["reading"]][chosen["gains"].index(chosen["gain"])]
+    assert kept["score"] == min(scores) and by_gain[-1] == chosen["network_rmse"]
     config = load_config(run)
-    stretches = held_out_stretches(recorded_data(config.data))
-    assert stretches_rmse(mop.load(run), stretches) == pytest.approx(kept, rel=1e-6)
+    record = recorded_data(config.data)
+    n = selection.init_window(record)
+    stretches = held_out_stretches(record, n)
+    assert stretches_rmse(mop.load(run), stretches) == pytest.approx(kept["held_out"], rel=1e-6)
     weights = (run / "model.safetensors").read_bytes()
     assert select_against_linear(run, config, recorded_data(config.data)) == chosen
     assert (run / "model.safetensors").read_bytes() == weights

@@ -68,7 +68,8 @@ def test_a_fine_tunes_feature_alone_is_the_fitted_arx_it_names(tmp_path):
     )
     assert f"ARX({P}, {Q}) with an intercept" in feature_line(fitted.config)
     assert "fixed at its least-squares fit on the training part" in feature_line(fitted.config)
-    gain0 = fitted.selection["network_rmse_by_gain"][fitted.selection["gains"].index(0.0)]
+    reading = fitted.config.model.forecast_mode
+    gain0 = fitted.selection["network"][reading][fitted.selection["gains"].index(0.0)]["held_out"]
     assert gain0 == pytest.approx(arx_held_out_rmse(y, u), rel=2e-3)
     kept = fitted.selection["kept"]
     said = {"arx": "keeps the fitted ARX", "n4sid": "keeps the fitted N4SID"}.get(kept, "keeps the network")

@@ -70,4 +70,4 @@ def test_mop_train_prints_what_fit_record_announces(tmp_path, capsys):
     assert untimed(printed[:-1]) == untimed(lines)  # the command adds the run directory's line
     assert printed[-1].startswith(f"run directory: {tmp_path / 'cli'}")
     assert run.selection == json.loads((run.run_dir / "selection.json").read_text())
-    assert any(line.startswith("data ") for line in lines) and lines[-1].startswith("held-out simulation")
+    assert any(line.startswith("data ") for line in lines) and lines[-1].startswith("held-out check")

@@ -194,6 +194,6 @@ def test_learned_says_what_the_held_out_check_kept(records, capsys):
     est = plant(1200, 5)
     model = Learned(progress=True, train__steps=3).fit(est)
     err = capsys.readouterr().err
-    assert "Learned: held-out simulation" in err and model.selection_["kept"] in ("network", "arx", "n4sid")
+    assert "Learned: held-out check" in err and model.selection_["kept"] in ("network", "arx", "n4sid")
     Learned(progress=False, train__steps=3).fit(est)
     assert "Learned:" not in capsys.readouterr().err

@@ -1,9 +1,9 @@
 """The records run's held-out check (mop.recipe.selection) against what a test of the record could surprise
-it with: the test's initialization window, a free run as long as the record, and the better of the two
-linear models `mop fit arx` and `mop fit n4sid`."""
+it with: the test's initialization window, a free run as long as the record, the better of the two linear
+models `mop fit arx` and `mop fit n4sid`, and the network's other reading; what it keeps is what loads."""
 
 import dataclasses
-import shutil
+import math
 
 import numpy as np
 import pytest
@@ -13,13 +13,14 @@ from mop.config import DataConfig
 from mop.identify.select import fit
 from mop.recipe import selection
 from mop.recipe.fit import fit_record
-from mop.recipe.layers import scratch_config
-from mop.recipe.training import train
 from mop.record import Record
 from mop.records import simulate_all
+from mop.runs import load_config
 from mop.train.records import TrainingRecords
 
 pytestmark = pytest.mark.usefixtures("one_thread")
+# a records run trained for simulation: each window's outputs from a random step s >= 10 read as missing
+SIMULATION = ["model.observation_mask=true", "model.forecast_mode=gap", "train.simulate_after=10"]
 
 
 def output_error_plant(steps: int = 1500, seed: int = 0, noise: float = 0.8) -> Record:
@@ -51,56 +52,64 @@ def test_the_held_out_check_starts_from_the_records_init_window():
     assert selection.init_window(plain) == selection.INIT_WINDOW == selection.held_out_stretches(plain)[0][2]
 
 
-def test_a_free_run_that_leaves_the_record_over_its_length_diverges():
-    record = output_error_plant(600)
+def test_the_long_run_covers_the_records_end_and_scores_a_slow_divergence_the_held_out_tail_misses():
+    record = output_error_plant(1000)
     split = TrainingRecords((record,)).split(DataConfig(path="oe"))
+    ((y, u, init),) = selection.long_run_stretches(split, 50)
+    assert init == 50 and len(y) == 1000 and np.array_equal(y, record.y) and np.array_equal(u, record.u)
+    long = TrainingRecords((output_error_plant(5000),)).split(DataConfig(path="oe"))
+    ((y, _, _),) = selection.long_run_stretches(long, 50)
+    assert len(y) == selection.LONG_RUN  # capped: the record's last LONG_RUN steps
     arx = fit("arx", [(record.y, record.u)])
-    assert not selection.diverges_over_records(arx, split, 50)
-    grow = 1.02 / arx.info["pole_radius"]  # its slowest mode grows 2% a step
+    grow = 1.01 / arx.info["pole_radius"]  # its slowest mode grows 1% a step
     unstable = dataclasses.replace(arx, model=dataclasses.replace(arx.model, A=grow * arx.model.A))
-    sim = simulate_all(unstable, [(record.y, record.u)], 50)[0]
-    assert np.abs(sim[:50]).max() < 5 * np.abs(record.y).max()  # in range over a held-out tail's first steps
-    assert selection.diverges_over_records(unstable, split, 50)
+    held_out, long_run = selection.held_out_stretches(split, 50), selection.long_run_stretches(split, 50)
+    scores = selection._scores(unstable, held_out, long_run)
+    assert math.isfinite(scores["held_out"]) and scores["long_run"] == math.inf == scores["score"]
+    steady = selection._scores(arx, held_out, long_run)
+    assert steady["score"] == pytest.approx((steady["held_out"] + steady["long_run"]) / 2)
 
 
-def test_n4sid_is_kept_where_it_simulates_the_held_out_data_better_than_the_arx(tmp_path):
+def test_n4sid_is_kept_where_it_simulates_the_record_better_than_the_arx(tmp_path):
     """A ruined network (learning rate 3, a Gaussian read-out: no gain to scale) on an output-error plant:
-    the run keeps the fitted N4SID, which simulates the held-out tail better than the fitted ARX, and
-    predicts exactly what `mop fit n4sid` fitted on the whole record predicts."""
+    the run keeps the fitted N4SID, which scores better than the fitted ARX, and predicts exactly what
+    `mop fit n4sid` fitted on the whole record predicts."""
     record = output_error_plant()
     records = TrainingRecords((record,), source="oe")
     over = ["train.steps=30", "train.lr=3", "model.readout=gaussian"]
-    run = fit_record(tmp_path / "run", records, overrides=over, progress=False)
-    chosen = run.selection
-    assert chosen["linear_rmse"]["n4sid"] < chosen["linear_rmse"]["arx"] and chosen["kept"] == "n4sid"
+    chosen = fit_record(tmp_path / "run", records, overrides=over, progress=False).selection
+    assert (
+        chosen["linear_models"]["n4sid"]["score"] < chosen["linear_models"]["arx"]["score"]
+        and chosen["kept"] == "n4sid"
+    )
     loaded, refit = mop.load(tmp_path / "run"), fit("n4sid", [record], source="oe")
     data = [(record.y, record.u)]
     np.testing.assert_array_equal(simulate_all(loaded, data, 50)[0], simulate_all(refit, data, 50)[0])
 
 
-def test_a_candidate_whose_free_run_over_the_record_diverges_is_passed_over(tmp_path, monkeypatch):
-    """The held-out ranking is followed down to the first candidate whose free run over the whole record
-    stays in range: where every reading of the network leaves it, a linear model is kept, and the line says
-    which were passed over."""
-    given = TrainingRecords((cubic_plant(),))
-    config, records, record = scratch_config(None, None, given, ["train.steps=150"], None)
-    trained = train(config, tmp_path / "plain", progress=False, records=records)
-    shutil.copytree(trained, tmp_path / "run")
-    plain = selection.select_against_linear(trained, config, record)
-    assert plain["kept"] == "network" and plain["passed_over"] == []
-    checked = []
-
-    def network_diverges(predictor, record, n):
-        checked.append(type(predictor).__name__)
-        return type(predictor).__name__ == "LearnedPredictor"
-
-    monkeypatch.setattr(selection, "diverges_over_records", network_diverges)
-    chosen = selection.select_against_linear(tmp_path / "run", config, record)
-    best_linear = min(chosen["linear_rmse"].values())
-    assert chosen["kept"] in ("arx", "n4sid") and chosen["linear_rmse"][chosen["kept"]] == best_linear
-    ahead = [
-        g for g, s in zip(chosen["gains"], chosen["network_rmse_by_gain"], strict=True) if s <= best_linear
-    ]
-    assert ahead and chosen["passed_over"] == [f"network at gain {g:g}" for g in sorted(ahead, reverse=True)]
-    assert checked.count("LearnedPredictor") == len(ahead)
-    assert "whole record diverged: network at gain" in selection.selection_line(chosen)
+def test_a_run_trained_for_simulation_is_scored_in_both_readings_and_loads_the_kept_one(tmp_path):
+    """The records recipe trained for simulation (SIMULATION, read as gaps): the check scores the
+    network reading its simulated outputs as missing and feeding its predictions back, at every gain; the
+    lowest mean score is kept, and the loaded run simulates the held-out data and the long run at exactly
+    that score, in that reading."""
+    records = TrainingRecords((cubic_plant(800),), source="cubic")
+    over = ["train.steps=150", *SIMULATION]
+    run = fit_record(tmp_path / "run", records, overrides=over, progress=False)
+    config, chosen = load_config(run.run_dir), run.selection
+    assert config.train.simulate_after > 0 and config.model.forecast_mode == "gap"
+    assert set(chosen["network"]) == {"gap", "rollout"}
+    scores = {
+        (r, g): s["score"]
+        for r, by in chosen["network"].items()
+        for g, s in zip(chosen["gains"], by, strict=True)
+    }
+    scores.update({(k, None): s["score"] for k, s in chosen["linear_models"].items()})
+    best = min(scores.values())
+    assert chosen["kept"] == "network" and scores[(chosen["reading"], chosen["gain"])] == best
+    loaded = mop.load(run.run_dir)
+    assert loaded.predictor_.cfg.forecast_mode == chosen["reading"]
+    record = TrainingRecords((cubic_plant(800),)).split(config.data)
+    n = selection.init_window(record)
+    held_out, long_run = selection.held_out_stretches(record, n), selection.long_run_stretches(record, n)
+    assert selection._scores(loaded, held_out, long_run)["score"] == pytest.approx(best, rel=1e-6)
+    assert "held-out check (mean RMSE" in selection.selection_line(chosen)

@@ -12,18 +12,20 @@ FEATURE = "the ARX(40, 40) with an intercept fixed at its least-squares fit on t
 
 
 def result(kept: str, gain: float | None) -> dict:
+    scores = [0.0111, 0.0112, 0.0113, 0.0114, 0.0115]
     return {
-        "format": 3,
+        "format": 4,
         "held_out_steps": 600,
+        "long_run_steps": 2000,
         "init": 50,
         "gains": [0.0, 0.25, 0.5, 0.75, 1.0],
-        "network_rmse_by_gain": [0.0111, 0.0112, 0.0113, 0.0114, 0.0115],
-        "gain": gain,
+        "network": {"gap": [{"score": v} for v in scores], "rollout": [{"score": 2 * v} for v in scores]},
         "network_rmse": 0.0115,
-        "linear_rmse": {"arx": 0.0120, "n4sid": 0.0130},
+        "linear_models": {"arx": {"score": 0.0120}, "n4sid": {"score": 0.0130}},
         "linear_orders": {"arx": {"p": 7, "q": 5}, "n4sid": {"n": 4}},
-        "passed_over": [],
         "kept": kept,
+        "reading": "gap" if kept == "network" else None,
+        "gain": gain,
     }
 
 
@@ -31,7 +33,7 @@ def test_gain_zero_says_the_network_did_not_help_and_names_the_feature_and_the_t
     line = selection_line(result("network", 0.0), FEATURE, "1875 steps, about 2 min 31 s")
     assert "the network's correction did not help" in line
     assert f"the run's model is its feature alone, {FEATURE}" in line
-    assert "RMSE 0.0111" in line and "1875 steps, about 2 min 31 s of training" in line
+    assert "gain 0, 0.0111" in line and "1875 steps, about 2 min 31 s of training" in line
     assert "keeps the network" not in line
 
 
@@ -52,9 +54,11 @@ def test_a_kept_linear_model_says_which():
     )
 
 
-def test_a_candidate_passed_over_for_its_divergence_is_named():
-    diverged = {**result("network", 0.5), "passed_over": ["network at gain 1"]}
-    assert "whole record diverged: network at gain 1" in selection_line(diverged)
+def test_the_reading_kept_is_named():
+    line = selection_line(result("network", 0.5))
+    assert "reading its simulated outputs as missing" in line
+    fed_back = {**result("network", 1.0), "reading": "rollout"}
+    assert "keeps the network as trained, feeding its predictions back as outputs" in selection_line(fed_back)
 
 
 def test_the_feature_and_the_training_time_in_words(tmp_path):

@@ -99,12 +99,12 @@ def test_fine_tunes_choose_their_gain_on_held_out_data_unless_shrink_is_asked_fo
     assert not training_config(None, data=data, init=SOURCE).train.shrink_correction
     fine_tune(tmp_path, data, "held")
     choice = json.loads((tmp_path / "held" / "selection.json").read_text())
-    scored = choice["network_rmse_by_gain"]
+    scored = [s["score"] for s in choice["network"][choice["reading"] or next(iter(choice["network"]))]]
     if choice["kept"] == "network":
-        best_linear = min(choice["linear_rmse"].values())
+        best_linear = min(v["score"] for v in choice["linear_models"].values())
         assert choice["gain"] == choice["gains"][int(np.argmin(scored))] and min(scored) <= best_linear
     else:
-        assert choice["linear_rmse"][choice["kept"]] < min(scored)
+        assert choice["linear_models"][choice["kept"]]["score"] < min(scored)
     assert "held-out simulation" in capsys.readouterr().out
     fine_tune(tmp_path, data, "whole", "train.shrink_correction=true")
     assert (tmp_path / "whole" / SHRINK_FILE).is_file() and not (

@@ -148,10 +148,8 @@ def with_recorded_features(
         return config
     if record.input_dim == 0 or record.num_missing:
         return config
-    settings = plan_records(
-        record.training_part, config, budget, cubes="model.rls_cubes" not in named
-    ).settings()
-    return apply_settings(config, settings)
+    plan = plan_records(record.training_part, config, budget, cubes="model.rls_cubes" not in named)
+    return apply_settings(config, plan.settings())
 
 
 def feature_line(config: RunConfig) -> str | None:

@@ -19,8 +19,6 @@ train.rollout_share trains that share of the steps on it (the last ones), the ot
 
 from __future__ import annotations
 
-import inspect
-
 import torch
 from torch import Tensor, nn
 
@@ -35,7 +33,8 @@ def rollout_predictions(model: nn.Module, inputs: Tensor, measured: int, output_
     T = inputs.shape[1]
     if not 1 <= measured <= T:
         raise MopError(f"train.rollout_after must be in [1, train.horizon = {T}], got {measured}")
-    last = "last" in inspect.signature(model.forward).parameters  # the last position only (the transformer)
+    # a context-limited model (the transformer) computes the last position only on request
+    last = getattr(model, "context_limited", False)
     z = inputs[:, :measured]
     predictions = []
     for t in range(measured, T + 1):
