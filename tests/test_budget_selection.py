@@ -138,8 +138,8 @@ def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predi
     tmp_path, capsys, monkeypatch
 ):
     """The same ruined network with the mean read-out, without the linear models: its readings and
-    correction's gains are scored, the best is kept, the scaled weights are on disk, so loading the run simulates the held-out stretches at the recorded RMSE; asking again changes
-    nothing."""
+    correction's gains are scored, the best is kept, the scaled weights are on disk, so loading the run
+    simulates the held-out stretches at the recorded RMSE; asking again changes nothing."""
     monkeypatch.setattr(selection, "LINEAR", ())  # the network's readings and gains alone
     rec = arx_plant(tmp_path / "rec.csv")
     run = tmp_path / "run"
