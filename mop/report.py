@@ -175,4 +175,4 @@ def simulation_cell(r: dict) -> str:
     finite numbers (their mean is then inf), else the mean over systems."""
     if r.get("diverged_systems"):
         return f"diverged ({r['diverged_systems']} systems)"
-    return rmse_cell(r["simulation_rmse"])
+    return f"{r['simulation_rmse']:.4g}"  # as rmse_cell
