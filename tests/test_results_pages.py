@@ -12,7 +12,7 @@ from mop.benchmarks.pages import expected, render, rewrite, tables
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
 # the pages whose every table comes from results files
-GENERATED = ["benchmarks.md", "paper.md", "class-models.md"]
+GENERATED = ["benchmarks.md", "paper.md", "families.md", "class-models.md"]
 
 
 @pytest.mark.parametrize("page", GENERATED)
