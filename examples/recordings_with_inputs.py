@@ -22,7 +22,7 @@ simulation.
 
 Budgets: smoke (seconds; a tiny model trained for 30 steps, for the test suite: its MOP numbers mean little)
 and full (2 layers of width 64, 4000 training recordings, 1500 steps; docs/results/families.md has its
-numbers and time).
+numbers).
 """
 
 from __future__ import annotations

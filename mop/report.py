@@ -74,10 +74,10 @@ def ratio(summary: dict, name: str, window_start: int) -> dict | None:
     return None
 
 
-def cell(value: float | None, digits: int = 4) -> str:
-    """A table cell: value to `digits` decimals, "-" where it is missing (a column added after the numbers
-    were written)."""
-    return "-" if value is None else f"{value:.{digits}f}"
+def rmse_cell(value: float | None) -> str:
+    """An RMSE for a table: 4 significant digits (an exact class's errors are near 1e-5, which 4 decimals
+    would show as 0.0000), "-" where it is missing (a column added after the numbers were written)."""
+    return "-" if value is None else f"{value:.4g}"
 
 
 def claim_line(claim: str, evidence: str, holds: bool | None) -> str:
@@ -175,4 +175,4 @@ def simulation_cell(r: dict) -> str:
     finite numbers (their mean is then inf), else the mean over systems."""
     if r.get("diverged_systems"):
         return f"diverged ({r['diverged_systems']} systems)"
-    return f"{r['simulation_rmse']:.4f}"
+    return f"{r['simulation_rmse']:.4g}"  # as rmse_cell

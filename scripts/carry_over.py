@@ -2,12 +2,13 @@
 and one validation record of 1024 steps, `mop fit arx` and `mop train --init SOURCE` (one fine-tune per
 training seed) on the estimation record, then `mop predict RUN val.csv --simulate C` from several starts
 C; prints the simulation RMSE over the simulated steps per plant, predictor and start, and writes them to
-OUT/carry.json. The carry-over table of docs/results/class-models.md is its output.
+OUT/carry.json; with --report FILE also a markdown table of their means over plants and starts with its
+provenance (the carry-over tables of docs/results/class-models.md are those files').
 
     python scripts/carry_over.py cascaded-tanks pretrained:cascaded-tanks OUT [--plants 1,5,3]
     python scripts/carry_over.py wiener-hammerstein pretrained:wiener-hammerstein OUT [--plants 1,2,3]
         [--seeds 0,1] [--starts 0,50,200] [--with zero-shot,scratch,n4sid,arx-best,last,source-orders]
-        [key=value ...]
+        [--report FILE] [key=value ...]
         (key=value: overrides of the fine-tune)
 
 --with adds predictors beside the fitted ARX and the fine-tunes: `zero-shot` (SOURCE on val.csv as it is),
@@ -29,12 +30,14 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from mop.cli import main as mop
+from mop.commands.benchmark import provenance, provenance_line
 from mop.config import SystemConfig
 from mop.records import scores
 from mop.runs import load_config
@@ -67,6 +70,42 @@ def run(argv: list[str]) -> None:
         raise SystemExit(f"mop {argv[0]} failed")
 
 
+LABELS = {  # carry.json's predictor keys as the report names them (a trailing seed follows)
+    "arx": "fitted ARX (`mop fit arx`)",
+    "n4sid": "fitted N4SID (`mop fit n4sid`)",
+    "zero-shot": "the class model as it is",
+    "ft": "fine-tuned (`mop train --init {source}`), seed ",
+    "fts": "fine-tuned with the source's orders, seed ",
+    "scratch": "from scratch (`mop train --data`), seed ",
+}
+
+
+def report(results: dict[int, dict[str, list[float]]], args: argparse.Namespace) -> str:
+    """One markdown table: per predictor the mean simulation RMSE over plants and starts, and how many of its
+    simulations are below the fitted ARX's on the same plant and start."""
+    names = list(next(iter(results.values())))
+    total = sum(len(row["arx"]) for row in results.values())
+    lines = [
+        f"# Carry-over of {args.source} to single {args.family} plants",
+        "",
+        provenance_line(provenance(sys.argv[1:], program="python scripts/carry_over.py")),
+        "",
+        f"Plants {args.plants}, simulations from steps {args.starts} of the validation record ({total} per "
+        "predictor); simulation RMSE over the simulated steps.",
+        "",
+        "| predictor | mean simulation RMSE | simulations below the fitted ARX's |",
+        "|---|---|---|",
+    ]
+    for name in names:
+        runs = [pair for row in results.values() for pair in zip(row[name], row["arx"], strict=True)]
+        mean = float(np.mean([rmse for rmse, _ in runs]))
+        below = "-" if name == "arx" else f"{sum(rmse < arx for rmse, arx in runs)} of {len(runs)}"
+        stem = name.rstrip("0123456789")
+        label = LABELS.get(stem, f"`{stem}`").format(source=args.source) + name[len(stem) :]
+        lines.append(f"| {label} | {mean:.4g} | {below} |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("family")
@@ -78,6 +117,7 @@ def main() -> None:
     parser.add_argument(
         "--with", dest="extra", default="", help="zero-shot,scratch,n4sid,arx-best,last,source-orders"
     )
+    parser.add_argument("--report", type=Path, default=None, help="also write the table as markdown here")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args()
     torch.set_num_threads(1)
@@ -127,6 +167,8 @@ def main() -> None:
         results[plant] = row
         print(f"plant {plant}, from steps {starts}: {row}", flush=True)
     (args.out / "carry.json").write_text(json.dumps(results, indent=1))
+    if args.report is not None:
+        args.report.write_text(report(results, args))
 
 
 if __name__ == "__main__":

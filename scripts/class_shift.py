@@ -1,9 +1,10 @@
 """Zero-shot class models on their own class and on neighbouring ones (distribution shift): every shipped SISO
 class model, in context, on held-out systems of every class, beside the least-squares ARX, `arx-best`, `last`
-and the filter that knows each system. Prints one table per data set and writes OUT/shift.json; the table
-"On other classes" of docs/results/class-models.md is its output.
+and the filter that knows each system. Prints one table per data set and writes OUT/shift.json; with
+--report FILE also one markdown table of them all with its provenance (the table "On other classes" of
+docs/results/class-models.md is that file's).
 
-    python scripts/class_shift.py OUT [--systems 100] [--seed 2026]
+    python scripts/class_shift.py OUT [--systems 100] [--seed 2026] [--report FILE]
 
 Each data set is `mop simulate FAMILY --systems N --horizon 499 --seed S` (500 steps, systems no model trained
 on); each predictor runs as `mop predict P data.npz` (one step ahead) and `mop predict P data.npz --simulate
@@ -15,12 +16,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from mop.cli import main as mop
+from mop.commands.benchmark import provenance, provenance_line
 
 CONTEXT = 400
 HORIZON = 499
@@ -49,11 +52,37 @@ def rmse(y: np.ndarray, yhat: np.ndarray) -> float:
     return float(np.sqrt(np.nanmean((y - yhat) ** 2, axis=(1, 2))).mean())
 
 
+def report(results: dict[str, dict[str, dict[str, float]]], systems: int) -> str:
+    """One markdown table: a row per data set, a column per predictor ("one-step / simulation"), the filter
+    that knows each system last (named in its cell)."""
+    names = [*MODELS, *BASELINES]
+    head = ["data", *(f"`{n}`" for n in names), "the filter that knows each system"]
+    lines = [
+        f"# Class models on their own and neighbouring classes ({systems} systems each)",
+        "",
+        provenance_line(provenance(sys.argv[1:], program="python scripts/class_shift.py")),
+        "",
+        f"Each system's RMSE, averaged: one step ahead over t >= {ONE_STEP_FROM} / simulation of "
+        f"y_{CONTEXT}..y_{HORIZON} after {CONTEXT} outputs.",
+        "",
+        "| " + " | ".join(head) + " |",
+        "|---" * len(head) + "|",
+    ]
+    for name, rows in results.items():
+        cells = [f"{rows[n]['one_step']:.3g} / {rows[n]['simulation']:.3g}" for n in names]
+        knowing = next(n for n in rows if n not in names)
+        r = rows[knowing]
+        cells.append(f"{r['one_step']:.3g} / {r['simulation']:.3g} (`{knowing}`)")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path)
     parser.add_argument("--systems", type=int, default=100)
     parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--report", type=Path, default=None, help="also write the table as markdown here")
     args = parser.parse_args()
     torch.set_num_threads(1)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -79,6 +108,8 @@ def main() -> None:
         for predictor, r in rows.items():
             print(f"  {predictor:32s} {r['one_step']:.4g} / {r['simulation']:.4g}", flush=True)
     (args.out / "shift.json").write_text(json.dumps(results, indent=1))
+    if args.report is not None:
+        args.report.write_text(report(results, args.systems))
 
 
 if __name__ == "__main__":

@@ -2,9 +2,11 @@
 context (its estimation record), the next --test steps the test record, simulated from its first --init
 outputs (mop.incontext). Prints, per model, the mean and median over systems of the free-run RMSE divided
 by the test's output std for the readings "fit gain 0" (the least-squares ARX / NARX of the context alone),
-"fit gain 1" (the model as trained) and the reading mop chooses on the context's held-out end.
+"fit gain 1" (the model as trained) and the reading mop chooses on the context's held-out end; with --report
+FILE also writes them as one markdown table with its provenance.
 
     python scripts/in_context_class.py FAMILY_MODEL MODEL [MODEL ...] [--systems 40] [--seed 2024]
+        [--report FILE]
 
 FAMILY_MODEL names the model (a run directory or pretrained:NAME) whose system section draws the systems.
 """
@@ -13,14 +15,38 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from mop.commands.benchmark import provenance, provenance_line
 from mop.incontext import _read, simulate_with_context
 from mop.record import Record
 from mop.runs import load_config, load_predictor
 from mop.systems import generator, make_family
+
+
+def report(summaries: list[dict], args: argparse.Namespace) -> str:
+    """The summaries as one markdown table: a row per model, "mean (median)" per reading."""
+    lines = [
+        f"# Class models with an estimation record as context ({args.systems} systems)",
+        "",
+        provenance_line(provenance(sys.argv[1:], program="python scripts/in_context_class.py")),
+        "",
+        f"Each system's first {args.estimation} steps are the context, the next {args.test} the test, "
+        f"simulated from its first {args.init} outputs; free-run RMSE over the test's output std, mean "
+        "(median) over systems.",
+        "",
+        "| model | fit gain 0 | fit gain 1 | the reading mop chooses | gain 1 below gain 0 |",
+        "|---|---|---|---|---|",
+    ]
+    for s in summaries:
+        cells = [f"{s[k]['mean']:.3f} ({s[k]['median']:.3f})" for k in ("fit gain 0", "fit gain 1", "chosen")]
+        below = f"{s['gain 1 / gain 0']['below 1']} of {s['systems']}"
+        lines.append(f"| `{s['model']}` | " + " | ".join(cells) + f" | {below} |")
+    return "\n".join(lines) + "\n"
 
 
 def main() -> None:
@@ -32,6 +58,7 @@ def main() -> None:
     parser.add_argument("--test", type=int, default=1000)
     parser.add_argument("--init", type=int, default=50)
     parser.add_argument("--seed", type=int, default=2024)
+    parser.add_argument("--report", type=Path, default=None, help="also write the table as markdown here")
     args = parser.parse_args()
     torch.set_num_threads(1)
     family = make_family(load_config(args.family_model).system)
@@ -40,6 +67,7 @@ def main() -> None:
     records = [
         Record(y=traj.y[b].double().numpy(), u=traj.u[b].double().numpy()) for b in range(args.systems)
     ]
+    summaries = []
     for path in args.models:
         predictor = load_predictor(path)
         scores: dict[str, list[float]] = {"fit gain 0": [], "fit gain 1": [], "chosen": []}
@@ -61,7 +89,10 @@ def main() -> None:
             "median": round(float(np.median(ratio)), 4),
             "below 1": int((ratio < 1).sum()),
         }
-        print(json.dumps({"model": path, "systems": args.systems, **summary}), flush=True)
+        summaries.append({"model": path, "systems": args.systems, **summary})
+        print(json.dumps(summaries[-1]), flush=True)
+    if args.report is not None:
+        args.report.write_text(report(summaries, args))
 
 
 if __name__ == "__main__":

@@ -11,7 +11,9 @@ import mop.pretrained as pretrained
 from mop.config import DataConfig, ModelConfig, RunConfig, TrainConfig, from_dict, to_dict
 from mop.experiments import get_experiment, run_config
 from mop.experiments.planning import config_hash
+from mop.experiments.pretrained_build import training_config
 from mop.pretrained import find_shipped
+from mop.pretrained.catalog import catalog_entry
 from mop.runs import load_config
 from mop.systems import FAMILIES
 from mop.train.rundir import check_run_dir
@@ -58,6 +60,15 @@ def test_shipped_models_keep_their_identity_and_are_found_with_a_new_field(name)
     assert json.loads(json.dumps(to_dict(new))) == saved
     assert find_shipped(to_dict(new)) is not None
     check_run_dir(pretrained.ROOT / name, new)  # MopError if it saw another config
+
+
+@pytest.mark.parametrize("name", pretrained.shipped_names())
+def test_reproduce_pretrained_finds_the_model_its_experiment_built(name):
+    """`mop reproduce EXPERIMENT --pretrained` evaluates the model the catalog says EXPERIMENT built, also
+    where another shipped model shares its class (duffing and its records start)."""
+    entry = catalog_entry(name)
+    config = training_config(entry)
+    assert find_shipped(to_dict(config), experiment=entry.experiment) == f"pretrained:{name}"
 
 
 def test_reproduce_linear_pretrained_finds_the_shipped_model_with_a_new_system_field():

@@ -372,9 +372,10 @@ def _report(runs: dict, args, budget: float) -> str:
 PROVENANCE = "provenance"  # results.json's key of what produced it (never a benchmark's name)
 
 
-def provenance(argv: list[str]) -> dict[str, str]:
-    """What produced a results file: the command line, mop's commit (where run from a git checkout), the
-    machine and the date, so a results page can name them."""
+def provenance(argv: list[str], program: str = "mop") -> dict[str, str]:
+    """What produced a results file: the command line (`program` and argv: a script passes its own path),
+    mop's commit (where run from a git checkout), the machine and the date, so a results page can name
+    them."""
     import platform
     import shlex
     import subprocess
@@ -391,11 +392,19 @@ def provenance(argv: list[str]) -> dict[str, str]:
     except (OSError, subprocess.SubprocessError):
         commit = ""
     return {
-        "command": "mop " + shlex.join(argv),
+        "command": f"{program} {shlex.join(argv)}",
         "commit": commit or "unknown",
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}",
         "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
     }
+
+
+def provenance_line(record: dict[str, str]) -> str:
+    """A provenance (see `provenance`) as one markdown line, for a report a script writes beside its table."""
+    return (
+        f"Written by `{record['command']}` at commit {record['commit']} on {record['machine']}, "
+        f"{record['date']}."
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -25,7 +25,7 @@ from mop.filters.kalman import expected_norm, optimal_covariances
 from mop.metrics import coverage, gaussian_nll, loglog_slope, matrix_power_ratio, window_mean
 from mop.predictors import Predictor, first_learned, forecast, simulate
 from mop.registry import Registry
-from mop.report import cell, forecast_markdown, simulation_cell
+from mop.report import forecast_markdown, rmse_cell, simulation_cell
 from mop.systems.base import require_params
 
 ANALYSES: Registry = Registry(
@@ -304,8 +304,8 @@ def _simulation_table(extras: dict) -> str:
     )
     rows = []
     for n, r in rmse.items():
-        record = cell(r.get("one_step_rmse_record"))  # absent from results written before it
-        rows.append(f"| {n} | {r['one_step_rmse']:.4f} | {simulation_cell(r)} | {record} |\n")
+        record = rmse_cell(r.get("one_step_rmse_record"))  # absent from results written before it
+        rows.append(f"| {n} | {rmse_cell(r['one_step_rmse'])} | {simulation_cell(r)} | {record} |\n")
     return head + "".join(rows)
 
 

@@ -86,7 +86,7 @@ def given_run(session: Session, name: str, condition: Condition, trained: RunCon
     if given or not session.pretrained:
         return given
     config = _with_arch(trained, name)
-    found = find_shipped(to_dict(config))
+    found = find_shipped(to_dict(config), experiment=session.exp.name)
     if found is None:
         shipped = ", ".join(shipped_names()) or "none"
         raise NoPretrainedModel(

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from mop.errors import MopError, NoPretrainedModel
+from mop.pretrained.catalog import CATALOG
 
 PREFIX = "pretrained:"
 ROOT = Path(__file__).resolve().parent
@@ -126,12 +127,15 @@ def fitting_hint(outputs: int, inputs: int) -> str:
     )
 
 
-def find_shipped(config: dict[str, Any], root: Path | None = None) -> str | None:
+def find_shipped(config: dict[str, Any], root: Path | None = None, experiment: str = "") -> str | None:
     """`pretrained:NAME` of a shipped model trained on the data distribution of `config` (a RunConfig as a
-    dict: the same system config, model architecture and read-out, no recorded data), else None."""
+    dict: the same system config, model architecture and read-out, no recorded data), else None. Where
+    several are (pretrained:duffing and its records start share a class), the one the catalog says
+    `experiment` built comes first."""
     root = ROOT if root is None else root
     if config.get("data") is not None:
         return None
+    found = []
     for name in shipped_names(root):
         try:
             saved = json.loads((root / name / "config.json").read_text())
@@ -140,5 +144,7 @@ def find_shipped(config: dict[str, Any], root: Path | None = None) -> str | None
         model = saved.get("model", {})
         same_model = all(model.get(k) == config["model"][k] for k in ("arch", "readout"))
         if saved.get("system") == config["system"] and same_model and saved.get("data") is None:
-            return PREFIX + name
-    return None
+            found.append(name)
+    built = {entry.name for entry in CATALOG if entry.experiment == experiment}
+    found.sort(key=lambda name: name not in built)  # stable: otherwise the names' order
+    return PREFIX + found[0] if found else None

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from mop.report import cell, forecast_markdown, simulation_cell
+from mop.report import forecast_markdown, rmse_cell, simulation_cell
 
 
 def _ci(r: dict[str, float]) -> str:
@@ -64,8 +64,8 @@ def _simulation_table(sim: dict[str, Any] | None) -> list[str]:
         "|---|---|---|---|",
     ]
     for n, r in sim["rmse"].items():
-        record = cell(r.get("one_step_rmse_record"))  # absent from cards built before it
-        lines.append(f"| {n} | {r['one_step_rmse']:.4f} | {simulation_cell(r)} | {record} |")
+        record = rmse_cell(r.get("one_step_rmse_record"))  # absent from cards built before it
+        lines.append(f"| {n} | {rmse_cell(r['one_step_rmse'])} | {simulation_cell(r)} | {record} |")
     return [*lines, ""]
 
 

@@ -17,8 +17,7 @@ with simulated tails no longer than they are, and validates on the record's last
 plants its correction then drifts over a record-long free run where the fitted ARX does not, and nothing in
 training sees it (tank_records plant 2: the fine-tune simulates est.csv at 0.60 against its feature's
 0.52). The gain is one number chosen on the estimation record alone, so the validation record stays unseen;
-on plants where the network's correction is worth its whole size the choice is g = 1 and nothing changes
-(docs/results/class-models.md).
+on plants where the network's correction is worth its whole size the choice is g = 1 and nothing changes.
 """
 
 from __future__ import annotations
