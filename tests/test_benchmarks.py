@@ -161,6 +161,7 @@ def test_a_shipped_model_of_other_widths_is_refused_before_any_fit(tmp_path, cap
         (["--est", "E.csv"], "both --est EST and --test TEST"),
         (["silverbox", "--predictors", "arx,lstm"], "unknown lstm"),
         (["silverbox", "--predictors", "pretrained:nosuch"], "nosuch"),
+        (["--est", "E.csv", "--test", "T.csv", "--train", "train.steps"], "is not key=value"),
     ],
 )
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, argv, words):
@@ -248,3 +249,22 @@ def test_a_fine_tune_of_other_widths_is_refused_before_any_fit(tmp_path, capsys)
     assert main([*argv, "--out", str(out), "--quiet", "--predictors", "arx,finetune:lti-siso"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "finetune:lti-siso reads 1 output(s)" in err and not out.exists()
+
+
+def test_train_keys_reach_mops_training_and_its_run(tmp_path):
+    """`--train KEY=VALUE` trains MOP as `mop train --data EST KEY=VALUE` would: the run's config holds the
+    keys (the results pages label such a row with them: tests/test_results_pages.py)."""
+    est, val = own_records(tmp_path)
+    out = tmp_path / "out"
+    argv = ["benchmark", "--est", str(est), "--test", str(val), "--init-window", "20", "--out", str(out)]
+    keys = [
+        "train.steps=3",
+        "train.simulate_after=10",
+        "model.observation_mask=true",
+        "model.forecast_mode=gap",
+    ]
+    assert main([*argv, "--predictors", "mop", "--quiet", *(a for k in keys for a in ("--train", k))]) == 0
+    config = load_config(out / "est" / "mop" / "run")
+    assert (
+        config.train.steps == 3 and config.train.simulate_after == 10 and config.model.forecast_mode == "gap"
+    )

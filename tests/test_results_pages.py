@@ -53,6 +53,16 @@ def test_a_table_is_rendered_from_its_files_in_the_fields_units(tmp_path):
     assert table == render("silverbox", files) and page.read_text().endswith("\ntext\n")
 
 
+def test_a_row_trained_with_keys_is_labelled_with_them(tmp_path):
+    result = {
+        "silverbox": {"test_multisine": {"mop": {"rmse": 0.0009, "n": 50}}},
+        "provenance": {"command": "mop benchmark silverbox --seed 1 --train train.simulate_after=10 --quiet"},
+    }
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(result))
+    assert render("silverbox", [path])[2] == "| mop (train.simulate_after=10), seed 1 | 0.9 |"
+
+
 def test_a_copied_table_is_the_files_kth_table(tmp_path):
     (tmp_path / "summary.md").write_text(
         "# s\n\n| a | b |\n|---|---|\n| 1 | 2 |\n\ntext\n\n| c |\n|---|\n| 3 |\n"

@@ -16,9 +16,9 @@ A table written by `mop reproduce` (its summary.md, an experiment's report.md) i
 
 Each results-table file is a results.json of `mop benchmark` copied beside the page (paths relative to
 it), with its provenance (command, commit, machine, date). A row is one predictor of one file, labelled
-with the seed of the file's command where MOP trained; then the best published baseline and the state of
-the art (mop.benchmarks.protocol) where known. Values are in the units the field publishes (mV, mm:
-Benchmark.shown).
+with the seed of the file's command where MOP trained (and its `--train` keys); then the best published
+baseline and the state of the art (mop.benchmarks.protocol) where known. Values are in the units the
+field publishes (mV, mm: Benchmark.shown).
 `python -m mop.benchmarks.pages PAGE.md` rewrites every table of a page from its files.
 """
 
@@ -45,6 +45,12 @@ def _seed(command: str) -> int | None:
     return int(words[words.index("--seed") + 1]) if "--seed" in words else 0
 
 
+def _training_keys(command: str) -> str:
+    """The `--train KEY=VALUE` keys of a `mop benchmark` command, joined ("" where none)."""
+    words = shlex.split(command)
+    return " ".join(words[i + 1] for i, w in enumerate(words[:-1]) if w == "--train")
+
+
 def _cell(rmse: float, scale: float) -> str:
     return "diverged" if math.isinf(rmse) else f"{rmse * scale:.4g}"
 
@@ -60,11 +66,14 @@ def render(bench: str, files: list[Path]) -> list[str]:
         if bench not in data:
             raise MopError(f"results table: {path} holds no results of {bench}")
         results, seed = data[bench], _seed(data["provenance"]["command"])
+        keys = _training_keys(data["provenance"]["command"])
         order = list(results)
         if tests is None:
             tests = {t: next(iter(results[t].values()))["n"] for t in order}
         for predictor in results[order[0]]:
             label = f"{predictor}, seed {seed}" if predictor.startswith(LEARNED) else predictor
+            if keys and predictor == "mop":
+                label = f"mop ({keys}), seed {seed}"
             cells = [_cell(results[t][predictor]["rmse"], scale) for t in tests]
             rows.append(f"| {label} | " + " | ".join(cells) + " |")
     published = PUBLISHED.get(bench, {})

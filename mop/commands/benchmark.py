@@ -33,6 +33,7 @@ from mop.benchmarks.protocol import (
     test_figure,
 )
 from mop.commands.predict import write_simulation
+from mop.config import parse_overrides
 from mop.errors import MopError
 from mop.estimators import Learned
 from mop.identify import fit
@@ -89,6 +90,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--budget", default=None, metavar="MINUTES", help="MOP's training budget per benchmark (default 5)"
     )
     parser.add_argument("--seed", type=int, default=0, help="MOP's training seed (0)")
+    parser.add_argument(
+        "--train",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a config key for MOP's training, as `mop train --data` takes it (repeatable), e.g. "
+        "train.simulate_after=10",
+    )
     parser.add_argument(
         "--predictors",
         default="arx,n4sid,mop",
@@ -227,7 +236,7 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
                 budget_minutes=budget,
                 init=init,
                 out_dir=folder / name.replace(":", "-"),
-                train__seed=args.seed,
+                **{"train.seed": args.seed, **parse_overrides(args.train)},
             )
             models[name] = learned.fit(with_init_window(split)).predictor_
             kept = (getattr(learned, "selection_", None) or {}).get("kept", "network")
@@ -419,6 +428,7 @@ def run(args: argparse.Namespace) -> int:
         n: load_predictor(shipped_name(n)) for n in predictors if n.startswith(SHIPPED_KINDS)
     }
     budget = DEFAULT_BUDGET_MINUTES if args.budget is None else check_budget(args.budget)
+    parse_overrides(args.train)  # a malformed key=value is refused before any work
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise MopError(f"--out {out} is a file; give a folder")
