@@ -42,7 +42,7 @@ from mop.incontext import reading_line, simulate_with_context
 from mop.pretrained import dimensions, fitting_hint
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
-from mop.recipe.selection import selection_line
+from mop.recipe.selection import feature_alone, selection_line
 from mop.record import as_pairs, read_records
 from mop.runs import load_config, load_predictor
 from mop.simulators import SimulatorConfig, fit_simulator, simulator_line
@@ -247,7 +247,8 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
                 )
             notes.append(f"{name}: {feature_line(load_config(learned.run_dir_)) or 'no input feature'}")
             if getattr(learned, "selection_", None):
-                notes.append(f"{name}: {selection_line(learned.selection_)}")
+                feature = feature_alone(load_config(learned.run_dir_))
+                notes.append(f"{name}: {selection_line(learned.selection_, feature)}")
         elif name == "lru":
             cfg = SimulatorConfig(init_window=min(max(t.init_window, 1) for t in split.tests), seed=args.seed)
             models[name] = fit_simulator(split.estimation, cfg)
