@@ -115,13 +115,23 @@ def load_predictor(
     source = str(run_dir)
     run_dir = resolve_run_dir(run_dir)
     model, config = load_model(run_dir, device)
-    reading = chosen_reading(Path(run_dir))
-    if reading is not None and reading != model.cfg.forecast_mode:
-        model.cfg = dataclasses.replace(model.cfg, forecast_mode=reading)
     warn_if_unfinished(Path(run_dir), load_config(run_dir))
     name = predictor_names().get(config.arch, config.arch)  # the predictor its architecture registered
     norm, stats = load_normalization(run_dir), load_input_stats(run_dir)
-    return LearnedPredictor(model, name=name, mode=mode, normalization=norm, input_stats=stats, source=source)
+    predictor = LearnedPredictor(
+        model, name=name, mode=mode, normalization=norm, input_stats=stats, source=source
+    )
+    reading = chosen_reading(Path(run_dir))
+    if reading is not None:
+        with_reading(predictor, reading)
+    return predictor
+
+
+def with_reading(predictor: LearnedPredictor, reading: str) -> None:
+    """Set a learned predictor's forecast_mode (in place: its config and its model's), the reading a
+    records run's held-out check scores or chose."""
+    cfg = dataclasses.replace(predictor.model.cfg, forecast_mode=reading)
+    predictor.model.cfg = predictor.cfg = cfg
 
 
 def chosen_reading(run_dir: Path) -> str | None:

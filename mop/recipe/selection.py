@@ -26,7 +26,6 @@ so a user never gets a run that simulates its record worse than the better linea
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from pathlib import Path
@@ -43,7 +42,7 @@ from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
 from mop.recipe.shrink import GAINS, gain_scores, scale_correction
 from mop.records import divergence_step, simulate_all
-from mop.runs import SELECTION_FILE, load_predictor
+from mop.runs import SELECTION_FILE, load_predictor, with_reading
 from mop.train.estimate import duration
 from mop.train.records import RecordedData
 
@@ -129,12 +128,6 @@ def readings(cfg) -> tuple[str, ...]:
     if cfg.observation_mask and cfg.forecast_mode == "gap":
         return ("gap", "rollout")
     return (cfg.forecast_mode,)
-
-
-def with_reading(predictor, reading: str) -> None:
-    """Set the learned predictor's forecast_mode (in place: its config and its model's)."""
-    cfg = dataclasses.replace(predictor.model.cfg, forecast_mode=reading)
-    predictor.model.cfg = predictor.cfg = cfg
 
 
 def _fit_linear(train: list, source: str) -> dict:
