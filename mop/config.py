@@ -138,7 +138,8 @@ class ModelConfig:
     config.json read as before.
     """
 
-    arch: str = "gpt"  # a name in mop.models' registry: "gpt" (the paper's GPT-2 body), "gru" (baseline)
+    # a name in mop.models' registry: "gpt" (the paper's GPT-2 body), "gru" (baseline), "deep-lru"
+    arch: str = "gpt"
     num_layers: int = 12  # transformer blocks (the paper's 12)
     num_heads: int = 8  # attention heads per block; must divide width
     width: int = 256  # embedding width d_model (the paper's 256)

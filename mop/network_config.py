@@ -138,3 +138,11 @@ class GptConfig(GenericNetworkConfig):
 class GruConfig(NetworkConfig):
     """The GRU baseline (mop.models.gru): it has no attention heads and no position embedding, so it reads
     neither model.num_heads nor model.position (left unchecked)."""
+
+
+@register_network_config("deep-lru")
+@dataclasses.dataclass(frozen=True)
+class LruConfig(NetworkConfig):
+    """The deep linear recurrent unit (mop.models.lru): no attention heads, no position embedding and no
+    context limit, so it reads neither model.num_heads nor model.position (left unchecked); model.width is
+    its layers' width and their complex modes each."""

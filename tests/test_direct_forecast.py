@@ -68,7 +68,7 @@ def test_direct_forecast_equals_one_forward_per_origin(arch, position, horizon, 
     torch.testing.assert_close(fast[:, :, 0], p.predict(traj), rtol=0, atol=1e-10)  # head 1 is predict
 
 
-@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("arch", ["gpt", "gru", "deep-lru"])
 def test_one_step_head_streams_like_the_forward(arch):
     model = direct_model(arch, "rope")
     z = random_trajectories(3, CONTEXT - 1, 0).model_inputs()[:, :-1]
@@ -77,7 +77,7 @@ def test_one_step_head_streams_like_the_forward(arch):
         torch.testing.assert_close(model.forecast_heads(z)[:, :, 0], model(z), rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("arch", ["gpt", "gru", "deep-lru"])
 @pytest.mark.parametrize("horizon", [CONTEXT, 2])  # 2 < K: only the heads with a target count
 def test_loss_is_the_mean_of_the_heads_mse(arch, horizon):
     model = direct_model(arch)

@@ -53,6 +53,10 @@ NOT_AN_ENTRY: dict[tuple[str, str], str] = {
     ("mop.commands.benchmark", "wiener-hammerstein"): "the benchmark whose table reads in mV",
     ("mop.checkpoint", "mop"): "the checkpoint file's metadata key",
     ("mop.network_config", "gru"): "model.arch's name for the GRU's network section (the config layer)",
+    (
+        "mop.network_config",
+        "deep-lru",
+    ): "model.arch's name for the deep LRU's network section (the config layer)",
     ("mop.cli", "mop"): "the program's name",
     ("mop.report", "mop"): "the package whose version the report prints",
     ("mop.evaluate", "error"): "eval.json's mean-error curve",

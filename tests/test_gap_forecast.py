@@ -43,7 +43,7 @@ def by_definition(p: LearnedPredictor, traj: Trajectories, steps: int) -> torch.
     return out
 
 
-@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("arch", ["gpt", "gru", "deep-lru"])
 @pytest.mark.parametrize("horizon,steps,inputs,gaps", [(5, 3, 0, False), (11, 4, 2, False), (13, 9, 1, True)])
 def test_gap_forecast_equals_one_predict_per_origin_and_step(arch, horizon, steps, inputs, gaps):
     p = gap_model(arch, inputs)

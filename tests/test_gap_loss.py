@@ -28,7 +28,7 @@ def _batch(T: int = 30) -> tuple[torch.Tensor, torch.Tensor]:
     return masked_inputs(z, 1), targets
 
 
-@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("arch", ["gpt", "gru", "deep-lru"])
 def test_balanced_loss_is_the_geometric_mean_of_the_two_groups(arch):
     inputs, targets = _batch()
     base = dict(arch=arch, num_layers=1, num_heads=2, width=16, context=30, input_dim=3, output_dim=1)

@@ -34,7 +34,7 @@ def test_shapes(readout, position):
             model.predict_distribution(z)
 
 
-@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("arch", ["gpt", "gru", "deep-lru"])
 @pytest.mark.parametrize("readout", ["mean", "gaussian"])
 def test_causality(arch, readout):
     """Changing input t0 leaves outputs before t0 unchanged and changes the output at t0."""
@@ -93,7 +93,7 @@ def test_mean_loss_is_mse():
     assert torch.allclose(model.loss(z, y), ((model(z) - y) ** 2).mean())
 
 
-@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("arch", ["gpt", "gru", "deep-lru"])
 def test_overfits_one_batch(arch):
     """A tiny model memorises one fixed batch: loss falls by a factor > 20 in 300 Adam steps."""
     torch.manual_seed(0)

@@ -47,7 +47,7 @@ def test_save_load_round_trip(tmp_path, arch, readout):
 
 
 def test_unknown_arch_names_the_known_ones():
-    with pytest.raises(MopError, match="model.arch must be one of 'gpt', 'gru'.*got 'lstm'"):
+    with pytest.raises(MopError, match="model.arch must be one of 'deep-lru', 'gpt', 'gru'.*got 'lstm'"):
         build_model(tiny("lstm"))
 
 

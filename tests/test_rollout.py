@@ -90,7 +90,7 @@ def test_stream_mode_rolls_out_from_the_stream_predictions(position):
     assert (fast[:, CONTEXT + 2 :, 0] - window[:, CONTEXT + 2 :, 0]).abs().max() > 1e-3
 
 
-@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("arch", ["gpt", "gru", "deep-lru"])
 def test_normalised_model_forecasts_in_data_units(arch):
     model = random_model(arch, "learned", "mean", 2)
     norm = Normalization.from_lists([1.0, -2.0, 0.5], [2.0, 0.5, 3.0], [0.3, -1.0], [1.5, 0.2])
@@ -190,7 +190,7 @@ def test_a_model_with_input_features_forecasts_as_the_reference(features, horizo
     torch.testing.assert_close(sim, ref, rtol=0, atol=1e-10)
 
 
-@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("arch", ["gpt", "gru", "deep-lru"])
 def test_streamed_simulation_equals_the_reference(arch):
     model = random_model(arch, "rope", "mean", 2)
     traj = random_trajectories(3, CONTEXT if arch == "gpt" else 3 * CONTEXT, 2)
@@ -201,7 +201,7 @@ def test_streamed_simulation_equals_the_reference(arch):
         torch.testing.assert_close(sim, reference_simulate(predictor, traj, context), rtol=0, atol=1e-10)
 
 
-@pytest.mark.parametrize("arch", ["gpt", "gru"])
+@pytest.mark.parametrize("arch", ["gpt", "gru", "deep-lru"])
 @pytest.mark.parametrize("horizon", [CONTEXT - 1, CONTEXT + 3])
 def test_every_rollout_path_equals_the_reference(arch, horizon):
     """Each path forecast_path may choose (branch, stream where it is exact, window) gives the reference's

@@ -113,3 +113,26 @@ def test_a_run_trained_for_simulation_is_scored_in_both_readings_and_loads_the_k
     held_out, long_run = selection.held_out_stretches(record, n), selection.long_run_stretches(record, n)
     assert selection._scores(loaded, held_out, long_run)["score"] == pytest.approx(best, rel=1e-6)
     assert "held-out check (mean RMSE" in selection.selection_line(chosen)
+
+
+@pytest.mark.parametrize("arch", ["deep-lru", "gru"])
+def test_a_recurrent_records_run_trains_without_a_feature_and_makes_the_check(arch, tmp_path):
+    """model.arch=deep-lru (or gru) reads no input features: the records recipe plans its model size and steps
+    with no ARX feature, and the run still makes the held-out check against the fitted ARX and N4SID (one
+    gain: there is no feature to scale towards); what it keeps is what loads, at its scores."""
+    records = TrainingRecords((cubic_plant(800),), source="cubic")
+    over = [f"model.arch={arch}", "train.steps=60", *SIMULATION]
+    run = fit_record(tmp_path / "run", records, overrides=over, progress=False)
+    config, chosen = load_config(run.run_dir), run.selection
+    assert config.model.arch == arch and config.model.rls_order == config.model.arx_order == 0
+    assert (config.model.num_layers, config.model.width) == (1, 32)  # the recipe's RECORDED_MODEL
+    assert chosen["gains"] == [1.0] and set(chosen["network"]) == {"gap", "rollout"}
+    assert set(chosen["linear_models"]) == {"arx", "n4sid"}
+    record = TrainingRecords((cubic_plant(800),)).split(config.data)
+    n = selection.init_window(record)
+    held_out, long_run = selection.held_out_stretches(record, n), selection.long_run_stretches(record, n)
+    kept = chosen["linear_models"][chosen["kept"]] if chosen["kept"] != "network" else None
+    best = kept["score"] if kept else chosen["network"][chosen["reading"]][0]["score"]
+    assert selection._scores(mop.load(run.run_dir), held_out, long_run)["score"] == pytest.approx(
+        best, rel=1e-6
+    )

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from mop.config import RunConfig, parse_overrides
 from mop.errors import MopError
+from mop.models import reads_features
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget, check_minutes
 from mop.recipe.finetune import fine_tune_config, records_start, within_budget
 from mop.recipe.given import split
@@ -43,10 +44,17 @@ class FittedRun:
     finished: bool = True  # False: stopped by max_minutes before its last step (resume by training again)
 
 
-def selects(config: RunConfig) -> bool:
+def selects(config: RunConfig, record: RecordedData | None = None) -> bool:
     """Whether the run makes the records recipe's held-out choice after training: a feature fitted on the
-    record (model.rls_prior = "fit"), for a fine-tune too, unless train.shrink_correction chose its gain."""
-    return config.data is not None and config.model.rls_prior == "fit" and not config.train.shrink_correction
+    record (model.rls_prior = "fit"), for a fine-tune too, unless train.shrink_correction chose its gain; or
+    an architecture that reads no features (model.arch=deep-lru, gru) on a record (`record`, split) the linear
+    models can be fitted on: inputs and complete outputs."""
+    if config.data is None or config.train.shrink_correction:
+        return False
+    if config.model.rls_prior == "fit":
+        return True
+    featureless = not reads_features(config.model.arch)
+    return featureless and record is not None and record.input_dim > 0 and not record.num_missing
 
 
 def fit_record(
@@ -168,8 +176,9 @@ def train_and_choose(
         deadline=deadline,
     )
     finished = (run_dir / "done.json").is_file()
-    selection = select_against_linear(run_dir, config, record) if selects(config) and finished else None
-    if announce is not None and not finished and selects(config):
+    chooses = selects(config, record)
+    selection = select_against_linear(run_dir, config, record) if chooses and finished else None
+    if announce is not None and not finished and chooses:
         announce(
             "held-out check: not yet; it chooses between the network and the fitted ARX and N4SID when the "
             "run finishes"
@@ -198,7 +207,7 @@ def record_lines(
     lines = []
     if record is None:
         return lines
-    if selects(config) and (init is None or records_start(load_config(init))):
+    if selects(config, record) and (init is None or records_start(load_config(init))):
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
         plan = budget_plan(record.training_part, config.train.batch_size, config.train.horizon, minutes)
         if plan.steps == config.train.steps:

@@ -4,7 +4,9 @@ the model, the windows and the steps, in one place.
 A records run is RECORDED_MODEL (a 1 x 32 network) reading the one-step prediction of an ARX(p, q) feature
 with an intercept, started from its least-squares fit on the record's training part, and predicting its
 residual: `cubes` of its output lags also cubed (a cubic NARX), or, for a long ARX (`fixed`), held at that
-fit; trained `steps` steps (the budget's plan) on windows of `horizon` steps.
+fit; trained `steps` steps (the budget's plan) on windows of `horizon` steps. An architecture that reads
+no input features (the recurrent ones, model.arch=gru or deep-lru) gets RECORDED_MODEL and the steps alone
+(p = 0).
 """
 
 from __future__ import annotations
@@ -44,11 +46,12 @@ class RecordsPlan:
     def settings(self) -> dict[str, object]:
         """The plan as the RunConfig's dotted keys (mop.config.apply_settings), as a records run trains it."""
         longer = {"train.horizon": self.horizon, "model.context": self.context} if self.longer else {}
+        steps = {**RECORDED_MODEL, **longer, "train.steps": self.steps}
+        if self.p == 0:  # no feature: an architecture that reads none
+            return steps
         return {
-            **RECORDED_MODEL,
-            **longer,
+            **steps,
             **({"model.rls_fixed": True} if self.fixed else {}),
-            "train.steps": self.steps,
             "model.rls_order": self.p,
             "model.arx_order": self.q,
             "model.rls_cubes": self.cubes,

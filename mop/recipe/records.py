@@ -25,6 +25,7 @@ from mop.identify.arx import ARX
 from mop.identify.cubic import EXTRA_LAGS, choose_cubes
 from mop.identify.long_arx import LONG_ORDERS, choose_long_orders
 from mop.identify.select import chosen_orders, feasible_order, fit, largest_order
+from mop.models import reads_features
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_windows
 from mop.recipe.plan import RECORDED_MODEL, RecordsPlan
 from mop.record import RecordsLike
@@ -78,7 +79,11 @@ def feature_horizon(horizon: int, p: int, q: int) -> int:
 
 
 def plan_records(
-    part: TrainingPart, config: RunConfig, budget: float = DEFAULT_BUDGET_MINUTES, cubes: bool = True
+    part: TrainingPart,
+    config: RunConfig,
+    budget: float = DEFAULT_BUDGET_MINUTES,
+    cubes: bool = True,
+    feature: bool = True,
 ) -> RecordsPlan:
     """The records recipe's plan for a record's training part (`part`: RecordedData.training_part, the
     arrays the plan needs, made once; nothing is read from disk and nothing is asked of the record again),
@@ -89,7 +94,12 @@ def plan_records(
     feature_horizon, the feature started from their least-squares fit, RECORDED_MODEL, and the steps the
     budget (minutes) buys on the record (mop.recipe.budget.plan_windows: longer records train longer).
     config gives the windows' length, the batch size and the model's context the plan starts from. A pure
-    function of its arguments: the same part gives the same plan."""
+    function of its arguments: the same part gives the same plan. feature=False (an architecture that reads
+    no input features, e.g. model.arch=lru): no feature, the config's windows, the steps the budget buys."""
+    if not feature:
+        horizon = config.train.horizon
+        budget_plan = plan_windows(budget, part.lengths, config.train.batch_size, horizon)
+        return RecordsPlan(0, 0, 0, False, horizon, False, config.model.context, budget_plan)
     largest = largest_order(ARX.kind, part.pairs)
     if largest == 0:
         raise MopError(
@@ -148,7 +158,9 @@ def with_recorded_features(
         return config
     if record.input_dim == 0 or record.num_missing:
         return config
-    plan = plan_records(record.training_part, config, budget, cubes="model.rls_cubes" not in named)
+    arch = named.get("model.arch", config.model.arch)
+    cubes = "model.rls_cubes" not in named
+    plan = plan_records(record.training_part, config, budget, cubes, feature=reads_features(arch))
     return apply_settings(config, plan.settings())
 
 
