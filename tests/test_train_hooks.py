@@ -160,3 +160,14 @@ def test_a_stopped_fine_tune_resumed_equals_one_never_stopped(tmp_path, monkeypa
     for name in (SHRINK_FILE, "done.json"):
         a, b = (json.loads((tmp_path / run / name).read_text()) for run in ("a", "b"))
         assert a == b, name
+
+
+def test_a_model_that_refuses_its_config_leaves_no_run_behind(tmp_path):
+    """The GRU refuses the ARX feature when it is built: the trainer says so before it writes config.json,
+    so the same folder then trains the config that builds (no 'holds a run with a different config')."""
+    refused = apply_overrides(tiny_config(), ["model.arch=gru", "model.rls_order=2"])
+    with pytest.raises(MopError, match="not of the GRU"):
+        mt.train(refused, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run" / "config.json").exists()
+    mt.train(apply_overrides(tiny_config(), ["model.arch=gru"]), tmp_path / "run", progress=False)
+    assert (tmp_path / "run" / "done.json").is_file()

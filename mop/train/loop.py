@@ -218,6 +218,8 @@ def _train_locked(
     deadline: float | None = None,
 ) -> nn.Module:
     device = setup_device(config.train, world)
+    with torch.device("meta"):  # a model that refuses its config says so before the run folder is written
+        build_model(config.model)
     if rank == 0:
         write_config(out_dir, config)
     state = _start(config, out_dir, device, rank, world, hooks, records)
