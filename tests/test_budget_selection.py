@@ -81,6 +81,19 @@ def test_the_budget_sets_the_recipes_steps_and_an_override_wins(tmp_path):
         training_config(None, budget=1)
 
 
+def test_the_budget_buys_the_windows_the_overrides_name(tmp_path):
+    """train.horizon / batch_size named on the command line are the windows trained, so the plan is made on
+    them: 200-step windows cost four nominal steps each (budget.plan_steps), on a record long enough that
+    the budget decides."""
+    rec = arx_plant(tmp_path / "rec.csv", steps=20000)
+    windows = lambda h: 18000 - h  # noqa: E731 (the training part, the last 10% validating)
+    over = ["train.horizon=200", "model.context=200", "train.batch_size=16"]
+    planned = training_config(None, None, str(rec), overrides=over, budget=5).train
+    assert (planned.horizon, planned.batch_size) == (200, 16)
+    assert planned.steps == plan_steps(5, windows(200), 16, 200).steps == 3750
+    assert training_config(None, None, str(rec), budget=5).train.steps == plan_steps(5, windows(50), 64).steps
+
+
 def test_a_simulation_that_turns_non_finite_scores_inf_not_its_finite_steps(tmp_path):
     _, data = read_trajectories(arx_plant(tmp_path / "rec.csv", steps=200))
     arx = fit("arx", data)

@@ -36,6 +36,8 @@ __all__ = ["RECORDED_MODEL", "RecordsPlan", "plan_records"]
 
 # the identifier's keys (mop.train.auto's feature keys but the running scale): naming one turns the recipe off
 FEATURE_KEYS = tuple(f"model.{key}" for key in AUTO_KEYS if key != "input_scale")
+# the overrides the plan is made with (the steps a budget buys depend on the windows' length)
+WINDOW_KEYS = ("train.horizon", "train.batch_size", "model.context")
 
 
 def arx_orders(data: RecordsLike, source: str) -> tuple[int, int] | None:
@@ -160,7 +162,9 @@ def with_recorded_features(
         return config
     arch = named.get("model.arch", config.model.arch)
     cubes = "model.rls_cubes" not in named
-    plan = plan_records(record.training_part, config, budget, cubes, feature=reads_features(arch))
+    windows = {key: named[key] for key in WINDOW_KEYS if key in named}  # the budget buys the windows trained
+    planned = apply_settings(config, windows) if windows else config
+    plan = plan_records(record.training_part, planned, budget, cubes, feature=reads_features(arch))
     return apply_settings(config, plan.settings())
 
 
