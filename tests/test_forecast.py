@@ -21,23 +21,27 @@ def generate(family: str, n: int = 3, horizon: int = 24, seed: int = 0, **knobs)
 
 
 @pytest.fixture(scope="module")
-def tiny_gru(tmp_path_factory):
+def tiny_recurrent(tmp_path_factory) -> dict:
+    """{predictor name: a tiny trained run} of each recurrent architecture (gru, deep-lru)."""
     from mop.train import train
 
-    cfg = apply_overrides(
-        RunConfig(),
-        [
-            "system.output_dim=2",
-            "system.state_dim=2",
-            "model.arch=gru",
-            "model.num_layers=1",
-            "model.width=16",
-            "model.context=10",
-            "train.steps=5",
-            "train.horizon=10",
-        ],
-    )
-    return train(cfg, tmp_path_factory.mktemp("gru") / "tiny", progress=False)
+    runs = {}
+    for arch in ("gru", "deep-lru"):
+        cfg = apply_overrides(
+            RunConfig(),
+            [
+                "system.output_dim=2",
+                "system.state_dim=2",
+                f"model.arch={arch}",
+                "model.num_layers=1",
+                "model.width=16",
+                "model.context=10",
+                "train.steps=5",
+                "train.horizon=10",
+            ],
+        )
+        runs[arch] = train(cfg, tmp_path_factory.mktemp(arch) / "tiny", progress=False)
+    return runs
 
 
 def numpy_kalman_priors(A, C, Q, R, P0, y):
@@ -145,11 +149,11 @@ def _trajectory_for(name: str, tiny_run) -> Trajectories:
 
 
 @pytest.mark.parametrize("name", PREDICTORS.names())
-def test_every_forecast_is_causal_and_starts_at_predict(name, tiny_run, tiny_gru):
+def test_every_forecast_is_causal_and_starts_at_predict(name, tiny_run, tiny_recurrent):
     """forecast[:, t, j] uses y_<t only: changing y_s for s >= 7 changes no forecast from an origin
     t <= 7 (an independent check for every predictor, including those whose forecast repeats predict);
     j = 0 is the one-step prediction; NaN exactly where t + j > T."""
-    run_dir = {"mop": tiny_run, "gru": tiny_gru}.get(name)
+    run_dir = {"mop": tiny_run, **tiny_recurrent}.get(name)
     options = {"run_dir": run_dir, "num_particles": 50, "seed": 0, "system": BAYES_FAMILY}
     traj = _trajectory_for(name, tiny_run)
     f = forecast(make_predictor(name, shared=options), traj, K)
@@ -244,10 +248,10 @@ def test_forecast_helper_refuses_predictors_without_one_and_bad_steps():
 
 
 @pytest.mark.parametrize("name", PREDICTORS.names())
-def test_forecast_from_a_start_origin_equals_the_full_forecast_there(name, tiny_run, tiny_gru):
+def test_forecast_from_a_start_origin_equals_the_full_forecast_there(name, tiny_run, tiny_recurrent):
     """forecast(..., start=s): NaN for origins t < s and, from s on, the full forecast's values (for the
     particle filter, which skips the earlier roll-outs, exactly: each origin draws from its own generator)."""
-    run_dir = {"mop": tiny_run, "gru": tiny_gru}.get(name)
+    run_dir = {"mop": tiny_run, **tiny_recurrent}.get(name)
     options = {"run_dir": run_dir, "num_particles": 50, "seed": 0, "system": BAYES_FAMILY}
     traj = _trajectory_for(name, tiny_run)
     full = forecast(make_predictor(name, shared=options), traj, K)
