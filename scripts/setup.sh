@@ -8,3 +8,9 @@ extras="${1:-}"
 . .venv/bin/activate
 python -c "import torch" 2>/dev/null || pip install -q torch==2.13.0
 pip install -q -e ".${extras:+[$extras]}"
+# the narx peer's library (mop.peers.narx), for its tests: its metadata pins numpy <= 2.3.5, which would
+# downgrade mop's numpy; 0.9.0 runs with it, so it is installed without its dependencies (scipy and
+# matplotlib are mop's own)
+case ",$extras," in
+*,test,*) python -c "import sysidentpy" 2>/dev/null || pip install -q --no-deps sysidentpy==0.9.0 ;;
+esac

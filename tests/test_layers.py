@@ -33,6 +33,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("mop.filters",),
     ("mop.identify",),  # fitted identifiers: built on the filters' subspace code, loaded by mop predict
     ("mop.simulators",),  # learned simulators fitted on their simulation error (deep LRU)
+    ("mop.peers",),  # the field's tools under mop's protocol (optional extras: sysidentpy)
     ("mop.models", "mop.runs"),
     ("mop.evaluate",),
     ("mop.train",),

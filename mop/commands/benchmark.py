@@ -39,6 +39,7 @@ from mop.estimators import Learned
 from mop.identify import fit
 from mop.identify.select import POLE_RADIUS
 from mop.incontext import reading_line, simulate_with_context
+from mop.peers.narx import NarxPredictor, fit_narx, frols_class, narx_line
 from mop.pretrained import dimensions, fitting_hint
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
@@ -52,9 +53,11 @@ PREDICTORS = (
     "n4sid",
     "mop",
     "lru",
+    "narx",
 )  # and pretrained:NAME, a shipped model in context (mop.incontext),
 # and finetune:NAME, that model fine-tuned on the estimation part (`mop train --data --init pretrained:NAME`)
 SHIPPED_KINDS = ("pretrained:", "finetune:")
+NARX = NarxPredictor.name
 
 
 def shipped_name(predictor: str) -> str:
@@ -102,7 +105,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--predictors",
         default="arx,n4sid,mop",
         help="comma-separated: arx, n4sid, mop, lru (a deep-LRU simulator trained on its simulation error, "
-        "mop.simulators), pretrained:NAME (in context), finetune:NAME (pretrained:NAME fine-tuned on the "
+        "mop.simulators), narx (sysidentpy's FROLS polynomial NARX with its defaults, an optional extra: "
+        "pip install --no-deps sysidentpy==0.9.0), pretrained:NAME (in context), finetune:NAME "
+        "(pretrained:NAME fine-tuned on the "
         "estimation part within --budget); default arx,n4sid,mop",
     )
     parser.add_argument(
@@ -249,6 +254,9 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
             if getattr(learned, "selection_", None):
                 feature = feature_alone(load_config(learned.run_dir_))
                 notes.append(f"{name}: {selection_line(learned.selection_, feature)}")
+        elif name == NARX:
+            models[name] = fit_narx(split.estimation)
+            notes.append(f"{name}: {narx_line(models[name])}")
         elif name == "lru":
             cfg = SimulatorConfig(init_window=min(max(t.init_window, 1) for t in split.tests), seed=args.seed)
             models[name] = fit_simulator(split.estimation, cfg)
@@ -430,6 +438,8 @@ def run(args: argparse.Namespace) -> int:
     }
     budget = DEFAULT_BUDGET_MINUTES if args.budget is None else check_budget(args.budget)
     parse_overrides(args.train)  # a malformed key=value is refused before any work
+    if NARX in predictors:
+        frols_class()  # not installed: one line before any work
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise MopError(f"--out {out} is a file; give a folder")

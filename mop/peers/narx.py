@@ -1,0 +1,82 @@
+"""sysidentpy's FROLS polynomial NARX with the library's defaults, as a peer under mop's protocol.
+
+FROLS (forward-regression orthogonal least squares, Billings) picks the terms of a degree-2 polynomial in
+y_{t-1..t-2} and u_{t-1..t-2} by the error reduction ratio, their number by AIC, and fits them by recursive
+least squares: `sysidentpy.model_structure_selection.FROLS()` as the library ships it, no option changed
+(model_type "NARMAX": the noise terms are dropped in a free run). It takes one record: several
+estimation records are joined end to end (the max_lag steps after each join read the previous record's
+end). The free run starts from the last max_lag of the n measured outputs, sysidentpy's own initial
+condition, so y_n.. are simulated from the inputs alone as the protocol asks.
+
+An optional extra: `pip install --no-deps sysidentpy==0.9.0` (its metadata pins numpy <= 2.3.5; 0.9.0 runs
+with mop's numpy, which its tests here check). One output only (FROLS is multi-input, single-output).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from mop.errors import MopError
+from mop.record import Record
+from mop.systems.base import Trajectories
+
+INSTALL = "pip install --no-deps sysidentpy==0.9.0"
+
+
+def frols_class() -> type:
+    """sysidentpy's FROLS class; a one-line MopError naming the install command where it is missing."""
+    try:
+        module = importlib.import_module("sysidentpy.model_structure_selection")
+    except ImportError:
+        raise MopError(f"the narx peer is sysidentpy's FROLS, which is not installed: {INSTALL}") from None
+    return module.FROLS
+
+
+class NarxPredictor:
+    """A fitted FROLS NARX as a mop Predictor: simulate(traj, context) in the data's units (traj's y
+    (B, T+1, 1), u (B, T+1, k))."""
+
+    name = "narx"
+
+    def __init__(self, model) -> None:
+        self.model = model
+        self.max_lag = int(model.max_lag)
+
+    def simulate(self, traj: Trajectories, context: int) -> Tensor:
+        """(B, T+1-c, 1): y_c..y_T from y_{c-L}..y_{c-1} (L = max_lag) and the inputs."""
+        if traj.u is None:
+            raise MopError("the narx peer simulates from inputs: give records with inputs")
+        L = self.max_lag
+        if context < L:
+            raise MopError(f"the narx peer starts its free run from {L} measured outputs; give n >= {L}")
+        out = []
+        for y, u in zip(traj.y.double().numpy(), traj.u.double().numpy(), strict=True):
+            sim = self.model.predict(X=u[context - L :], y=y[context - L : context])  # (T+1-c+L, 1)
+            out.append(sim[L:])
+        return torch.from_numpy(np.stack(out)).to(traj.y.dtype)
+
+
+def fit_narx(records: list[Record]) -> NarxPredictor:
+    """FROLS() with its defaults, fitted on the records joined end to end (see the module docstring)."""
+    if any(r.u is None or r.y.shape[1] > 1 for r in records):
+        raise MopError(
+            "the narx peer (FROLS) fits one output from inputs: give single-output records with inputs"
+        )
+    y = np.concatenate([np.asarray(r.y, dtype=float) for r in records])  # (T, 1)
+    u = np.concatenate([np.asarray(r.u, dtype=float) for r in records])  # (T, k)
+    if not (np.isfinite(y).all() and np.isfinite(u).all()):
+        raise MopError("the narx peer (FROLS) needs complete records: fill the missing samples first")
+    model = frols_class()()
+    model.fit(X=u, y=y)
+    return NarxPredictor(model)
+
+
+def narx_line(predictor: NarxPredictor) -> str:
+    """One line on what FROLS chose: its number of terms and lags."""
+    terms = len(predictor.model.final_model)
+    lag = predictor.max_lag
+    return f"sysidentpy FROLS() defaults: a degree-2 polynomial NARX of {terms} terms, max lag {lag}"
