@@ -105,7 +105,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--predictors",
         default="arx,n4sid,mop",
         help="comma-separated: arx, n4sid, mop, lru (a deep-LRU simulator trained on its simulation error, "
-        "mop.simulators), narx (sysidentpy's FROLS polynomial NARX with its defaults, an optional extra: "
+        "mop.simulators), narx (sysidentpy's FROLS polynomial NARX, least squares, an optional extra: "
         "pip install --no-deps sysidentpy==0.9.0), pretrained:NAME (in context), finetune:NAME "
         "(pretrained:NAME fine-tuned on the "
         "estimation part within --budget); default arx,n4sid,mop",

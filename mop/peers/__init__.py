@@ -1,5 +1,5 @@
 """The field's own tools, run under mop's protocol beside mop (`mop benchmark --predictors NAME`): optional
 extras that mop imports only when asked.
 
-mop.peers.narx: sysidentpy's FROLS polynomial NARX with the library's defaults ("narx").
+mop.peers.narx: sysidentpy's FROLS polynomial NARX, the library's defaults but least squares ("narx").
 """
