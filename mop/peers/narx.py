@@ -10,8 +10,8 @@ forgetting factor of 0.98, which weighs about the record's last 50 samples; with
 (7.788 / 15.6 / 7.057), `mop benchmark NAME --predictors narx` on the 2-core CPU.
 
 FROLS takes one record: several estimation records are joined end to end (the max_lag steps after each
-join read the previous record's end). The free run starts from the last max_lag of the n measured outputs, sysidentpy's own initial
-condition, so y_n.. are simulated from the inputs alone as the protocol asks.
+join read the previous record's end). The free run starts from the last max_lag of the n measured outputs,
+sysidentpy's own initial condition, so y_n.. are simulated from the inputs alone as the protocol asks.
 
 An optional extra: `pip install --no-deps sysidentpy==0.9.0` (its metadata pins numpy <= 2.3.5; 0.9.0 runs
 with mop's numpy, which its tests here check). One output only (FROLS is multi-input, single-output).
