@@ -30,14 +30,13 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from mop.cli import main as mop
-from mop.commands.benchmark import provenance, provenance_line
+from mop.commands.benchmark import report_head
 from mop.config import SystemConfig
 from mop.records import scores
 from mop.runs import load_config
@@ -85,17 +84,13 @@ def report(results: dict[int, dict[str, list[float]]], args: argparse.Namespace)
     simulations are below the fitted ARX's on the same plant and start."""
     names = list(next(iter(results.values())))
     total = sum(len(row["arx"]) for row in results.values())
-    lines = [
-        f"# Carry-over of {args.source} to single {args.family} plants",
-        "",
-        provenance_line(provenance(sys.argv[1:], program="python scripts/carry_over.py")),
-        "",
+    lines = report_head(
+        f"Carry-over of {args.source} to single {args.family} plants",
+        "python scripts/carry_over.py",
         f"Plants {args.plants}, simulations from steps {args.starts} of the validation record ({total} per "
         "predictor); simulation RMSE over the simulated steps.",
-        "",
-        "| predictor | mean simulation RMSE | simulations below the fitted ARX's |",
-        "|---|---|---|",
-    ]
+        ["predictor", "mean simulation RMSE", "simulations below the fitted ARX's"],
+    )
     for name in names:
         runs = [pair for row in results.values() for pair in zip(row[name], row["arx"], strict=True)]
         mean = float(np.mean([rmse for rmse, _ in runs]))

@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from mop.cli import main as mop
-from mop.commands.benchmark import provenance, provenance_line
+from mop.commands.benchmark import report_head
 
 CONTEXT = 400
 HORIZON = 499
@@ -57,17 +56,13 @@ def report(results: dict[str, dict[str, dict[str, float]]], systems: int) -> str
     that knows each system last (named in its cell)."""
     names = [*MODELS, *BASELINES]
     head = ["data", *(f"`{n}`" for n in names), "the filter that knows each system"]
-    lines = [
-        f"# Class models on their own and neighbouring classes ({systems} systems each)",
-        "",
-        provenance_line(provenance(sys.argv[1:], program="python scripts/class_shift.py")),
-        "",
+    lines = report_head(
+        f"Class models on their own and neighbouring classes ({systems} systems each)",
+        "python scripts/class_shift.py",
         f"Each system's RMSE, averaged: one step ahead over t >= {ONE_STEP_FROM} / simulation of "
         f"y_{CONTEXT}..y_{HORIZON} after {CONTEXT} outputs.",
-        "",
-        "| " + " | ".join(head) + " |",
-        "|---" * len(head) + "|",
-    ]
+        head,
+    )
     for name, rows in results.items():
         cells = [f"{rows[n]['one_step']:.3g} / {rows[n]['simulation']:.3g}" for n in names]
         knowing = next(n for n in rows if n not in names)

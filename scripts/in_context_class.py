@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from mop.commands.benchmark import provenance, provenance_line
+from mop.commands.benchmark import report_head
 from mop.incontext import _read, simulate_with_context
 from mop.record import Record
 from mop.runs import load_config, load_predictor
@@ -30,18 +29,14 @@ from mop.systems import generator, make_family
 
 def report(summaries: list[dict], args: argparse.Namespace) -> str:
     """The summaries as one markdown table: a row per model, "mean (median)" per reading."""
-    lines = [
-        f"# Class models with an estimation record as context ({args.systems} systems)",
-        "",
-        provenance_line(provenance(sys.argv[1:], program="python scripts/in_context_class.py")),
-        "",
+    lines = report_head(
+        f"Class models with an estimation record as context ({args.systems} systems)",
+        "python scripts/in_context_class.py",
         f"Each system's first {args.estimation} steps are the context, the next {args.test} the test, "
         f"simulated from its first {args.init} outputs; free-run RMSE over the test's output std, mean "
         "(median) over systems.",
-        "",
-        "| model | fit gain 0 | fit gain 1 | the reading mop chooses | gain 1 below gain 0 |",
-        "|---|---|---|---|---|",
-    ]
+        ["model", "fit gain 0", "fit gain 1", "the reading mop chooses", "gain 1 below gain 0"],
+    )
     for s in summaries:
         cells = [f"{s[k]['mean']:.3f} ({s[k]['median']:.3f})" for k in ("fit gain 0", "fit gain 1", "chosen")]
         below = f"{s['gain 1 / gain 0']['below 1']} of {s['systems']}"

@@ -15,6 +15,7 @@ import argparse
 import dataclasses
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -423,6 +424,21 @@ def provenance_line(record: dict[str, str]) -> str:
         f"Written by `{record['command']}` at commit {record['commit']} on {record['machine']}, "
         f"{record['date']}."
     )
+
+
+def report_head(title: str, program: str, description: str, columns: list[str]) -> list[str]:
+    """The first lines of a script's markdown report: the title, the provenance line of this run of
+    `program` (sys.argv's arguments), the description and the table's header for `columns`."""
+    return [
+        f"# {title}",
+        "",
+        provenance_line(provenance(sys.argv[1:], program=program)),
+        "",
+        description,
+        "",
+        "| " + " | ".join(columns) + " |",
+        "|---" * len(columns) + "|",
+    ]
 
 
 def run(args: argparse.Namespace) -> int:
