@@ -33,6 +33,14 @@ def polynomial_plant(steps: int, seed: int) -> Record:
     return Record(y=y, u=u)
 
 
+def write_split(rec: Record, folder, cut: int) -> list[str]:
+    """est.csv (rec's first `cut` steps) and val.csv (the rest) in folder: `mop benchmark --est --test`."""
+    for name, part in (("est", slice(0, cut)), ("val", slice(cut, len(rec.y)))):
+        rows = "\n".join(f"{a:.10g},{b:.10g}" for a, b in zip(rec.y[part, 0], rec.u[part, 0], strict=True))
+        (folder / f"{name}.csv").write_text("y0,u0\n" + rows + "\n")
+    return ["benchmark", "--est", str(folder / "est.csv"), "--test", str(folder / "val.csv")]
+
+
 def test_a_free_run_after_n_measured_outputs_reproduces_a_plant_in_its_class():
     pytest.importorskip("sysidentpy")
     fitted = narx.fit_narx([polynomial_plant(1500, 0)])
@@ -62,12 +70,8 @@ def test_without_sysidentpy_the_benchmark_names_the_install_before_any_work(tmp_
         return real(name, *args)
 
     monkeypatch.setattr(narx.importlib, "import_module", missing)
-    rec = polynomial_plant(300, 2)
-    for name, part in (("est", slice(0, 200)), ("val", slice(200, 300))):
-        rows = "\n".join(f"{a:.10g},{b:.10g}" for a, b in zip(rec.y[part, 0], rec.u[part, 0], strict=True))
-        (tmp_path / f"{name}.csv").write_text("y0,u0\n" + rows + "\n")
+    argv = write_split(polynomial_plant(300, 2), tmp_path, 200)
     out = tmp_path / "out"
-    argv = ["benchmark", "--est", str(tmp_path / "est.csv"), "--test", str(tmp_path / "val.csv")]
     assert main([*argv, "--predictors", "arx,narx", "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and narx.INSTALL in err and not out.exists()
@@ -75,12 +79,8 @@ def test_without_sysidentpy_the_benchmark_names_the_install_before_any_work(tmp_
 
 def test_the_benchmark_scores_the_narx_beside_the_arx(tmp_path):
     pytest.importorskip("sysidentpy")
-    rec = polynomial_plant(900, 3)
-    for name, part in (("est", slice(0, 600)), ("val", slice(600, 900))):
-        rows = "\n".join(f"{a:.10g},{b:.10g}" for a, b in zip(rec.y[part, 0], rec.u[part, 0], strict=True))
-        (tmp_path / f"{name}.csv").write_text("y0,u0\n" + rows + "\n")
+    argv = write_split(polynomial_plant(900, 3), tmp_path, 600)
     out = tmp_path / "out"
-    argv = ["benchmark", "--est", str(tmp_path / "est.csv"), "--test", str(tmp_path / "val.csv")]
     assert main([*argv, "--predictors", "arx,narx", "--init-window", "10", "--out", str(out), "--quiet"]) == 0
     scores = json.loads((out / "results.json").read_text())["est"]["val"]
     assert scores["narx"]["rmse"] < 1e-5 < scores["arx"]["rmse"]  # the plant is in the NARX's class
