@@ -61,6 +61,15 @@ def test_a_row_trained_with_keys_is_labelled_with_them(tmp_path):
     path = tmp_path / "r.json"
     path.write_text(json.dumps(result))
     assert render("silverbox", [path])[2] == "| mop (train.simulate_after=10), seed 1 | 0.9 |"
+    result["provenance"]["command"] = (
+        "mop benchmark silverbox --budget 30 --seed 1 --train a.b=1 --predictors lru"
+    )
+    result["silverbox"]["test_multisine"]["lru"] = {"rmse": 0.002, "n": 50}
+    path.write_text(json.dumps(result))
+    assert render("silverbox", [path])[2:4] == [
+        "| mop (a.b=1), budget 30 min, seed 1 | 0.9 |",
+        "| lru, budget 30 min, seed 1 | 2 |",
+    ]
 
 
 def test_a_copied_table_is_the_files_kth_table(tmp_path):

@@ -51,6 +51,13 @@ def _training_keys(command: str) -> str:
     return " ".join(words[i + 1] for i, w in enumerate(words[:-1]) if w == "--train")
 
 
+def _budget(command: str) -> str:
+    """ ", budget B min" where a `mop benchmark` command names --budget B ("" where it trains the default)."""
+    words = shlex.split(command)
+    given = [words[i + 1] for i, w in enumerate(words[:-1]) if w == "--budget"]
+    return f", budget {given[-1]} min" if given else ""
+
+
 def _cell(rmse: float, scale: float) -> str:
     return "diverged" if math.isinf(rmse) else f"{rmse * scale:.4g}"
 
@@ -71,9 +78,10 @@ def render(bench: str, files: list[Path]) -> list[str]:
         if tests is None:
             tests = {t: next(iter(results[t].values()))["n"] for t in order}
         for predictor in results[order[0]]:
-            label = f"{predictor}, seed {seed}" if predictor.startswith(LEARNED) else predictor
+            budget = _budget(data["provenance"]["command"]) if predictor.startswith(LEARNED) else ""
+            label = f"{predictor}{budget}, seed {seed}" if predictor.startswith(LEARNED) else predictor
             if keys and predictor == "mop":
-                label = f"mop ({keys}), seed {seed}"
+                label = f"mop ({keys}){budget}, seed {seed}"
             cells = [_cell(results[t][predictor]["rmse"], scale) for t in tests]
             rows.append(f"| {label} | " + " | ".join(cells) + " |")
     published = PUBLISHED.get(bench, {})
