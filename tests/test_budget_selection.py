@@ -83,15 +83,15 @@ def test_the_budget_sets_the_recipes_steps_and_an_override_wins(tmp_path):
 
 def test_the_budget_buys_the_windows_the_overrides_name(tmp_path):
     """train.horizon / batch_size named on the command line are the windows trained, so the plan is made on
-    them: 200-step windows cost four nominal steps each (budget.plan_steps), on a record long enough that
-    the budget decides."""
-    rec = arx_plant(tmp_path / "rec.csv", steps=20000)
-    windows = lambda h: 18000 - h  # noqa: E731 (the training part, the last 10% validating)
+    them: 200-step windows cost four nominal steps each (budget.plan_steps). 2 minutes on the 1600 windows
+    of a 2000-step record: 1500 steps of 16 x 200, where the preset's 64 x 50 would plan 1915 (the record's
+    70 passes)."""
+    rec = arx_plant(tmp_path / "rec.csv", steps=2000)
     over = ["train.horizon=200", "model.context=200", "train.batch_size=16"]
-    planned = training_config(None, None, str(rec), overrides=over, budget=5).train
+    planned = training_config(None, None, str(rec), overrides=over, budget=2).train
     assert (planned.horizon, planned.batch_size) == (200, 16)
-    assert planned.steps == plan_steps(5, windows(200), 16, 200).steps == 3750
-    assert training_config(None, None, str(rec), budget=5).train.steps == plan_steps(5, windows(50), 64).steps
+    assert planned.steps == plan_steps(2, 1800 - 200, 16, 200).steps == 1500
+    assert plan_steps(2, 1800 - 50, 64).steps == 1915  # what the preset's windows would have planned
 
 
 def test_a_simulation_that_turns_non_finite_scores_inf_not_its_finite_steps(tmp_path):
