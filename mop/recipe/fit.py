@@ -23,7 +23,7 @@ from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget, check_minute
 from mop.recipe.finetune import fine_tune_config, records_start, within_budget
 from mop.recipe.given import split
 from mop.recipe.layers import scratch_config
-from mop.recipe.records import budget_plan, feature_line, gaps_turn_off_recipe, order_line
+from mop.recipe.records import budget_plan, feature_line, gaps_turn_off_recipe, order_line, recipe_reads
 from mop.recipe.selection import feature_alone, select_against_linear, selection_line, training_time
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
@@ -54,7 +54,7 @@ def selects(config: RunConfig, record: RecordedData | None = None) -> bool:
     if config.model.rls_prior == "fit":
         return True
     featureless = not reads_features(config.model.arch)
-    return featureless and record is not None and record.input_dim > 0 and not record.num_missing
+    return featureless and record is not None and recipe_reads(record)
 
 
 def fit_record(

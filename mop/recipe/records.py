@@ -127,6 +127,12 @@ def plan_records(
     )
 
 
+def recipe_reads(record: RecordedData) -> bool:
+    """Whether the records recipe can train on `record`: it has inputs and complete outputs (its
+    least-squares feature and the held-out check against the fitted linear models need both)."""
+    return record.input_dim > 0 and not record.num_missing
+
+
 def gaps_turn_off_recipe(
     data: TrainingRecords | None, overrides: list[str], chosen: bool, init: str | None
 ) -> int:
@@ -158,7 +164,7 @@ def with_recorded_features(
         return config
     if any(k in named for k in FEATURE_KEYS):
         return config
-    if record.input_dim == 0 or record.num_missing:
+    if not recipe_reads(record):
         return config
     arch = named.get("model.arch", config.model.arch)
     cubes = "model.rls_cubes" not in named
