@@ -78,10 +78,9 @@ def render(bench: str, files: list[Path]) -> list[str]:
         if tests is None:
             tests = {t: next(iter(results[t].values()))["n"] for t in order}
         for predictor in results[order[0]]:
-            budget = _budget(data["provenance"]["command"]) if predictor.startswith(LEARNED) else ""
-            label = f"{predictor}{budget}, seed {seed}" if predictor.startswith(LEARNED) else predictor
-            if keys and predictor == "mop":
-                label = f"mop ({keys}){budget}, seed {seed}"
+            label = f"mop ({keys})" if keys and predictor == "mop" else predictor
+            if predictor.startswith(LEARNED):
+                label = f"{label}{_budget(data['provenance']['command'])}, seed {seed}"
             cells = [_cell(results[t][predictor]["rmse"], scale) for t in tests]
             rows.append(f"| {label} | " + " | ".join(cells) + " |")
     published = PUBLISHED.get(bench, {})

@@ -5,8 +5,7 @@ k-step heads around a body that carries a state, and the forward / loss / stream
 
 No context limit: forward takes any T, and streaming carries the body's state h (L, B, ...) step by step,
 which equals the full forward exactly. A subclass builds its body between read_in and the read-out
-(`_build_read_out` after it, so a seed gives the same weights as before the body existed here) and defines
-`_body` and `_zero_state`.
+(`_build_read_out` after it: a seed draws the weights in that order) and defines `_body` and `_zero_state`.
 """
 
 from __future__ import annotations
