@@ -75,7 +75,8 @@ def test_the_budget_sets_the_recipes_steps_and_an_override_wins(tmp_path):
     rec = arx_plant(tmp_path / "rec.csv", steps=4000)
     windows = 3600 - 50  # the training part (the last 400 steps validate), windows of 51 steps
     expected = plan_steps(1, windows, 64).steps
-    assert training_config(None, None, str(rec), budget=1).train.steps == expected
+    gpt = ["model.arch=gpt"]  # the transformer: windows of 50 steps
+    assert training_config(None, None, str(rec), overrides=gpt, budget=1).train.steps == expected
     assert training_config(None, None, str(rec), overrides=["train.steps=7"], budget=1).train.steps == 7
     with pytest.raises(MopError, match="--data"):
         training_config(None, budget=1)
@@ -157,7 +158,7 @@ def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predi
     rec = arx_plant(tmp_path / "rec.csv")
     run = tmp_path / "run"
     argv = ["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=40", "train.lr=3"]
-    assert main(argv) == 0
+    assert main([*argv, "model.arch=gpt"]) == 0  # the transformer: its correction has gains
     chosen = json.loads((run / SELECTION_FILE).read_text())
     assert chosen["linear_models"] == {}
     reading = load_config(run).model.forecast_mode

@@ -19,6 +19,7 @@ from mop.io import read_trajectories
 from mop.predictors import simulate
 from mop.recipe.finetune import within_budget
 from mop.recipe.layers import training_config
+from mop.recipe.plan import RECORDS_BODY
 from mop.record import Record, read_records, write_records
 from mop.runs import load_config
 from mop.systems.base import Trajectories
@@ -156,7 +157,9 @@ def test_learned_trains_through_mop_train_data_and_predicts_as_mop_load(tmp_path
     assert config.train.steps == 3 and config.model.width == 16
     assert config.data.path == "r"  # where the record came from: its name (no file of it is written)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
-    assert config.model.rls_order > 0  # the records recipe's ARX feature, as `mop train --data` gives
+    assert (
+        config.model.arch == RECORDS_BODY["model.arch"]
+    )  # the records recipe's, as `mop train --data` gives
     yhat = model.predict(rec)
     assert yhat.shape == (160, 1) and np.isfinite(yhat).all()
     traj = Trajectories(

@@ -20,7 +20,9 @@ from mop.systems import generator, make_family
 from mop.systems.base import Trajectories
 from mop.train import train
 
+# the transformer (the records recipe's deep LRU reads no feature whose orders a fine-tune could change)
 TINY = ["model.num_layers=1", "model.width=16", "model.num_heads=2", "model.context=20", "train.horizon=20"]
+GPT = ["model.arch=gpt"]
 SMALL = [*TINY, "train.batch_size=4", "train.log_every=1", "train.checkpoint_every=1000"]
 
 
@@ -69,7 +71,8 @@ def test_fine_tuning_starts_from_the_source_weights_and_keeps_its_normalisation(
 def test_the_default_schedule_and_refusals(tmp_path, capsys):
     first = record(tmp_path / "a.npz", 0)
     src = tmp_path / "src"
-    assert main(["train", "--data", first, "--out", str(src), "--no-progress", "train.steps=1", *SMALL]) == 0
+    argv = ["train", "--data", first, "--out", str(src), "--no-progress", "train.steps=1", *SMALL, *GPT]
+    assert main(argv) == 0
     config = training_config(None, data=first, init=str(src))
     base = from_dict(RunConfig, json.loads((src / "config.json").read_text()))
     assert config.train.steps == FINE_TUNE_STEPS and config.train.warmup_steps == 0
@@ -234,7 +237,7 @@ def test_a_short_record_fine_tunes_with_the_orders_it_allows(tmp_path, capsys):
     config = training_config(None, data=est, init="pretrained:cascaded-tanks")
     assert (config.model.rls_order, config.model.arx_order) == (orders["p"], orders["q"])
     # the records recipe from scratch chooses its orders the same way on the record's training part (90%)
-    recipe = training_config(None, data=est).model
+    recipe = training_config(None, data=est, overrides=GPT).model
     assert 1 <= recipe.rls_order <= largest and 1 <= recipe.arx_order <= largest
     tiny = training_config(None, data=record(tmp_path / "tiny.npz", 0, T=3), init="pretrained:cascaded-tanks")
     assert (tiny.model.rls_order, tiny.model.arx_order) == (10, 10)
@@ -328,12 +331,14 @@ def test_a_model_trained_with_estimation_prefixes_fine_tunes_as_the_records_reci
         runs[prefix] = tmp_path / f"src{prefix}"
         argv = ["train", "class-lti-siso", "--preset", "smoke", "--out", str(runs[prefix]), "--no-progress"]
         assert main([*argv, *shape, f"train.context_prefix={prefix}"]) == 0
-    scratch = training_config(None, data=est)
+    scratch = training_config(None, data=est, overrides=GPT)  # the transformer recipe it starts
     keys = ("rls_order", "arx_order", "rls_cubes", "rls_offset", "rls_prior", "rls_fixed")
     base = preset_config(default_preset()).train
     for minutes in (None, 50.0):
         tuned = training_config(None, data=est, init=str(runs[100]), budget=minutes)
-        recipe = scratch if minutes is None else training_config(None, data=est, budget=minutes)
+        recipe = (
+            scratch if minutes is None else training_config(None, data=est, overrides=GPT, budget=minutes)
+        )
         assert all(getattr(tuned.model, k) == getattr(recipe.model, k) for k in keys)
         assert tuned.model.rls_prior == "fit" and tuned.train.steps == recipe.train.steps
         assert (tuned.train.lr, tuned.train.lr_schedule) == (base.lr, base.lr_schedule)

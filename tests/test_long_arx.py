@@ -69,7 +69,7 @@ def test_the_scores_are_the_held_out_simulation_of_the_least_squares_fit():
 def test_the_recipe_trains_a_long_feature_on_windows_twice_its_orders_and_budgets_them(tmp_path):
     y, u = delayed_plant(8000, delay=26)
     rec = write(tmp_path / "rec.csv", y, u)
-    config = training_config(None, None, str(rec), budget=1)
+    config = training_config(None, None, str(rec), overrides=["model.arch=gpt"], budget=1)  # it reads it
     m = config.model
     assert (m.rls_order, m.arx_order, m.rls_cubes, m.rls_fixed) == (30, 30, 0, True)
     assert config.train.horizon == 60 and m.context == 60

@@ -15,6 +15,7 @@ from mop.config import DataConfig, RunConfig, to_dict
 from mop.experiments.presets import PRESETS
 from mop.recipe.budget import MIN_STEPS
 from mop.recipe.layers import training_config
+from mop.recipe.plan import RECORDS_BODY
 from mop.recipe.records import RECORDED_MODEL
 from mop.record import Record
 from mop.train.auto import MIXTURE_SIZE, STEP_COST, steps_for
@@ -115,7 +116,8 @@ def test_one_record_trains_through_the_cli_with_the_records_recipe(tmp_path, cap
     path = write_record(tmp_path / "one.csv", lengths=(300,))
     run = tmp_path / "run"
     linear = "model.rls_cubes=0"  # the ramp is simulated as well with cubed lags: keep the ARX's orders
-    assert main(["train", "--data", str(path), "--out", str(run), "--no-progress", *TINY, linear]) == 0
+    gpt = "model.arch=gpt"  # the transformer reading the recipe's ARX feature
+    assert main(["train", "--data", str(path), "--out", str(run), "--no-progress", *TINY, linear, gpt]) == 0
     out = capsys.readouterr().out
     assert "1 trajectory (m=1, k=1), split in time: the last 30 of 300 steps validate;" in out
     assert "262 training / 22 validation windows of 9 steps" in out
@@ -145,7 +147,11 @@ def test_training_config_layers(tmp_path):
     assert training_config(None, "paper").train == paper.train
     with_inputs = write_record(tmp_path / "u.csv", lengths=(60,))
     without = write_record(tmp_path / "y.csv", lengths=(60,), inputs=False)
-    recipe = training_config(None, None, str(with_inputs))
+    body = training_config(None, None, str(with_inputs))  # the recipe's own network, no feature
+    assert body.model.rls_order == 0 and body.train.steps == MIN_STEPS
+    named = {**RECORDS_BODY, "train.horizon": 53, "model.context": 53}  # 54 training steps of 60
+    assert all(getattr(getattr(body, k.split(".")[0]), k.split(".")[1]) == v for k, v in named.items())
+    recipe = training_config(None, None, str(with_inputs), overrides=["model.arch=gpt"])
     assert recipe.model.rls_prior == "fit" and recipe.model.rls_offset and recipe.train.steps == MIN_STEPS
     assert all(getattr(recipe.model, k.split(".")[1]) == v for k, v in RECORDED_MODEL.items())
     assert training_config(None, None, str(with_inputs), overrides=["train.steps=9"]).train.steps == 9

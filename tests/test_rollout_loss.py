@@ -32,7 +32,8 @@ def plant(steps: int = 1200, seed: int = 0) -> Record:
 def run(tmp_path_factory):
     """A records run of 30 one-step steps: its network reads the fitted ARX feature and corrects it."""
     out = tmp_path_factory.mktemp("rollout") / "run"
-    fit_record(out, TrainingRecords((plant(),)), overrides=["train.steps=30"], progress=False)
+    over = ["train.steps=30", "model.arch=gpt"]  # the transformer reading the feature
+    fit_record(out, TrainingRecords((plant(),)), overrides=over, progress=False)
     return out
 
 

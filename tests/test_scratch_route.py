@@ -12,6 +12,7 @@ import mop.recipe.layers
 import mop.record
 from mop.config import DataConfig
 from mop.recipe.layers import scratch_config, training_config
+from mop.recipe.plan import RECORDS_BODY
 from mop.recipe.records import plan_records
 from mop.record import Record
 from mop.train.records import RecordedData, TrainingPart, TrainingRecords
@@ -57,6 +58,6 @@ def test_scratch_config_splits_once_reads_nothing_and_never_fine_tunes(monkeypat
     monkeypatch.setattr(mop.record, "read_timed", _refuse)
     fresh = TrainingRecords((plant(500, 0),), source="in memory")
     config, given, record = scratch_config(None, None, fresh, [], None)
-    assert config == expected and config.model.rls_prior == "fit"
+    assert config == expected and config.model.arch == RECORDS_BODY["model.arch"]  # the records recipe's
     assert given is fresh and record is fresh.split(config.data)
     assert (len(splits), len(parts)) == (1, 1)  # split once, the plan's arrays made once

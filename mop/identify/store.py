@@ -13,6 +13,8 @@ import numpy as np
 from mop.atomic import write_json
 from mop.errors import MopError
 from mop.identify.linear import IDENTIFIERS, FittedPredictor, LinearModel
+from mop.identify.narx_model import KIND as NARX_KIND
+from mop.identify.narx_model import FittedNARX
 
 FILE = "fitted.json"
 FORMAT = 1
@@ -33,11 +35,14 @@ def save(predictor: FittedPredictor, out: str | os.PathLike) -> Path:
     return path
 
 
-def load(path: str | os.PathLike) -> FittedPredictor:
-    """The FittedPredictor saved in directory `path`; MopError naming the file if it is damaged."""
+def load(path: str | os.PathLike) -> FittedPredictor | FittedNARX:
+    """The FittedPredictor (or the records recipe's FittedNARX) saved in directory `path`; MopError naming the
+    file if it is damaged."""
     file = Path(path) / FILE
     try:
         d = json.loads(file.read_text())
+        if d.get("kind") == NARX_KIND:
+            return FittedNARX.from_json(d)
         identifier = IDENTIFIERS.get(d["kind"])
         model = LinearModel(**{k: np.asarray(v, dtype=np.float64) for k, v in d["model"].items()})
         m, k, n = int(d["output_dim"]), int(d["input_dim"]), len(model.x0)

@@ -26,8 +26,10 @@ from mop.models.recurrent import RecurrentModel
 from mop.models.registry import register_model
 from mop.simulators.lru import LRU
 
+NAME = "deep-lru"  # the registry's name (not "lru": `mop benchmark --predictors lru` is mop.simulators' LRU)
 
-@register_model("deep-lru", skip_presets=("paper", "small", "smoke"))
+
+@register_model(NAME, skip_presets=("paper", "small", "smoke"))
 class LRUModel(RecurrentModel):
     label = "the LRU"
 

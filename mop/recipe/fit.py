@@ -23,7 +23,14 @@ from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget, check_minute
 from mop.recipe.finetune import fine_tune_config, records_start, within_budget
 from mop.recipe.given import split
 from mop.recipe.layers import scratch_config
-from mop.recipe.records import budget_plan, feature_line, gaps_turn_off_recipe, order_line, recipe_reads
+from mop.recipe.records import (
+    body_line,
+    budget_plan,
+    feature_line,
+    gaps_turn_off_recipe,
+    order_line,
+    recipe_reads,
+)
 from mop.recipe.selection import feature_alone, select_against_linear, selection_line, training_time
 from mop.recipe.shrink import SHRINK_FILE, shrink_line
 from mop.recipe.training import train
@@ -223,6 +230,9 @@ def record_lines(
             "records recipe, or size this run with model keys and train.steps=N"
         )
     lines.append(feature_line(config) or "feature: none (the network reads the record alone)")
+    body = body_line(config, overrides, init, chosen, record)
+    if body:
+        lines.append(body)
     orders = order_line(config, overrides, init, chosen)
     if orders:
         lines.append(orders)

@@ -6,11 +6,13 @@ Layers, later wins:
    `mop reproduce` reads them), or a RunConfig .json file (its sizes are its own: no --preset);
 2. `--data FILE` (data.path) and `--val FILE` (data.validation_path): recorded trajectories;
 3. on recorded data with inputs and complete outputs, where no source, no --preset and no override chose
-   the feature, the
-   records recipe (plan_records, a RecordsPlan): a 1 x 32 model for the steps its budget buys on the record
-   (mop.recipe.budget: --budget MINUTES, default 5) whose ARX(p, q) feature with an
-   intercept starts from the least-squares ARX of the training part (model.rls_prior = "fit"), the orders
-   those `mop fit arx` chooses on that part (held-out free-run simulation); the last weights are kept (not
+   the feature, the records recipe (plan_records, a RecordsPlan; mop.recipe.plan): its network for the steps
+   its budget buys on the record (mop.recipe.budget: --budget MINUTES, default 5): where no model.arch is
+   named, the deep LRU trained on its free-run simulation error (RECORDS_BODY), with the least-squares
+   feature the recipe chooses on the training part (ARX, cubic NARX or longer ARX) left to the held-out check
+   as a model of its own; with model.arch=gpt a 1 x 32 transformer reading that feature's one-step prediction
+   (an ARX(p, q) with an intercept started from its least-squares fit, model.rls_prior = "fit", the orders
+   `mop fit arx` chooses on that part) and predicting its residual; the last weights are kept (not
    train.keep_best: its one-step validation loss on one record's last 10% picked step 500 of seed 1 on
    tank_records --plant 5, which simulates at 1.009 against 0.49 at step 1000);
 4. the dotted key=value overrides.

@@ -1,14 +1,18 @@
 """The records recipe: what `mop train --data FILE` trains on one user's record when nothing else is named.
 
-Before training (plan_records, layer 3 of mop.recipe.layers): the ARX orders `mop fit arx` chooses on the
-record's training part, cubed output lags where a cubic NARX simulates the held-out end of that part better
-(mop.identify.cubic), else a longer ARX where a long record supports one (mop.identify.long_arx; windows of
-at least twice its orders; fixed at its fit, model.rls_fixed, as the recursion would cost most of each
-step), the feature started from their least-squares fit, the model RECORDED_MODEL and the steps its budget
-buys on the record (mop.recipe.budget): a RecordsPlan (mop.recipe.plan), planned from the record's training
-part handed over once (mop.train.records.TrainingPart: nothing here reads a file or asks the record again).
-After training: the held-out choice between the network's correction at each gain and the fitted ARX and N4SID
-(mop.recipe.selection). feature_line and order_line say what was chosen and why.
+Before training (plan_records, layer 3 of mop.recipe.layers): the least-squares feature (feature_orders):
+the ARX orders `mop fit arx` chooses on the record's training part, cubed output lags where a cubic NARX
+simulates the held-out end of that part better (mop.identify.cubic), else a longer ARX where a long record
+supports one (mop.identify.long_arx); the network: where no model.arch is named, the deep LRU trained on
+its free-run simulation error (RECORDS_BODY, records_body: mop.recipe.plan), which reads no feature, so the
+feature is left to the held-out check as a model of its own; with model.arch=gpt the transformer
+RECORDED_MODEL reading the feature started from its least-squares fit (windows of at least twice its orders;
+a long ARX fixed at its fit, model.rls_fixed, as the recursion would cost most of each step); and the steps
+the budget buys on the record (mop.recipe.budget): a RecordsPlan (mop.recipe.plan), planned from the
+record's training part handed over once (mop.train.records.TrainingPart: nothing here reads a file or asks
+the record again). After training: the held-out choice between the network (and, for the transformer, its
+correction at each gain) and the least-squares models (mop.recipe.selection). feature_line, body_line and
+order_line say what was chosen and why.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from mop.identify.long_arx import LONG_ORDERS, choose_long_orders
 from mop.identify.select import chosen_orders, feasible_order, fit, largest_order
 from mop.models import reads_features
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_windows
-from mop.recipe.plan import RECORDED_MODEL, RecordsPlan
+from mop.recipe.plan import RECORDED_MODEL, RECORDS_BODY, RECORDS_HORIZON, RecordsPlan
 from mop.record import RecordsLike
 from mop.train.auto import FEATURE_KEYS as AUTO_KEYS
 from mop.train.records import RecordedData, TrainingPart, TrainingRecords
@@ -99,32 +103,50 @@ def plan_records(
     function of its arguments: the same part gives the same plan. feature=False (an architecture that reads
     no input features, e.g. model.arch=lru): no feature, the config's windows, the steps the budget buys."""
     if not feature:
+        arx_fits(part)
         horizon = config.train.horizon
         budget_plan = plan_windows(budget, part.lengths, config.train.batch_size, horizon)
         return RecordsPlan(0, 0, 0, False, horizon, False, config.model.context, budget_plan)
+    p, q, c, fixed = feature_orders(part, cubes)
+    horizon = feature_horizon(config.train.horizon, p, q)
+    return RecordsPlan(
+        p=p,
+        q=q,
+        cubes=c,
+        fixed=fixed,
+        horizon=horizon,
+        longer=horizon > config.train.horizon,
+        context=max(config.model.context, horizon),
+        budget=plan_windows(budget, part.lengths, config.train.batch_size, horizon),
+    )
+
+
+def arx_fits(part: TrainingPart) -> int:
+    """The largest ARX order the training part allows (mop.identify.select.largest_order); MopError where it
+    allows none: the recipe's feature, and the held-out check's fitted ARX, need one."""
     largest = largest_order(ARX.kind, part.pairs)
     if largest == 0:
         raise MopError(
-            f"{part.source}: its training part is too short to fit the records recipe's ARX feature; give a "
-            "longer record, or name the model's feature (model.rls_order=0 for none)"
+            f"{part.source}: its training part is too short to fit the records recipe's ARX feature (which "
+            "its held-out check compares the network with); give a longer record, or name the model's "
+            "feature (model.rls_order=0 for none)"
         )
+    return largest
+
+
+def feature_orders(part: TrainingPart, cubes: bool = True) -> tuple[int, int, int, bool]:
+    """(p, q, c, fixed): the records recipe's least-squares feature on a record's training part: the ARX
+    orders `mop fit arx` chooses there (mop.identify.select), c of the output lags cubed where a cubic NARX
+    simulates the held-out end of the part better (mop.identify.cubic.choose_cubes; cubes=False: c = 0),
+    else the longer ARX(P, P) a long record supports (mop.identify.long_arx; fixed True: held at its fit)."""
+    largest = arx_fits(part)
     orders = chosen_orders(ARX.kind, part.pairs, max_order=largest, source=part.source)
     p, q, c = orders["p"], orders["q"], 0
     if cubes and part.normalised is not None:  # (p, 0) keeps the ARX(p, q) `mop fit arx` chose
         p, c = choose_cubes(part.normalised, p, q)[:2]
     if c == 0 and part.normalised is not None:
         p, q = choose_long_orders(part.normalised, p, q, max(LONG_ORDERS))[:2]
-    horizon = feature_horizon(config.train.horizon, p, q)
-    return RecordsPlan(
-        p=p,
-        q=q,
-        cubes=c,
-        fixed=max(p, q) in LONG_ORDERS and c == 0,
-        horizon=horizon,
-        longer=horizon > config.train.horizon,
-        context=max(config.model.context, horizon),
-        budget=plan_windows(budget, part.lengths, config.train.batch_size, horizon),
-    )
+    return p, q, c, max(p, q) in LONG_ORDERS and c == 0
 
 
 def recipe_reads(record: RecordedData) -> bool:
@@ -166,12 +188,43 @@ def with_recorded_features(
         return config
     if not recipe_reads(record):
         return config
-    arch = named.get("model.arch", config.model.arch)
+    body = {} if "model.arch" in named else records_body(record)
+    arch = named.get("model.arch", body.get("model.arch", config.model.arch))
     cubes = "model.rls_cubes" not in named
     windows = {key: named[key] for key in WINDOW_KEYS if key in named}  # the budget buys the windows trained
-    planned = apply_settings(config, windows) if windows else config
+    planned = apply_settings(config, {**body, **windows})
     plan = plan_records(record.training_part, planned, budget, cubes, feature=reads_features(arch))
-    return apply_settings(config, plan.settings())
+    return apply_settings(config, {**plan.settings(), **body})
+
+
+def records_body(record: RecordedData) -> dict[str, object]:
+    """RECORDS_BODY (mop.recipe.plan) with its windows: RECORDS_HORIZON steps, or as many as the record's
+    longest training part holds (and its longest held-out trajectory, where whole trajectories are held
+    out: a held-out tail of a record split in time is simulated after the steps before it)."""
+    longest = [max(len(a) for a in record.train_parts)]
+    if record.split != "time":
+        longest.append(max(len(a) for a in record.val_parts))
+    horizon = max(1, min(RECORDS_HORIZON, *(n - 1 for n in longest)))
+    after = min(RECORDS_BODY["train.simulate_after"], horizon - 1)
+    return {**RECORDS_BODY, "train.horizon": horizon, "model.context": horizon, "train.simulate_after": after}
+
+
+def body_line(
+    config: RunConfig, overrides: list[str], init: str | None, chosen: bool, record: RecordedData
+) -> str | None:
+    """One line naming the records recipe's own network (RECORDS_BODY) where it trains one: no source,
+    --preset, --init or model.arch chose the model, and the recipe reads the record."""
+    if chosen or init is not None or "model.arch" in parse_overrides(list(overrides)):
+        return None
+    if config.model.arch != RECORDS_BODY["model.arch"] or not recipe_reads(record):
+        return None
+    m, t = config.model, config.train
+    return (
+        f"network: the records recipe's deep LRU ({m.num_layers} x {m.width}), trained on its free-run "
+        f"simulation error: in each window of {t.horizon} steps the outputs from a random step >= "
+        f"{t.simulate_after} on are read as missing and simulated; the held-out check then scores it beside "
+        "the least-squares models (model.arch=gpt: the transformer reading the ARX feature instead)"
+    )
 
 
 def feature_line(config: RunConfig) -> str | None:

@@ -1,10 +1,13 @@
-"""Never worse than the fitted linear models: the choice a records run makes after training.
+"""Never worse than the fitted least-squares models: the choice a records run makes after training.
 
 After a records-recipe run has trained, the candidates are its network, in each of its readings (readings:
 a network trained for simulation reads its simulated outputs as missing, as it trained, or its predictions
-fed back) with the correction at each gain of mop.recipe.shrink.GAINS (1: as trained; 0: its in-context
-feature alone), and the linear models `mop fit arx` and `mop fit n4sid` choose on the same training part
-(LINEAR). Each simulates from the inputs alone, after n measured outputs (the records' initialization
+fed back), for a transformer reading a feature with the correction at each gain of mop.recipe.shrink.GAINS
+(1: as trained; 0: its in-context feature alone), and the linear models `mop fit arx` and `mop fit n4sid`
+choose on the same training part (LINEAR); for a network that reads no feature (the records recipe's deep
+LRU) also the recipe's least-squares feature fitted on that part as a model of its own where it is not that
+ARX (a cubic NARX or a longer ARX: mop.identify.narx_model, FEATURE).
+Each simulates from the inputs alone, after n measured outputs (the records' initialization
 window, Record.init_window, as a benchmark's test is simulated, where they give one, else INIT_WINDOW):
 - the held-out data (held_out_stretches: the last 10% of a record after the n measured steps before it, or
   the held-out trajectories, or --val): unseen, but on a short record a hundred steps or so;
@@ -18,9 +21,9 @@ test; the long run ranked every candidate of those runs as the test did.
 selection.json in the run directory holds every score and the one kept:
 - the network, in its reading at its gain: the reading becomes the run's forecast_mode
   (mop.runs.load_predictor reads it), a gain below 1 is written into the run's weights;
-- a linear model otherwise: the run directory also holds it refitted on the whole estimation record,
-  exactly what `mop fit KIND FILE` writes (fitted.json), and `mop predict RUN`, `mop.load(RUN)` load it
-  (they read a directory with fitted.json as a fitted model),
+- a least-squares model otherwise: the run directory also holds it (fitted.json): the ARX or N4SID refitted
+  on the whole estimation record, exactly what `mop fit KIND FILE` writes, or the feature as scored; `mop
+  predict RUN`, `mop.load(RUN)` load it (they read a directory with fitted.json as a fitted model),
 so a user never gets a run that simulates its record worse than the better linear model would have.
 """
 
@@ -38,8 +41,12 @@ from mop.config import RunConfig
 from mop.errors import MopError
 from mop.identify.arx import ARX
 from mop.identify.n4sid import N4SID
+from mop.identify.narx_model import KIND as FEATURE
+from mop.identify.narx_model import fit_cubic_narx
 from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
+from mop.models import reads_features
+from mop.recipe.records import feature_orders
 from mop.recipe.shrink import GAINS, gain_scores, scale_correction
 from mop.records import divergence_step, simulate_all
 from mop.runs import SELECTION_FILE, load_predictor, with_reading
@@ -50,7 +57,7 @@ FORMAT = 4  # of SELECTION_FILE: a run holding an older one chooses again
 INIT_WINDOW = 50  # measured outputs a held-out simulation starts from where the records give none
 LONG_RUN = 2000  # steps of the long free run (long_run_stretches)
 LINEAR = (ARX.kind, N4SID.kind)  # the fitted linear models the network must beat, preferred in this order
-NAMES = {ARX.kind: "ARX", N4SID.kind: "N4SID"}
+NAMES = {ARX.kind: "ARX", N4SID.kind: "N4SID", FEATURE: "least-squares feature, NARX"}
 
 
 def simulation_rmse(predictor, data: list[tuple[np.ndarray, np.ndarray]], init: int) -> float:
@@ -143,6 +150,26 @@ def _fit_linear(train: list, source: str) -> dict:
     return fitted
 
 
+def _feature_model(config: RunConfig, record: RecordedData, train: list) -> dict:
+    """{FEATURE: the records recipe's least-squares feature fitted on the training part} for a network that
+    reads no feature (model.arch=deep-lru, gru), where that feature is not the fitted ARX: a cubic NARX or a
+    longer ARX (mop.recipe.records.feature_orders; mop.identify.narx_model). A transformer reading one has it
+    already, as its correction at gain 0. {} otherwise."""
+    if reads_features(config.model.arch):
+        return {}
+    p, q, c, fixed = feature_orders(record.training_part)
+    if c == 0 and not fixed:
+        return {}
+    return {FEATURE: fit_cubic_narx(train, p, q, c, config.data.path, moments=record.fit())}
+
+
+def _refit(kind: str, model, record: RecordedData, source: str):
+    """The kept least-squares model as the run holds it: `mop fit KIND`'s model refitted on the whole
+    estimation record (its orders chosen again there), or the feature as the check scored it (fitted on
+    the training part: the coefficients a transformer reading it starts from)."""
+    return model if kind == FEATURE else fit(kind, list(record.given.records), source=source)
+
+
 def _scores(predictor, held_out: list, long_run: list) -> dict[str, float]:
     """{"held_out", "long_run", "score"}: the two simulations' RMSE and their mean (inf where either
     diverged)."""
@@ -171,7 +198,7 @@ def select_against_linear(run_dir: str | Path, config: RunConfig, record: Record
     train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
     n = init_window(record)
     held_out, long_run = held_out_stretches(record, n), long_run_stretches(record, n)
-    linear = _fit_linear(train, config.data.path)
+    linear = {**_fit_linear(train, config.data.path), **_feature_model(config, record, train)}
     network = load_predictor(run_dir)
     network.model.eval()
     gains = GAINS if _gains_apply(network) else (1.0,)
@@ -195,7 +222,7 @@ def select_against_linear(run_dir: str | Path, config: RunConfig, record: Record
     kept, reading = ("network", name) if name in network_scores else (name, None)
     fitted = run_dir / FITTED_FILE
     if kept != "network":
-        whole = fit(kept, list(record.given.records), source=config.data.path)
+        whole = _refit(kept, linear[kept], record, config.data.path)
         write_json(fitted, {"format": 1, **whole.to_json()})
     else:
         fitted.unlink(missing_ok=True)
@@ -308,7 +335,7 @@ def selection_line(result: dict, feature: str | None = None, trained: str | None
         return f"{both}: the run keeps the network {scaled}{', ' + how if how else ''}{extra}{spent}"
     kind = result["kept"]
     return (
-        f"{both}: the network does not beat the linear models, so the run keeps the fitted "
-        f"{_linear_name(result, kind)} (fitted.json, as `mop fit {kind}` writes it): `mop predict` and "
+        f"{both}: the network does not beat the least-squares models, so the run keeps the fitted "
+        f"{_linear_name(result, kind)} (fitted.json, as `mop fit` writes it): `mop predict` and "
         f"mop.load use it; the training{spent} did not improve on it"
     )
