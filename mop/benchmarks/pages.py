@@ -16,9 +16,10 @@ A table written by `mop reproduce` (its summary.md, an experiment's report.md) i
 
 Each results-table file is a results.json of `mop benchmark` copied beside the page (paths relative to
 it), with its provenance (command, commit, machine, date). A row is one predictor of one file, labelled
-with the seed of the file's command where MOP trained (and its `--train` keys); then the best published
-baseline and the state of the art (mop.benchmarks.protocol) where known. Values are in the units the
-field publishes (mV, mm: Benchmark.shown).
+with the seed of the file's command where MOP trained (and its `--train` keys; "mop:network" and
+"mop:feature", the candidates its held-out check did not keep, as the network or the feature alone); then
+the best published baseline and the state of the art (mop.benchmarks.protocol) where known. Values are in
+the units the field publishes (mV, mm: Benchmark.shown).
 `python -m mop.benchmarks.pages PAGE.md` rewrites every table of a page from its files.
 """
 
@@ -32,7 +33,7 @@ import sys
 from pathlib import Path
 
 from mop.benchmarks import BENCHMARKS
-from mop.benchmarks.protocol import PUBLISHED, STATE_OF_THE_ART
+from mop.benchmarks.protocol import ALONE, PUBLISHED, STATE_OF_THE_ART
 from mop.errors import MopError
 
 MARKER = re.compile(r"^<!-- results-table: (\S+) (.+?) -->$")
@@ -78,7 +79,11 @@ def render(bench: str, files: list[Path]) -> list[str]:
         if tests is None:
             tests = {t: next(iter(results[t].values()))["n"] for t in order}
         for predictor in results[order[0]]:
-            label = f"mop ({keys})" if keys and predictor == "mop" else predictor
+            learner, _, part = predictor.partition(":")
+            if learner == "mop" and part in ALONE:  # a candidate the run's check did not keep
+                label = f"mop ({keys}), {ALONE[part]}" if keys else f"mop, {ALONE[part]}"
+            else:
+                label = f"mop ({keys})" if keys and predictor == "mop" else predictor
             if predictor.startswith(LEARNED):
                 label = f"{label}{_budget(data['provenance']['command'])}, seed {seed}"
             cells = [_cell(results[t][predictor]["rmse"], scale) for t in tests]

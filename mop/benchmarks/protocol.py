@@ -18,6 +18,11 @@ from mop.plots import plt, save
 from mop.record import Record
 from mop.records import simulate_all, simulation_rmse
 
+# A records run's candidates its held-out check did not keep, scored on the tests beside what it keeps
+# (`mop benchmark`: results under "mop:network", "mop:feature"), as the results pages label them
+NETWORK, FEATURE = "network", "feature"
+ALONE = {NETWORK: "the network alone", FEATURE: "its least-squares feature alone"}
+
 CITATION = (
     'Champneys, Beintema, Toth, Schoukens, Rogers, "Baseline Results for Selected Nonlinear System '
     'Identification Benchmarks", IFAC-PapersOnLine 58(15), 2024 (result files of MDCHAMP/nonlinear_baselines)'

@@ -26,6 +26,8 @@ from mop.atomic import atomic_path, write_json
 from mop.benchmarks import BENCHMARKS, Split, load_benchmark, present
 from mop.benchmarks.protocol import (
     CITATION,
+    FEATURE,
+    NETWORK,
     PUBLISHED,
     STATE_OF_THE_ART,
     TestScore,
@@ -37,14 +39,16 @@ from mop.commands.predict import write_simulation
 from mop.config import parse_overrides
 from mop.errors import MopError
 from mop.estimators import Learned
-from mop.identify import fit
+from mop.identify import fit, is_fitted
+from mop.identify import load as load_fitted
+from mop.identify.narx_model import KIND as FEATURE_KIND
 from mop.identify.select import POLE_RADIUS
 from mop.incontext import reading_line, simulate_with_context
 from mop.peers.narx import NarxPredictor, fit_narx, frols_class, narx_line
 from mop.pretrained import dimensions, fitting_hint
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
-from mop.recipe.selection import feature_alone, selection_line
+from mop.recipe.selection import FEATURE_DIR, feature_alone, selection_line
 from mop.record import as_pairs, read_records
 from mop.runs import load_config, load_predictor
 from mop.simulators import SimulatorConfig, fit_simulator, simulator_line
@@ -191,6 +195,19 @@ def _fitted(kind: str, split: Split, warnings: list[str]):
     return fitted
 
 
+def alone(name: str, run_dir: Path, selection: dict) -> dict:
+    """{f"{name}:network": the run's network as trained} where its held-out check kept a least-squares
+    model, and {f"{name}:feature": the recipe's least-squares feature as the check scored it} where it was
+    a candidate and was not kept: each then simulates the tests beside what the run keeps, so a table shows
+    the network alone, the feature alone and what the check chose."""
+    out = {}
+    if selection["kept"] != "network":
+        out[f"{name}:{NETWORK}"] = load_predictor(run_dir)
+    if selection["kept"] != FEATURE_KIND and is_fitted(run_dir / FEATURE_DIR):
+        out[f"{name}:{FEATURE}"] = load_fitted(run_dir / FEATURE_DIR)
+    return out
+
+
 def _write_simulation(path: Path, test, score: TestScore) -> None:
     """The simulation beside the measured output, one row per scored step, in `mop predict --simulate`'s
     layout (trajectory, t, y0.., ysim0..)."""
@@ -255,6 +272,7 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
             if getattr(learned, "selection_", None):
                 feature = feature_alone(load_config(learned.run_dir_))
                 notes.append(f"{name}: {selection_line(learned.selection_, feature)}")
+                models.update(alone(name, learned.run_dir_, learned.selection_))
         elif name == NARX:
             models[name] = fit_narx(split.estimation)
             notes.append(f"{name}: {narx_line(models[name])}")

@@ -24,6 +24,9 @@ selection.json in the run directory holds every score and the one kept:
 - a least-squares model otherwise: the run directory also holds it (fitted.json): the ARX or N4SID refitted
   on the whole estimation record, exactly what `mop fit KIND FILE` writes, or the feature as scored; `mop
   predict RUN`, `mop.load(RUN)` load it (they read a directory with fitted.json as a fitted model),
+  and mop.runs.load_predictor(RUN) still loads the network;
+- the feature, where it was a candidate, is kept loadable as scored in RUN/feature (FEATURE_DIR, a fitted
+  model's directory), so what each candidate simulates can be measured on a test (`mop benchmark` does),
 so a user never gets a run that simulates its record worse than the better linear model would have.
 """
 
@@ -58,6 +61,7 @@ INIT_WINDOW = 50  # measured outputs a held-out simulation starts from where the
 LONG_RUN = 2000  # steps of the long free run (long_run_stretches)
 LINEAR = (ARX.kind, N4SID.kind)  # the fitted linear models the network must beat, preferred in this order
 NAMES = {ARX.kind: "ARX", N4SID.kind: "N4SID", FEATURE: "least-squares feature, NARX"}
+FEATURE_DIR = "feature"  # a featureless run's least-squares feature as scored, loadable as a fitted model
 
 
 def simulation_rmse(predictor, data: list[tuple[np.ndarray, np.ndarray]], init: int) -> float:
@@ -220,6 +224,9 @@ def select_against_linear(run_dir: str | Path, config: RunConfig, record: Record
     best = min(range(len(candidates)), key=lambda i: (candidates[i][2], i))
     name, gain, _ = candidates[best]
     kept, reading = ("network", name) if name in network_scores else (name, None)
+    if FEATURE in linear:  # the feature alone stays loadable beside the run: `mop predict RUN/feature`
+        (run_dir / FEATURE_DIR).mkdir(exist_ok=True)
+        write_json(run_dir / FEATURE_DIR / FITTED_FILE, {"format": 1, **linear[FEATURE].to_json()})
     fitted = run_dir / FITTED_FILE
     if kept != "network":
         whole = _refit(kept, linear[kept], record, config.data.path)
