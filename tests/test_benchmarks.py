@@ -15,6 +15,7 @@ from mop.benchmarks import load_benchmark, present
 from mop.benchmarks.protocol import run_test
 from mop.cli import main
 from mop.identify import fit
+from mop.identify.narx_model import KIND as FEATURE_KIND
 from mop.identify.store import FILE as FITTED_FILE
 from mop.identify.store import load as load_fitted
 from mop.predictors import make_predictor
@@ -193,10 +194,13 @@ def test_a_diverging_model_is_reported_as_diverged(tmp_path):
     assert math.isinf(score.rmse) and score.diverged_at >= 20
 
 
-def test_mop_on_a_cubic_plant_reads_a_cubic_feature_and_beats_the_fitted_arx(tmp_path, monkeypatch):
-    """`mop benchmark --predictors arx,mop` on a Duffing-like record (a cubic restoring force): the records
-    recipe chooses cubed output lags, the report says what MOP is (its feature and held-out choice), and
-    its free run simulates the unseen test at under half the fitted ARX's RMSE (observed about a tenth)."""
+def test_mop_on_a_cubic_plant_keeps_its_cubic_feature_and_scores_the_network_beside_it(tmp_path, monkeypatch):
+    """`mop benchmark --predictors arx,mop` on a Duffing-like record (a cubic restoring force) with a short
+    training: the records recipe chooses cubed output lags for its least-squares feature, the held-out
+    check keeps that cubic NARX over the barely trained network, and the run's free run simulates the
+    unseen test at under half the fitted ARX's RMSE (observed about a tenth); the network the check did
+    not keep is scored beside it ("mop:network"), at what the run's network simulates; the report says
+    what MOP is."""
     import mop.recipe.budget as budget
 
     monkeypatch.setattr(budget, "MIN_STEPS", 20)  # a short training: the feature carries the result
@@ -214,9 +218,18 @@ def test_mop_on_a_cubic_plant_reads_a_cubic_feature_and_beats_the_fitted_arx(tmp
     argv = ["benchmark", "--est", str(tmp_path / "est.csv"), "--test", str(tmp_path / "val.csv")]
     assert main([*argv, "--predictors", "arx,mop", "--out", str(out), "--quiet", "--budget", "0.1"]) == 0
     scores = json.loads((out / "results.json").read_text())["est"]["val"]
+    run = out / "est" / "mop" / "run"
+    assert json.loads((run / "selection.json").read_text())["kept"] == FEATURE_KIND
     assert scores["mop"]["rmse"] < 0.5 * scores["arx"]["rmse"]
+    assert set(scores) == {"arx", "mop", "mop:network"}  # the feature is what the run keeps
+    (test,) = read_records(tmp_path / "val.csv")
+    network = run_test(load_predictor(run), dataclasses.replace(test, init_window=50)).rmse
+    assert network == pytest.approx(scores["mop:network"]["rmse"], rel=1e-6)
     report = (out / "report.md").read_text()
-    assert "mop: feature: the network reads the cubic NARX" in report and "held-out simulation" in report
+    assert (
+        "the run keeps the fitted least-squares feature, NARX(p=" in report
+        and "held-out simulation" in report
+    )
 
 
 def test_a_shipped_model_fine_tuned_on_the_estimation_part_is_scored_as_its_run(tmp_path):

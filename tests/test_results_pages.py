@@ -70,6 +70,19 @@ def test_a_row_trained_with_keys_is_labelled_with_them(tmp_path):
         "| mop (a.b=1), budget 30 min, seed 1 | 0.9 |",
         "| lru, budget 30 min, seed 1 | 2 |",
     ]
+    # the candidates a records run's check did not keep, scored beside it (mop benchmark's mop:PART)
+    result["provenance"]["command"] = "mop benchmark silverbox --seed 2"
+    result["silverbox"]["test_multisine"] = {
+        "mop": {"rmse": 0.0009, "n": 50},
+        "mop:network": {"rmse": 0.0012, "n": 50},
+        "mop:feature": {"rmse": 0.0011, "n": 50},
+    }
+    path.write_text(json.dumps(result))
+    assert render("silverbox", [path])[2:5] == [
+        "| mop, seed 2 | 0.9 |",
+        "| mop, the network alone, seed 2 | 1.2 |",
+        "| mop, its least-squares feature alone, seed 2 | 1.1 |",
+    ]
 
 
 def test_a_copied_table_is_the_files_kth_table(tmp_path):
