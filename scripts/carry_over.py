@@ -12,7 +12,8 @@ provenance (the carry-over tables of docs/results/class-models.md are those file
         (key=value: overrides of the fine-tune)
 
 --with adds predictors beside the fitted ARX and the fine-tunes: `zero-shot` (SOURCE on val.csv as it is),
-`scratch` (`mop train --data est.csv`, the records recipe, one run per training seed: MOP from scratch),
+`scratch` (`mop train --data est.csv model.arch=gpt`, the records recipe's transformer, the fine-tunes'
+architecture, one run per training seed: the same network from scratch),
 `n4sid` (`mop fit n4sid est.csv`), the online `arx-best` and `last`, which read only val.csv, and
 `source-orders` (a second fine-tune per seed whose feature keeps the source's orders, model.rls_order=p
 model.arx_order=q, where the default takes those `mop fit arx est.csv` chooses).
@@ -45,6 +46,9 @@ from mop.systems import make_family
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 SAMPLES = 1024
 
+# the scratch runs' architecture: the class models' (the records recipe's default is the deep LRU)
+SCRATCH_ARCH = "model.arch=gpt"
+
 
 def tank_records():
     spec = importlib.util.spec_from_file_location("tank_records", EXAMPLES / "tank_records.py")
@@ -75,7 +79,7 @@ LABELS = {  # carry.json's predictor keys as the report names them (a trailing s
     "zero-shot": "the class model as it is",
     "ft": "fine-tuned (`mop train --init {source}`), seed ",
     "fts": "fine-tuned with the source's orders, seed ",
-    "scratch": "from scratch (`mop train --data`), seed ",
+    "scratch": "from scratch (`mop train --data model.arch=gpt`), seed ",
 }
 
 
@@ -149,7 +153,7 @@ def main() -> None:
             if "scratch" in extra:
                 scratch = d / f"scratch{seed}"
                 argv = ["train", "--data", str(est), "--out", str(scratch), f"train.seed={seed}"]
-                run([*argv, "--no-progress"])
+                run([*argv, "--no-progress", SCRATCH_ARCH])
                 runs[f"scratch{seed}"] = str(scratch)
         row = {}
         for name, path in runs.items():

@@ -11,6 +11,14 @@ pip install -q -e ".${extras:+[$extras]}"
 # the narx peer's library (mop.peers.narx), for its tests: its metadata pins numpy <= 2.3.5, which would
 # downgrade mop's numpy; 0.9.0 runs with it, so it is installed without its dependencies (scipy and
 # matplotlib are mop's own)
+# the subnet peer's library (mop.peers.subnet), for its tests: deepSI 0.4.4 pins nonlinear_benchmarks < 0.2,
+# whose data class 1.0 (mop's benchmarks extra) kept, so it is installed without its dependencies
 case ",$extras," in
-*,test,*) python -c "import sysidentpy" 2>/dev/null || pip install -q --no-deps sysidentpy==0.9.0 ;;
+*,test,*)
+  python -c "import sysidentpy" 2>/dev/null || pip install -q --no-deps sysidentpy==0.9.0
+  python -c "import deepSI" 2>/dev/null || {
+    pip install -q "nonlinear_benchmarks>=1.0"
+    pip install -q --no-deps deepsi==0.4.4 cloudpickle
+  }
+  ;;
 esac

@@ -38,7 +38,7 @@ from mop.errors import MopError
 
 MARKER = re.compile(r"^<!-- results-table: (\S+) (.+?) -->$")
 COPY = re.compile(r"^<!-- results-copy: (\S+?)(?:#(\d+))? -->$")
-LEARNED = ("mop", "finetune:", "lru")  # predictors whose result depends on the training seed
+LEARNED = ("mop", "finetune:", "lru", "subnet")  # predictors whose result depends on the training seed
 
 
 def _seed(command: str) -> int | None:

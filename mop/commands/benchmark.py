@@ -45,6 +45,7 @@ from mop.identify.narx_model import KIND as FEATURE_KIND
 from mop.identify.select import POLE_RADIUS
 from mop.incontext import reading_line, simulate_with_context
 from mop.peers.narx import NarxPredictor, fit_narx, frols_class, narx_line
+from mop.peers.subnet import SubnetPredictor, deepsi, fit_subnet, subnet_line
 from mop.pretrained import dimensions, fitting_hint
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
@@ -59,10 +60,12 @@ PREDICTORS = (
     "mop",
     "lru",
     "narx",
+    "subnet",
 )  # and pretrained:NAME, a shipped model in context (mop.incontext),
 # and finetune:NAME, that model fine-tuned on the estimation part (`mop train --data --init pretrained:NAME`)
 SHIPPED_KINDS = ("pretrained:", "finetune:")
 NARX = NarxPredictor.name
+SUBNET = SubnetPredictor.name
 
 
 def shipped_name(predictor: str) -> str:
@@ -111,7 +114,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="arx,n4sid,mop",
         help="comma-separated: arx, n4sid, mop, lru (a deep-LRU simulator trained on its simulation error, "
         "mop.simulators), narx (sysidentpy's FROLS polynomial NARX, least squares, an optional extra: "
-        "pip install --no-deps sysidentpy==0.9.0), pretrained:NAME (in context), finetune:NAME "
+        "pip install --no-deps sysidentpy==0.9.0), subnet (deepSI's SUBNET, its defaults, trained within "
+        "--budget, an optional extra), pretrained:NAME (in context), finetune:NAME "
         "(pretrained:NAME fine-tuned on the "
         "estimation part within --budget); default arx,n4sid,mop",
     )
@@ -276,6 +280,10 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
         elif name == NARX:
             models[name] = fit_narx(split.estimation)
             notes.append(f"{name}: {narx_line(models[name])}")
+        elif name == SUBNET:
+            n = min(max(t.init_window, 1) for t in split.tests)
+            models[name] = fit_subnet(split.estimation, n, seed=args.seed, minutes=budget)
+            notes.append(f"{name}: {subnet_line(models[name])}")
         elif name == "lru":
             cfg = SimulatorConfig(init_window=min(max(t.init_window, 1) for t in split.tests), seed=args.seed)
             models[name] = fit_simulator(split.estimation, cfg)
@@ -474,6 +482,8 @@ def run(args: argparse.Namespace) -> int:
     parse_overrides(args.train)  # a malformed key=value is refused before any work
     if NARX in predictors:
         frols_class()  # not installed: one line before any work
+    if SUBNET in predictors:
+        deepsi()
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise MopError(f"--out {out} is a file; give a folder")
