@@ -44,6 +44,7 @@ from mop.identify import is_fitted
 from mop.identify.arx import ARX as ArxIdentifier
 from mop.identify.linear import FittedPredictor
 from mop.identify.n4sid import N4SID as N4sidIdentifier
+from mop.identify.narx_model import FittedNARX, fit_cubic_narx
 from mop.identify.select import SIMULATION, fit, fit_orders
 from mop.identify.store import FILE as FITTED_FILE
 from mop.identify.store import load as load_fitted
@@ -405,8 +406,9 @@ class Loaded(Estimator):
         return out[0] if one else out
 
     def fit(self, data: Records, **options: Any) -> Loaded:
-        """Train further on `data`: a fitted folder is fitted anew with its kind and orders; a run or shipped
-        model is fine-tuned (Learned(init=spec, **options), `mop train --data --init`)."""
+        """Train further on `data`: a fitted folder (or a run that kept a least-squares model) is fitted anew
+        with its kind and orders; a run or shipped model is fine-tuned (Learned(init=spec, **options), `mop
+        train --data --init`)."""
         if isinstance(self.predictor_, FittedPredictor):
             records, _ = as_records(data)
             fitted = self.predictor_
@@ -414,6 +416,10 @@ class Loaded(Estimator):
             self.predictor_ = fit_orders(
                 fitted.kind, records, dict(fitted.orders), max_order, source=_source(data, records)
             )
+            return self
+        if isinstance(self.predictor_, FittedNARX):  # a records run that kept its least-squares feature
+            records, _ = as_records(data)
+            self.predictor_ = fit_cubic_narx(records, **self.predictor_.orders, source=_source(data, records))
             return self
         learned = Learned(init=self.spec, **options).fit(data)
         self.predictor_, self.run_dir_ = learned.predictor_, learned.run_dir_

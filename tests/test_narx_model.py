@@ -118,3 +118,6 @@ def test_a_featureless_run_keeps_the_cubic_feature_where_it_simulates_best_and_l
     data = [(noisy.y, noisy.u)]
     np.testing.assert_array_equal(simulate_all(loaded, data, 50)[0], simulate_all(refit, data, 50)[0])
     assert "least-squares feature, NARX(p=" in selection.selection_line(chosen)
+    # trained further on a record, it is fitted anew there with its orders, as a `mop fit` folder is
+    again = mop.load(run.run_dir).fit(record).predictor_
+    np.testing.assert_array_equal(again.theta, fit_cubic_narx([record], **orders).theta)
