@@ -51,7 +51,7 @@ from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
 from mop.recipe.selection import FEATURE_DIR, feature_alone, selection_line
 from mop.record import as_pairs, read_records
-from mop.runs import load_config, load_predictor
+from mop.runs import load_config, load_predictor, with_reading
 from mop.simulators import SimulatorConfig, fit_simulator, simulator_line
 
 PREDICTORS = (
@@ -200,13 +200,16 @@ def _fitted(kind: str, split: Split, warnings: list[str]):
 
 
 def alone(name: str, run_dir: Path, selection: dict) -> dict:
-    """{f"{name}:network": the run's network as trained} where its held-out check kept a least-squares
-    model, and {f"{name}:feature": the recipe's least-squares feature as the check scored it} where it was
-    a candidate and was not kept: each then simulates the tests beside what the run keeps, so a table shows
-    the network alone, the feature alone and what the check chose."""
+    """{f"{name}:network": the run's network as trained, in its reading of the lowest check score} where its
+    held-out check kept a least-squares model, and {f"{name}:feature": the recipe's least-squares feature
+    as the check scored it} where it was a candidate and was not kept: each then simulates the tests beside
+    what the run keeps, so a table shows the network alone, the feature alone and what the check chose."""
     out = {}
-    if selection["kept"] != "network":
-        out[f"{name}:{NETWORK}"] = load_predictor(run_dir)
+    if selection["kept"] != "network":  # as trained (gain 1), in the reading the check scored lowest
+        network = load_predictor(run_dir)
+        own = {r: s[selection["gains"].index(1.0)]["score"] for r, s in selection["network"].items()}
+        with_reading(network, min(own, key=own.get))
+        out[f"{name}:{NETWORK}"] = network
     if selection["kept"] != FEATURE_KIND and is_fitted(run_dir / FEATURE_DIR):
         out[f"{name}:{FEATURE}"] = load_fitted(run_dir / FEATURE_DIR)
     return out
