@@ -101,7 +101,8 @@ def plan_records(
     budget (minutes) buys on the record (mop.recipe.budget.plan_windows: longer records train longer).
     config gives the windows' length, the batch size and the model's context the plan starts from. A pure
     function of its arguments: the same part gives the same plan. feature=False (an architecture that reads
-    no input features, e.g. model.arch=lru): no feature, the config's windows, the steps the budget buys."""
+    no input features, e.g. model.arch=deep-lru): no feature (the training part must still fit an ARX, which
+    the held-out check compares with), the config's windows, the steps the budget buys."""
     if not feature:
         arx_fits(part)
         horizon = config.train.horizon
