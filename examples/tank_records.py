@@ -8,8 +8,9 @@ record with mop's defaults beside the fitted ARX and N4SID and the online arx-be
    swing input_amplitude=1.0 so that both tanks overflow at times), two multisine experiments of 1024 samples
    each (Ts = 4 s, as the benchmark's records): DIR/est.csv and DIR/val.csv (trajectory,t,y0,u0; y the lower
    tank's level in V, u the pump voltage).
-2. Fit and train on est.csv only, every command with its defaults:
-       mop train --data est.csv --out DIR/mop-S train.seed=S      (S = 0..K-1: the spread over training seeds)
+2. Fit and train on est.csv only, every command with its defaults but MOP's architecture, the records
+   recipe's transformer (model.arch=gpt; the recipe's default network is the deep LRU):
+       mop train --data est.csv --out DIR/mop-S train.seed=S model.arch=gpt   (S = 0..K-1: training seeds)
        mop fit arx est.csv --out DIR/arx ;  mop fit n4sid est.csv --out DIR/n4sid
 3. Compare on val.csv: `mop predict P val.csv` (one step ahead) and `mop predict P val.csv --simulate 50`
    (free run from the inputs alone after 50 outputs), P each of the above and the online `arx-best` and
@@ -40,12 +41,14 @@ from mop.records import scores
 from mop.systems import make_family
 
 CONTEXT = 50
+MOP = "MOP (mop train --data est.csv model.arch=gpt)"
+ARCH = "model.arch=gpt"  # the records recipe's transformer, which this example's results measured
 BUDGETS = {  # (samples per record, training overrides)
     "smoke": (
         300,
         ["train.steps=4", "model.width=16", "train.batch_size=8", "train.horizon=20", "model.context=20"],
     ),
-    "full": (1024, []),
+    "full": (1024, [ARCH]),
 }
 BASELINES = {
     "arx (fitted)": "arx",
@@ -161,7 +164,7 @@ def main(argv: list[str] | None = None) -> dict[str, list[dict[str, float]]]:
     samples, overrides = BUDGETS[args.budget]
     est, val = write_records(out, args.plant, samples)
     y = np.loadtxt(val, delimiter=",", skiprows=1, usecols=2)
-    rows: dict[str, list[dict[str, float]]] = {"MOP (mop train --data est.csv)": []}
+    rows: dict[str, list[dict[str, float]]] = {MOP: []}
     for seed in range(args.seeds):
         run = out / f"mop-{seed}"
         run_mop(
@@ -176,7 +179,7 @@ def main(argv: list[str] | None = None) -> dict[str, list[dict[str, float]]]:
                 *overrides,
             ]
         )
-        rows["MOP (mop train --data est.csv)"].append(row(y, *predictions(out, str(run), val, f"mop-{seed}")))
+        rows[MOP].append(row(y, *predictions(out, str(run), val, f"mop-{seed}")))
     trained = time.perf_counter()
     for name, kind in BASELINES.items():
         spec = kind

@@ -37,7 +37,7 @@ def test_table_and_records(smoke):
     with open(out / "validation.csv", newline="") as f:
         table = list(csv.DictReader(f))
     names = [r["predictor"] for r in table]
-    assert names.count("MOP (mop train --data est.csv)") == 2 and "arx (fitted)" in names
+    assert names.count(load_example(EXAMPLE, "tank_records_example").MOP) == 2 and "arx (fitted)" in names
     assert all(np.isfinite(float(r[k])) for r in table for k in ("one_step", "simulation"))
     arx, last = rows["arx (fitted)"][0], rows["last"][0]
     assert arx["one_step"] < last["one_step"]
