@@ -48,6 +48,7 @@ BUDGETS = {
         "train_systems": 64,
         "heldout_systems": 8,
         "train": [
+            "model.arch=gpt",  # the full budget's transformer (the records recipe's default is the deep LRU)
             "model.num_layers=1",
             "model.width=16",
             "model.num_heads=2",
