@@ -341,8 +341,9 @@ def selection_line(result: dict, feature: str | None = None, trained: str | None
         )
         return f"{both}: the run keeps the network {scaled}{', ' + how if how else ''}{extra}{spent}"
     kind = result["kept"]
+    written = f"as `mop fit {kind}` writes it" if kind in LINEAR else "as the check scored it"
     return (
         f"{both}: the network does not beat the least-squares models, so the run keeps the fitted "
-        f"{_linear_name(result, kind)} (fitted.json, as `mop fit` writes it): `mop predict` and "
+        f"{_linear_name(result, kind)} (fitted.json, {written}): `mop predict` and "
         f"mop.load use it; the training{spent} did not improve on it"
     )
