@@ -83,6 +83,15 @@ def test_a_row_trained_with_keys_is_labelled_with_them(tmp_path):
         "| mop, the network alone, seed 2 | 1.2 |",
         "| mop, its least-squares feature alone, seed 2 | 1.1 |",
     ]
+    # a row another file gives already (the fitted ARX of every run) is shown once; a differing one twice
+    result["silverbox"]["test_multisine"] = {"arx": {"rmse": 0.007, "n": 50}}
+    path.write_text(json.dumps(result))
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps(result))
+    assert [row for row in render("silverbox", [path, other]) if row.startswith("| arx")] == ["| arx | 7 |"]
+    result["silverbox"]["test_multisine"]["arx"]["rmse"] = 0.008
+    other.write_text(json.dumps(result))
+    assert len([row for row in render("silverbox", [path, other]) if row.startswith("| arx")]) == 2
 
 
 def test_a_copied_table_is_the_files_kth_table(tmp_path):

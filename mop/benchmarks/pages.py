@@ -18,7 +18,8 @@ Each results-table file is a results.json of `mop benchmark` copied beside the p
 it), with its provenance (command, commit, machine, date). A row is one predictor of one file, labelled
 with the seed of the file's command where MOP trained (and its `--train` keys; "mop:network" and
 "mop:feature", the candidates its held-out check did not keep, as the network or the feature alone); then
-the best published baseline and the state of the art (mop.benchmarks.protocol) where known. Values are in
+the best published baseline and the state of the art (mop.benchmarks.protocol) where known; a row that
+another file gives already, label and values alike (the fitted ARX of every run), is shown once. Values are in
 the units the field publishes (mV, mm: Benchmark.shown).
 `python -m mop.benchmarks.pages PAGE.md` rewrites every table of a page from its files.
 """
@@ -87,7 +88,9 @@ def render(bench: str, files: list[Path]) -> list[str]:
             if predictor.startswith(LEARNED):
                 label = f"{label}{_budget(data['provenance']['command'])}, seed {seed}"
             cells = [_cell(results[t][predictor]["rmse"], scale) for t in tests]
-            rows.append(f"| {label} | " + " | ".join(cells) + " |")
+            row = f"| {label} | " + " | ".join(cells) + " |"
+            if row not in rows:  # the fitted models every file of one benchmark holds: shown once
+                rows.append(row)
     published = PUBLISHED.get(bench, {})
     if published:
         cells = []
