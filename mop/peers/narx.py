@@ -22,10 +22,10 @@ from __future__ import annotations
 import importlib
 
 import numpy as np
-import torch
 from torch import Tensor
 
 from mop.errors import MopError
+from mop.peers.runs import free_runs
 from mop.record import Record
 from mop.systems.base import Trajectories
 
@@ -61,16 +61,12 @@ class NarxPredictor:
 
     def simulate(self, traj: Trajectories, context: int) -> Tensor:
         """(B, T+1-c, 1): y_c..y_T from y_{c-L}..y_{c-1} (L = max_lag) and the inputs."""
-        if traj.u is None:
-            raise MopError("the narx peer simulates from inputs: give records with inputs")
         L = self.max_lag
-        if context < L:
-            raise MopError(f"the narx peer starts its free run from {L} measured outputs; give n >= {L}")
-        out = []
-        for y, u in zip(traj.y.double().numpy(), traj.u.double().numpy(), strict=True):
-            sim = self.model.predict(X=u[context - L :], y=y[context - L : context])  # (T+1-c+L, 1)
-            out.append(sim[L:])
-        return torch.from_numpy(np.stack(out)).to(traj.y.dtype)
+
+        def run(y: np.ndarray, u: np.ndarray) -> np.ndarray:
+            return self.model.predict(X=u, y=y[:L])[L:]  # sysidentpy returns the L given outputs first
+
+        return free_runs(traj, context, L, self.name, "starts its free run", run)
 
 
 def fit_narx(records: list[Record]) -> NarxPredictor:

@@ -33,6 +33,7 @@ import torch
 from torch import Tensor
 
 from mop.errors import MopError
+from mop.peers.runs import free_runs
 from mop.record import Record
 from mop.systems.base import Trajectories
 
@@ -69,18 +70,14 @@ class SubnetPredictor:
 
     def simulate(self, traj: Trajectories, context: int) -> Tensor:
         """(B, T+1-c, m): y_c..y_T from y_{c-w}..y_{c-1}, u_{c-w}.. (w = window) and the inputs."""
-        if traj.u is None:
-            raise MopError("the subnet peer simulates from inputs: give records with inputs")
-        w = self.window
-        if context < w:
-            raise MopError(f"the subnet peer encodes its state from {w} measured outputs; give n >= {w}")
-        data = deepsi().Input_output_data
-        out = []
-        with torch.no_grad():
-            for y, u in zip(traj.y.double().numpy(), traj.u.double().numpy(), strict=True):
-                part = data(u=u[context - w :], y=y[context - w :], state_initialization_window_length=w)
-                out.append(np.asarray(self.model.simulate(part).y, dtype=float)[w:].reshape(-1, y.shape[1]))
-        return torch.from_numpy(np.stack(out)).to(traj.y.dtype)
+        w, data = self.window, deepsi().Input_output_data
+
+        def run(y: np.ndarray, u: np.ndarray) -> np.ndarray:
+            with torch.no_grad():
+                sim = self.model.simulate(data(u=u, y=y, state_initialization_window_length=w))
+            return np.asarray(sim.y, dtype=float)[w:].reshape(-1, y.shape[1])
+
+        return free_runs(traj, context, w, self.name, "encodes its state", run)
 
 
 def fit_subnet(
