@@ -4,7 +4,6 @@ exact, so a free run after n measured outputs reproduces the record's y_n..: an 
 initial condition or the inputs' alignment would not. Without sysidentpy the command says how to install it,
 in one line, before any work."""
 
-import importlib
 import json
 
 import numpy as np
@@ -16,6 +15,7 @@ from mop.errors import MopError
 from mop.peers import narx
 from mop.record import Record
 from mop.systems.base import Trajectories
+from tests.peer_helpers import without_library, write_split
 
 
 def polynomial_plant(steps: int, seed: int) -> Record:
@@ -31,14 +31,6 @@ def polynomial_plant(steps: int, seed: int) -> Record:
             + 0.05 * y[t - 1] * u[t - 2]
         )
     return Record(y=y, u=u)
-
-
-def write_split(rec: Record, folder, cut: int) -> list[str]:
-    """est.csv (rec's first `cut` steps) and val.csv (the rest) in folder: `mop benchmark --est --test`."""
-    for name, part in (("est", slice(0, cut)), ("val", slice(cut, len(rec.y)))):
-        rows = "\n".join(f"{a:.10g},{b:.10g}" for a, b in zip(rec.y[part, 0], rec.u[part, 0], strict=True))
-        (folder / f"{name}.csv").write_text("y0,u0\n" + rows + "\n")
-    return ["benchmark", "--est", str(folder / "est.csv"), "--test", str(folder / "val.csv")]
 
 
 def test_a_free_run_after_n_measured_outputs_reproduces_a_plant_in_its_class():
@@ -62,14 +54,7 @@ def test_two_outputs_are_refused_in_one_line():
 
 
 def test_without_sysidentpy_the_benchmark_names_the_install_before_any_work(tmp_path, capsys, monkeypatch):
-    real = importlib.import_module
-
-    def missing(name, *args):
-        if name.startswith("sysidentpy"):
-            raise ImportError(name)
-        return real(name, *args)
-
-    monkeypatch.setattr(narx.importlib, "import_module", missing)
+    without_library(monkeypatch, narx, "sysidentpy")
     argv = write_split(polynomial_plant(300, 2), tmp_path, 200)
     out = tmp_path / "out"
     assert main([*argv, "--predictors", "arx,narx", "--out", str(out), "--quiet"]) == 2

@@ -3,7 +3,6 @@ protocol. Its free run after n measured outputs is the library's own simulation 
 (an off-by-one in the encoder's window or the inputs' alignment would differ), the same seed trains the same
 weights, and without deepSI the command says how to install it, in one line, before any work."""
 
-import importlib
 import json
 
 import numpy as np
@@ -15,6 +14,7 @@ from mop.errors import MopError
 from mop.peers import subnet
 from mop.record import Record
 from mop.systems.base import Trajectories
+from tests.peer_helpers import without_library, write_split
 
 
 @pytest.fixture
@@ -58,20 +58,8 @@ def test_the_same_seed_trains_the_same_model_and_another_seed_another(home):
 
 
 def test_the_benchmark_scores_it_under_the_protocol(home):
-    rec = plant(400, 2)
-    for name, part in (("est", slice(0, 300)), ("val", slice(300, 400))):
-        rows = "\n".join(f"{a:.10g},{b:.10g}" for a, b in zip(rec.y[part, 0], rec.u[part, 0], strict=True))
-        (home / f"{name}.csv").write_text("y0,u0\n" + rows + "\n")
+    argv = [*write_split(plant(400, 2), home, 300), "--init-window", "10"]
     out = home / "out"
-    argv = [
-        "benchmark",
-        "--est",
-        str(home / "est.csv"),
-        "--test",
-        str(home / "val.csv"),
-        "--init-window",
-        "10",
-    ]
     assert main([*argv, "--predictors", "arx,subnet", "--budget", "0.01", "--out", str(out), "--quiet"]) == 0
     scores = json.loads((out / "results.json").read_text())["est"]["val"]
     assert set(scores) == {"arx", "subnet"} and np.isfinite(scores["subnet"]["rmse"])
@@ -79,20 +67,9 @@ def test_the_benchmark_scores_it_under_the_protocol(home):
 
 
 def test_without_deepsi_the_command_is_one_line_before_any_work(tmp_path, capsys, monkeypatch):
-    real = importlib.import_module
-
-    def missing(name, *args):
-        if name.startswith("deepSI"):
-            raise ImportError(name)
-        return real(name, *args)
-
-    monkeypatch.setattr(subnet.importlib, "import_module", missing)
-    rec = plant(300, 3)
-    for name, part in (("est", slice(0, 200)), ("val", slice(200, 300))):
-        rows = "\n".join(f"{a:.10g},{b:.10g}" for a, b in zip(rec.y[part, 0], rec.u[part, 0], strict=True))
-        (tmp_path / f"{name}.csv").write_text("y0,u0\n" + rows + "\n")
+    without_library(monkeypatch, subnet, "deepSI")
+    argv = write_split(plant(300, 3), tmp_path, 200)
     out = tmp_path / "out"
-    argv = ["benchmark", "--est", str(tmp_path / "est.csv"), "--test", str(tmp_path / "val.csv")]
     assert main([*argv, "--predictors", "arx,subnet", "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and subnet.INSTALL in err and not out.exists()
