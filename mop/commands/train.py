@@ -13,6 +13,7 @@ from mop.experiments.presets import PRESETS
 from mop.recipe.budget import check_budget, check_minutes
 from mop.recipe.fit import fine_tune_record, fit_record
 from mop.recipe.given import read_given
+from mop.train.device import distributed_session
 
 EPILOG = """examples:
   mop train --out runs/linear                        # the linear family: CPU preset small, GPU paper
@@ -119,10 +120,11 @@ def run(args: argparse.Namespace) -> int:
         announce=print,
         max_minutes=max_minutes,
     )
-    if args.init is None:
-        fitted = fit_record(args.out, records, **common)
-    else:
-        fitted = fine_tune_record(args.out, records, args.init, **common)
+    with distributed_session():  # under torchrun: every rank closes the process group before it exits
+        if args.init is None:
+            fitted = fit_record(args.out, records, **common)
+        else:
+            fitted = fine_tune_record(args.out, records, args.init, **common)
     out = fitted.run_dir
     print(f"run directory: {out}  (load with: mop.load({str(out)!r}))")
     return 0

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 
 import torch
 import torch.distributed as dist
@@ -30,6 +32,25 @@ def init_distributed() -> tuple[int, int]:
         backend = "nccl" if nccl else "gloo"
         dist.init_process_group(backend)
     return dist.get_rank(), dist.get_world_size()
+
+
+@contextlib.contextmanager
+def distributed_session() -> Iterator[None]:
+    """Close the process group (if one was opened inside) before the interpreter exits.
+
+    A rank that leaves it to interpreter finalization can abort (SIGABRT): gloo's worker threads still hold
+    tensors whose release needs the interpreter being torn down. So every rank waits for the others (when
+    nothing failed) and then destroys the group while Python is whole.
+    """
+    failed = True
+    try:
+        yield
+        failed = False
+    finally:
+        if dist.is_available() and dist.is_initialized():
+            if not failed:
+                dist.barrier()
+            dist.destroy_process_group()
 
 
 def setup_device(cfg: TrainConfig, world: int) -> torch.device:
