@@ -45,19 +45,21 @@ def test_class_experiment_runs_and_its_model_simulates_below_the_last_value(argv
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    "argv",
+    "argv, simulate_after",
     [
-        ["reproduce", "class-duffing-records", "--preset", "smoke"],
-        ["reproduce", "class-cascaded-tanks-records", "--preset", "smoke"],
+        (["reproduce", "class-duffing-records", "--preset", "smoke"], 0),
+        (["reproduce", "class-cascaded-tanks-records", "--preset", "smoke"], 0),
+        (["reproduce", "class-cascaded-tanks-lru", "--preset", "smoke"], 5),
+        (["reproduce", "class-duffing-lru", "--preset", "smoke"], 5),
     ],
 )
 def test_the_records_start_experiment_trains_on_estimation_prefixes_and_scores_every_predictor(
-    argv, tmp_path
+    argv, simulate_after, tmp_path
 ):
     """A records start's experiment at the smoke preset: its run is the records recipe's shape (no
-    record_norm, one step ahead) trained with each window after its estimation record
-    (train.context_prefix), and every predictor of the experiment gets a finite simulation of the test
-    systems read without one."""
+    record_norm; the transformer one step ahead, the deep LRU on its simulated tails from step 5) trained
+    with each window after its estimation record (train.context_prefix), and every predictor of the
+    experiment gets a finite simulation of the test systems read without one."""
     argv = [*argv, "--quiet", "train.steps=5"]
     assert main([*argv, "--out", str(tmp_path / "out")]) == 0
     data = json.loads((tmp_path / "out" / "eval.json").read_text())
@@ -68,4 +70,17 @@ def test_the_records_start_experiment_trains_on_estimation_prefixes_and_scores_e
     (run,) = data["runs"].values()
     config = json.loads((Path(run) / "config.json").read_text())
     assert config["model"].get("record_norm", "none") == "none" and config["train"]["context_prefix"] == 200
-    assert config["model"]["width"] == 32 and config["train"].get("simulate_after", 0) == 0
+    assert config["model"]["width"] == 32 and config["train"].get("simulate_after", 0) == simulate_after
+
+
+def test_the_records_body_start_is_the_records_recipes_network():
+    """The deep-LRU records starts pretrain the network `mop train --data` trains (RECORDS_BODY, on its
+    longest windows), so that a fine-tune of one is that recipe from the start's weights."""
+    from mop.experiments.classes import RECORDS_BODY_START
+    from mop.recipe.plan import RECORDS_BODY, RECORDS_HORIZON
+
+    assert {k: RECORDS_BODY_START[k] for k in RECORDS_BODY if k.startswith("model.")} == {
+        k: v for k, v in RECORDS_BODY.items() if k.startswith("model.")
+    }
+    assert RECORDS_BODY_START["train.simulate_after"] == RECORDS_BODY["train.simulate_after"]
+    assert RECORDS_BODY_START["train.horizon"] == RECORDS_BODY_START["model.context"] == RECORDS_HORIZON

@@ -211,3 +211,28 @@ def test_a_records_start_reads_an_estimation_record_in_context_as_it_trained():
     plain = copy.copy(predictor)
     plain.source = ""  # no run to say how it trained
     assert not fits_context(plain)
+
+
+def test_without_a_feature_the_prefix_gives_the_windows_units_alone(lti):
+    """A network without a feature (model.rls_order = 0: the records recipe's deep LRU) pretrained with a
+    prefix reads each window in its estimation record's units, each channel's mean and std over the
+    prefix (computed here by numpy), and gets no coefficients."""
+    predictor, z = lti
+    cfg = dataclasses.replace(
+        predictor.cfg, rls_order=0, arx_order=0, rls_offset=False, residual_scale="none"
+    )
+    body, theta = prefix_fit(z, PREFIX, cfg)
+    head = z[:, :PREFIX].numpy()
+    expected = (z[:, PREFIX:].numpy() - head.mean(1, keepdims=True)) / head.std(1, keepdims=True)
+    assert theta is None
+    np.testing.assert_allclose(body.numpy(), expected, rtol=1e-12, atol=1e-12)
+    config = _config(context_prefix=300)
+    config = dataclasses.replace(
+        config,
+        model=dataclasses.replace(
+            config.model, **{"rls_order": 0, "arx_order": 0, "rls_offset": False, "residual_scale": "none"}
+        ),
+    )
+    check_context_prefix(config)  # no feature: nothing to fit, nothing refused
+    inputs, targets = TrainingData(config, torch.device("cpu")).batch()
+    assert inputs.shape[:2] == targets.shape[:2] == (3, 99)

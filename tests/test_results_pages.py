@@ -83,6 +83,16 @@ def test_a_row_trained_with_keys_is_labelled_with_them(tmp_path):
         "| mop, the network alone, seed 2 | 1.2 |",
         "| mop, its least-squares feature alone, seed 2 | 1.1 |",
     ]
+    # and a fine-tune's (finetune:NAME:PART)
+    result["silverbox"]["test_multisine"] = {
+        "finetune:duffing-lru": {"rmse": 0.0008, "n": 50},
+        "finetune:duffing-lru:feature": {"rmse": 0.0011, "n": 50},
+    }
+    path.write_text(json.dumps(result))
+    assert render("silverbox", [path])[2:4] == [
+        "| finetune:duffing-lru, seed 2 | 0.8 |",
+        "| finetune:duffing-lru, its least-squares feature alone, seed 2 | 1.1 |",
+    ]
     # a row another file gives already (the fitted ARX of every run) is shown once; a differing one twice
     result["silverbox"]["test_multisine"] = {"arx": {"rmse": 0.007, "n": 50}}
     path.write_text(json.dumps(result))

@@ -61,3 +61,26 @@ def test_scratch_config_splits_once_reads_nothing_and_never_fine_tunes(monkeypat
     assert config == expected and config.model.arch == RECORDS_BODY["model.arch"]  # the records recipe's
     assert given is fresh and record is fresh.split(config.data)
     assert (len(splits), len(parts)) == (1, 1)  # split once, the plan's arrays made once
+
+
+def test_a_fine_tune_of_the_records_body_start_trains_as_the_records_recipe_from_scratch(tmp_path):
+    """`mop train --data REC --init pretrained:cascaded-tanks-lru` (a records start without a feature: the
+    records recipe's own deep LRU) trains as `mop train --data REC` from random weights does, from the
+    source's weights: the same network, batch, windows, simulated tails, learning rate, schedule and the
+    steps of the same budget; only the source and the kept weights (train.keep_best) differ."""
+    import mop.train as mt
+    from mop.experiments import get_experiment, run_config
+    from mop.recipe.finetune import fine_tune_config
+
+    wide = ["train.steps=1", "model.context=200", "train.horizon=200"]  # the records body's windows
+    source = run_config(get_experiment("class-cascaded-tanks-lru"), "smoke", overrides=wide)
+    source_dir = mt.train(source, tmp_path / "start", progress=False)
+    records = TrainingRecords((plant(700, 0),), source="in memory")
+    scratch = scratch_config(None, None, records, [], 2.0)[0]
+    tuned = fine_tune_config(None, None, records, [], str(source_dir), 2.0)[0]
+    assert tuned.model.arch == scratch.model.arch == RECORDS_BODY["model.arch"]
+    assert tuned.model.rls_order == scratch.model.rls_order == 0
+    same = ("batch_size", "horizon", "simulate_after", "lr", "lr_schedule", "warmup_steps", "steps")
+    assert {k: getattr(tuned.train, k) for k in same} == {k: getattr(scratch.train, k) for k in same}
+    assert tuned.train.horizon == scratch.train.horizon == 200
+    assert tuned.train.init == str(source_dir) and tuned.train.context_prefix == 0

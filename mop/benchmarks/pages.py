@@ -80,9 +80,10 @@ def render(bench: str, files: list[Path]) -> list[str]:
         if tests is None:
             tests = {t: next(iter(results[t].values()))["n"] for t in order}
         for predictor in results[order[0]]:
-            learner, _, part = predictor.partition(":")
-            if learner == "mop" and part in ALONE:  # a candidate the run's check did not keep
-                label = f"mop ({keys}), {ALONE[part]}" if keys else f"mop, {ALONE[part]}"
+            learner, _, part = predictor.rpartition(":")
+            if learner and part in ALONE:  # a candidate the run's check did not keep (mop:feature, ...)
+                name = f"mop ({keys})" if keys and learner == "mop" else learner
+                label = f"{name}, {ALONE[part]}"
             else:
                 label = f"mop ({keys})" if keys and predictor == "mop" else predictor
             if predictor.startswith(LEARNED):

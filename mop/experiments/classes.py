@@ -23,6 +23,7 @@ import dataclasses
 from typing import Any
 
 from mop.experiments.spec import Claim, Condition, Experiment, Measure
+from mop.models.lru import NAME as DEEP_LRU
 
 SIMULATED = Measure("simulation_rmse")
 ONE_STEP = Measure("one_step_rmse_record")  # over t >= 50, the whole record after its start-up
@@ -192,6 +193,55 @@ def records_start_experiment(
     )
 
 
+# a start for the records recipe's own network (RECORDS_BODY: the deep LRU, 2 x 32, reading no feature,
+# trained on its free-run error: each window's outputs from a random step >= 5 read as missing and scored),
+# pretrained as RECORDS_START is, each window after its system's estimation record (normalised by that
+# record's moments as the records recipe normalises a user's record), so that a fine-tune on a real record
+# starts from a simulator of the class rather than from random weights
+# (mop.recipe.plan.RECORDS_BODY's keys and windows, written out: the experiments sit below the recipe;
+# tests/test_class_experiments.py checks they agree)
+RECORDS_BODY_START = {
+    **{key: value for key, value in RECORDS_START.items() if not key.startswith("model.")},
+    "model.arch": DEEP_LRU,
+    "model.num_layers": 2,
+    "model.width": 32,
+    "model.observation_mask": True,
+    "model.forecast_mode": "gap",
+    "model.record_norm": "none",
+    "model.rls_order": 0,
+    "model.arx_order": 0,
+    "model.rls_offset": False,
+    "model.context": 200,
+    "train.horizon": 200,
+    "train.simulate_after": 5,
+}
+
+
+def records_body_start_experiment(
+    name: str, family: str, what: str, system: dict[str, Any] | None = None
+) -> Experiment:
+    """A records start of the records recipe's own network (RECORDS_BODY_START): its card scores it as the
+    other class models, zero-shot on test records read without an estimation record."""
+    smoke = {"train.context_prefix": 200, "train.num_source_systems": 64, "train.horizon": 99}
+    smoke |= {"model.context": 100, "train.simulate_after": 5}
+    exp = class_experiment(name, family, "ukf", 10, 3e-3, system, RECORDS_BODY_START, steps=4000, smoke=smoke)
+    return dataclasses.replace(
+        exp,
+        title=f"{what} as a start for the records recipe's deep LRU (fine-tune it on a record)",
+        description="MOP of the records recipe's own network (the deep LRU, 2 x 32, no feature, trained on "
+        "its free-run error with each window after its system's estimation record) against ukf that knows "
+        "each system, arx-10-offset-ls, arx-10-offset, arx-best and the last value, on records read without "
+        "an estimation record; one-step RMSE and free-run simulation of y_400..y_499 after a context of 400",
+    )
+
+
+TANKS_AS_MEASURED = {
+    "system.input_amplitude": 1.0,
+    "system.noise_std": 0.02,
+    "system.process_noise_std": 0.001,
+    "system.sensor_saturation": 0.2,
+}
+
 CLASS_EXPERIMENTS = (
     class_experiment("class-lti-siso", "lti-siso", "kalman", 15, 1e-3, recipe=EXACT_FEATURE),
     # lti-siso's class with one input and three outputs (a structure under test with one shaker and three
@@ -233,12 +283,13 @@ CLASS_EXPERIMENTS = (
         "class-cascaded-tanks-records",
         "cascaded-tanks",
         "the cascaded-tanks class",
-        system={
-            "system.input_amplitude": 1.0,
-            "system.noise_std": 0.02,
-            "system.process_noise_std": 0.001,
-            "system.sensor_saturation": 0.2,
-        },
+        system=TANKS_AS_MEASURED,
         order=10,
+    ),
+    # pretrained:duffing-lru: the duffing class as a start for the records recipe's deep LRU
+    records_body_start_experiment("class-duffing-lru", "duffing", "the duffing class"),
+    # pretrained:cascaded-tanks-lru: the same tanks as a start for the records recipe's deep LRU
+    records_body_start_experiment(
+        "class-cascaded-tanks-lru", "cascaded-tanks", "the cascaded-tanks class", system=TANKS_AS_MEASURED
     ),
 )

@@ -135,8 +135,11 @@ def measure(entry: ShippedModel, run_dir: Path, progress: bool = True) -> dict[s
     """
     exp, condition = get_experiment(entry.experiment), condition_of(entry)
     config = load_config(run_dir)
-    model = load_predictor(run_dir)  # named by its architecture's registry entry (the paper's model: mop)
-    names = [n for n in evaluated(exp, entry.preset, condition) if not is_learned(n)]
+    model = load_predictor(run_dir)
+    listed = evaluated(exp, entry.preset, condition)
+    # the experiment's learned slot names the model whatever its architecture (as its report does)
+    model.name = next(n for n in listed if is_learned(n))
+    names = [n for n in listed if not is_learned(n)]
     best, reference = exp.best_predictor, exp.reference
     if best not in names:
         raise MopError(f"experiment {exp.name}: its best predictor {best} is not evaluated; list it")

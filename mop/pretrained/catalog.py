@@ -161,6 +161,26 @@ CLASS_MODELS: tuple[ShippedModel, ...] = (
         "records read without their estimation record, zero-shot (its card); give it the estimation record "
         "(--context) or fine-tune it on it; records other than one output and one input",
     ),
+    ShippedModel(
+        "duffing-lru",
+        "class-duffing-lru",
+        "a start for `mop train --data FILE --init`: the records recipe's own network (the deep LRU, 2 x 32, "
+        "no feature) trained on its free-run error on the duffing class, each window read after its "
+        "estimation record (in that record's units); fine-tuned with the records recipe's schedule and "
+        "budget",
+        "records read without their estimation record, zero-shot (its card); fine-tune it on your estimation "
+        "record; records other than one output and one input",
+    ),
+    ShippedModel(
+        "cascaded-tanks-lru",
+        "class-cascaded-tanks-lru",
+        "a start for `mop train --data FILE --init`: the records recipe's own network (the deep LRU, 2 x 32, "
+        "no feature) trained on its free-run error on the cascaded tanks as measured on the real plant, each "
+        "window read after its estimation record (in that record's units); fine-tuned with the records "
+        "recipe's schedule and budget",
+        "records read without their estimation record, zero-shot (its card); fine-tune it on your estimation "
+        "record; records other than one output and one input",
+    ),
 )
 CATALOG = CATALOG + CLASS_MODELS
 

@@ -24,11 +24,11 @@ from mop.config import (
 )
 from mop.errors import MopError
 from mop.experiments.presets import default_preset, preset_config
-from mop.models import build_model
+from mop.models import build_model, reads_features
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.given import named_records, run_records, split, with_records
 from mop.recipe.records import FEATURE_KEYS as RECIPE_FEATURE_KEYS
-from mop.recipe.records import budget_plan, fitted_long_orders, plan_records, record_orders
+from mop.recipe.records import budget_plan, fitted_long_orders, plan_records, record_orders, records_body
 from mop.recipe.source import PRIOR_KEYS
 from mop.runs import load_config
 from mop.train import resolve_config, resolve_device
@@ -160,6 +160,8 @@ def with_records_recipe(
     of the duffing-class start kept the fitted ARX (held-out 0.3877 at gain 0); the records recipe's 9375
     steps from it the network at gain 0.75 (0.3239; tests 0.1678 / 0.2903 / 0.4232, against 0.2339 / 0.3474 /
     0.4589 from random weights; docs/results/benchmarks.md)."""
+    if not reads_features(config.model.arch):
+        return with_records_body(config, record, minutes)
     base = preset_config(default_preset()).train
     config = dataclasses.replace(config, train=dataclasses.replace(config.train, batch_size=base.batch_size))
     train = dataclasses.replace(
@@ -190,6 +192,28 @@ def with_records_recipe(
         horizon = train.horizon
     train = dataclasses.replace(train, steps=plan.steps, horizon=horizon)
     return dataclasses.replace(config, model=model, train=train)
+
+
+def with_records_body(config: RunConfig, record: RecordedData, minutes: float) -> RunConfig:
+    """A fine-tune of a records start without a feature (the records recipe's own network, RECORDS_BODY:
+    pretrained:cascaded-tanks-lru) on config.data: the records recipe of that network from the source's
+    weights, as `mop train --data` trains it from random weights (mop.recipe.records.records_body: its
+    batch, its windows on the record, its simulated tails from step 5 on, the default preset's learning
+    rate and schedule), for the steps `minutes` buy on the record."""
+    base = preset_config(default_preset()).train
+    body = records_body(record)
+    horizon = min(body["train.horizon"], config.model.context)  # the source's context is its weights'
+    train = dataclasses.replace(
+        config.train,
+        batch_size=body["train.batch_size"],
+        horizon=horizon,
+        simulate_after=min(body["train.simulate_after"], horizon - 1),
+        lr=base.lr,
+        lr_schedule=base.lr_schedule,
+        warmup_steps=base.warmup_steps,
+    )
+    steps = budget_plan(record.training_part, train.batch_size, horizon, minutes).steps
+    return dataclasses.replace(config, train=dataclasses.replace(train, steps=steps))
 
 
 def reads_a_fit(source: RunConfig) -> bool:
@@ -279,7 +303,8 @@ def fine_tune_config(
     records = named_records(records, config)
     record = split(config, records)  # the split the overrides ask for (data.validation_fraction, data.split)
     config = with_record_prior(config, record, list(overrides), base)
-    if record is not None and "train.horizon" not in parse_overrides(list(overrides)):
+    body_start = records_start(base) and not reads_features(base.model.arch)  # windows: with_records_body's
+    if record is not None and not body_start and "train.horizon" not in parse_overrides(list(overrides)):
         # the windows fit that split
         fraction = config.data.validation_fraction
         config = dataclasses.replace(config, train=record_horizon(config.train, record, fraction))

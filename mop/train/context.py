@@ -52,10 +52,12 @@ def check_context_prefix(config: RunConfig) -> None:
             "train.context_prefix trains against each window's outputs in its estimation record's units; "
             "use train.target=outputs"
         )
-    if model.rls_order == 0 or model.rls_prior != "none":
+    if model.rls_order == 0:  # no feature: the prefix gives the window's units alone
+        return
+    if model.rls_prior != "none":
         raise MopError(
             "train.context_prefix starts the feature from coefficients fitted on each system's estimation "
-            "record: it needs model.rls_order > 0 and no model.rls_prior"
+            "record: it needs no model.rls_prior (or no feature: model.rls_order=0)"
         )
     needed = max(model.rls_order, model.arx_order) + regressor_count(model)
     if n <= needed:
@@ -65,15 +67,19 @@ def check_context_prefix(config: RunConfig) -> None:
         )
 
 
-def prefix_fit(z: Tensor, prefix: int, model: ModelConfig) -> tuple[Tensor, Tensor]:
+def prefix_fit(z: Tensor, prefix: int, model: ModelConfig) -> tuple[Tensor, Tensor | None]:
     """z (B, N + L, m + k) [y_t, u_t] of B systems, N = prefix -> (the last L steps (B, L, m + k) in the
     prefix's normalised units, float64; theta (B, d, m) float64, the feature's least-squares coefficients
-    over the prefix in those units). Each channel's units: its mean and std over the prefix (std 0 -> 1),
-    as mop.incontext.context_normalization's; theta as least_squares_coefficients on the prefix alone."""
+    over the prefix in those units, None for a model without a feature: model.rls_order = 0). Each
+    channel's units: its mean and std over the prefix (std 0 -> 1), as
+    mop.incontext.context_normalization's (and the records recipe's record normalisation); theta as
+    least_squares_coefficients on the prefix alone."""
     z = z.double()
     head = z[:, :prefix]
     mean, std = head.mean(1, keepdim=True), head.std(1, unbiased=False, keepdim=True)
     zn = (z - mean) / torch.where(std > 0, std, torch.ones_like(std))
+    if model.rls_order == 0:
+        return zn[:, prefix:], None
     m, q = model.output_dim, model.arx_order
     k = input_count(model)
     est = zn[:, :prefix]

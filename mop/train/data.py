@@ -65,7 +65,8 @@ def simulated_batch(family, num_systems: int, config: RunConfig, generator: torc
     if n > 0:
         z, fitted = prefix_fit(z, n, config.model)
         m = config.model.output_dim
-        return z[:, :-1].float().contiguous(), z[:, 1:, :m].float().contiguous(), fitted
+        window = (z[:, :-1].float().contiguous(), z[:, 1:, :m].float().contiguous())
+        return window if fitted is None else (*window, fitted)
     y = traj.y
     if cfg.target == "optimal":  # (B, T + 1, m): the Kalman filter's predictions of y_t
         y = kalman_means(family_systems(family, traj.params, 0), traj.y, traj.u)
