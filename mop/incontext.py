@@ -23,6 +23,10 @@ model has read the context records. There are three readings:
   feature's prediction, whatever its orders); where it is too short for that, "fit ARX(p, q) gain G" read
   it with the orders `mop fit arx` picks on it (on the real cascaded tanks ARX(2, 10) where the class
   models' own is ARX(10, 10)).
+- "units": for a records start without a feature (pretrained:cascaded-tanks-lru: the records recipe's deep
+  LRU, pretrained with each window after its estimation record, in that record's units), the test read in
+  the units of the context's mean and std (context_normalization), as it trained: the context gives the
+  plant's scale, the network the rest.
 
 Which reading: each is measured on the context itself before the test is touched. The last context
 record's last H steps (H = min(len / 4, 2000)) are simulated from their first `init` outputs after the
@@ -147,6 +151,26 @@ def fits_context(predictor) -> bool:
         and not isinstance(cfg.rls_prior, list)
         and hasattr(predictor.model, "read_out")
     )
+
+
+def reads_context_units(predictor) -> bool:
+    """Whether the "units" reading serves the predictor: a learned model without a feature
+    (model.rls_order = 0) that trained each window in its estimation record's units (train.context_prefix,
+    no record_norm): a records start of the records recipe's deep LRU."""
+    cfg = getattr(predictor, "cfg", None)
+    return (
+        isinstance(predictor, LearnedPredictor)
+        and cfg is not None
+        and cfg.record_norm == "none"
+        and cfg.rls_order == 0
+        and trained_on_fits(predictor)
+    )
+
+
+def in_context_units(predictor: LearnedPredictor, context: Sequence[Record]) -> LearnedPredictor:
+    """The predictor reading records in the units of the context's mean and std (the same model)."""
+    norm = context_normalization(context)
+    return LearnedPredictor(predictor.model, name=predictor.name, mode=predictor.mode, normalization=norm)
 
 
 def trained_on_fits(predictor: LearnedPredictor) -> bool:
@@ -316,6 +340,8 @@ def _read(
         return _simulate(predictor, test, init), 0
     if reading == "window":
         return _window(predictor, test, init, context[-1])
+    if reading == "units":
+        return _simulate(in_context_units(predictor, context), test, init), sum(len(r) for r in context)
     fitted = {} if fitted is None else fitted
     orders, gain = reading_orders(reading), float(reading.rpartition(" ")[2])
     if orders not in fitted:
@@ -347,7 +373,8 @@ def readings(predictor, orders: tuple[int, int] | None = None) -> list[str]:
     fit = [f"fit gain {g:g}" for g in GAINS] if fits_context(predictor) else []
     named = [] if orders is None or not fit else [f"fit ARX({orders[0]}, {orders[1]})"]
     long = [f"{name} gain {g:g}" for name in named for g in GAINS]
-    return ["none", "window", *fit, *long]
+    units = ["units"] if reads_context_units(predictor) else []
+    return ["none", "window", *units, *fit, *long]
 
 
 def simulate_with_context(
@@ -421,6 +448,7 @@ def reading_line(done: InContext) -> str:
     what = {
         "none": "not read",
         "window": f"its last {done.context_steps} steps read before the test",
+        "units": f"all {done.context_steps} steps read for their mean and std, the test read in those units",
     }.get(done.reading, "")
     if not what:
         orders = reading_orders(done.reading)

@@ -12,6 +12,7 @@ from mop.errors import MopError
 from mop.identify.cubic import fit_narx, simulate_narx
 from mop.identify.select import fit
 from mop.incontext import (
+    _read,
     _with_orders,
     context_limit,
     context_orders,
@@ -370,3 +371,31 @@ def test_a_short_context_is_read_with_the_orders_mop_fit_arx_picks(lti):
     done = simulate_with_context(model, test, 50, [context])  # chosen on the held-out end: ARX(2, 2) gain 1
     assert reading_orders(done.reading) == orders  # read on the whole context: ARX(5, 1)
     assert "fit ARX(2, 2) gain 1" in done.held_out
+
+
+def test_a_records_start_without_a_feature_reads_the_test_in_the_contexts_units():
+    """pretrained:cascaded-tanks-lru (the records recipe's deep LRU, pretrained with each window in its
+    estimation record's units) gets the "units" reading, which no feature-reading model gets; read that way
+    its simulation is equivariant as a model of the plant's units must be: the context and the test both
+    in other units (y -> a y + b, u -> c u + d) give a ysim + b (to float32's 1e-5); read in the test's raw
+    units (the "none" reading) they do not."""
+    start = load_predictor("pretrained:cascaded-tanks-lru")
+    assert readings(start) == ["none", "window", "units"]
+    assert "units" not in readings(load_predictor("pretrained:cascaded-tanks-records"))
+    traj = make_family(load_config("pretrained:cascaded-tanks-lru").system).generate(
+        2, 599, generator=generator(4)
+    )
+    pair = [(traj.y[b].double().numpy(), traj.u[b].double().numpy()) for b in range(2)]
+    a, b, c, d = 3.0, -2.0, 0.5, 1.0
+
+    def record(y, u, name, scaled):
+        return Record(y=a * y + b, u=c * u + d, name=name) if scaled else Record(y=y, u=u, name=name)
+
+    sims = {}
+    for scaled in (False, True):
+        context, test = record(*pair[0], "est", scaled), record(*pair[1], "test", scaled)
+        sims[scaled] = {
+            reading: _read(start, test, 5, [context], reading)[0] for reading in ("units", "none")
+        }
+    np.testing.assert_allclose(sims[True]["units"], a * sims[False]["units"] + b, rtol=1e-5, atol=1e-5)
+    assert np.abs(sims[True]["none"] - (a * sims[False]["none"] + b)).max() > 1e-3
