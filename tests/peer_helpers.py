@@ -1,8 +1,10 @@
 """What the peers' tests (tests/test_narx_peer.py, test_subnet_peer.py) share: a record split into the
-est.csv and val.csv that `mop benchmark --est --test` reads, and a peer's library made missing."""
+est.csv and val.csv that `mop benchmark --est --test` reads, a peer's library made missing, and the
+benchmark's refusal without it."""
 
 import importlib
 
+from mop.cli import main
 from mop.record import Record
 
 
@@ -24,3 +26,11 @@ def without_library(monkeypatch, peer, library: str) -> None:
         return real(name, *args)
 
     monkeypatch.setattr(peer.importlib, "import_module", missing)
+
+
+def refused_without_library(argv: list[str], name: str, install: str, out, capsys) -> None:
+    """`mop benchmark ... --predictors arx,NAME` without the peer's library (without_library): exit 2, one
+    line naming the install, and nothing written to `out`, before any fit."""
+    assert main([*argv, "--predictors", f"arx,{name}", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and install in err and not out.exists()

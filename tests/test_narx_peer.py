@@ -15,7 +15,7 @@ from mop.errors import MopError
 from mop.peers import narx
 from mop.record import Record
 from mop.systems.base import Trajectories
-from tests.peer_helpers import without_library, write_split
+from tests.peer_helpers import refused_without_library, without_library, write_split
 
 
 def polynomial_plant(steps: int, seed: int) -> Record:
@@ -55,11 +55,9 @@ def test_two_outputs_are_refused_in_one_line():
 
 def test_without_sysidentpy_the_benchmark_names_the_install_before_any_work(tmp_path, capsys, monkeypatch):
     without_library(monkeypatch, narx, "sysidentpy")
-    argv = write_split(polynomial_plant(300, 2), tmp_path, 200)
-    out = tmp_path / "out"
-    assert main([*argv, "--predictors", "arx,narx", "--out", str(out), "--quiet"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and narx.INSTALL in err and not out.exists()
+    refused_without_library(
+        write_split(polynomial_plant(300, 2), tmp_path, 200), "narx", narx.INSTALL, tmp_path / "out", capsys
+    )
 
 
 def test_the_benchmark_scores_the_narx_beside_the_arx(tmp_path):

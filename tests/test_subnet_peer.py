@@ -14,7 +14,7 @@ from mop.errors import MopError
 from mop.peers import subnet
 from mop.record import Record
 from mop.systems.base import Trajectories
-from tests.peer_helpers import without_library, write_split
+from tests.peer_helpers import refused_without_library, without_library, write_split
 
 
 @pytest.fixture
@@ -68,8 +68,6 @@ def test_the_benchmark_scores_it_under_the_protocol(home):
 
 def test_without_deepsi_the_command_is_one_line_before_any_work(tmp_path, capsys, monkeypatch):
     without_library(monkeypatch, subnet, "deepSI")
-    argv = write_split(plant(300, 3), tmp_path, 200)
-    out = tmp_path / "out"
-    assert main([*argv, "--predictors", "arx,subnet", "--out", str(out), "--quiet"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and subnet.INSTALL in err and not out.exists()
+    refused_without_library(
+        write_split(plant(300, 3), tmp_path, 200), "subnet", subnet.INSTALL, tmp_path / "out", capsys
+    )
