@@ -51,7 +51,8 @@ def test_scratch_config_splits_once_reads_nothing_and_never_fine_tunes(monkeypat
     monkeypatch.setattr(RecordedData, "__init__", lambda self, *a: splits.append(1) or init(self, *a))
     made = TrainingPart.__init__
     monkeypatch.setattr(TrainingPart, "__init__", lambda self, *a: parts.append(1) or made(self, *a))
-    for name in ("fine_tune_config", "with_fine_tuning", "with_records_recipe", "with_record_prior"):
+    fine_tune_steps = ("fine_tune_config", "with_fine_tuning", "with_records_recipe", "with_records_body")
+    for name in (*fine_tune_steps, "with_record_prior"):
         monkeypatch.setattr(mop.recipe.finetune, name, _refuse)
     monkeypatch.setattr(mop.recipe.layers, "fine_tune_config", _refuse)
     monkeypatch.setattr(builtins, "open", _refuse)

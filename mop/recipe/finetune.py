@@ -160,8 +160,6 @@ def with_records_recipe(
     of the duffing-class start kept the fitted ARX (held-out 0.3877 at gain 0); the records recipe's 9375
     steps from it the network at gain 0.75 (0.3239; tests 0.1678 / 0.2903 / 0.4232, against 0.2339 / 0.3474 /
     0.4589 from random weights; docs/results/benchmarks.md)."""
-    if not reads_features(config.model.arch):
-        return with_records_body(config, record, minutes)
     base = preset_config(default_preset()).train
     config = dataclasses.replace(config, train=dataclasses.replace(config.train, batch_size=base.batch_size))
     train = dataclasses.replace(
@@ -280,8 +278,9 @@ def fine_tune_config(
 ) -> tuple[RunConfig, TrainingRecords | None]:
     """(config, the records it trains on) of `mop train --data FILE --init SOURCE [key=value ...]`: the
     source's RunConfig with the records named (mop.recipe.given), the fine-tuning layer (with_fine_tuning;
-    a records start's records recipe, with_records_recipe), the overrides, then the steps that fit the
-    feature and the windows to the record's split (see mop.recipe.layers' docstring)."""
+    a records start's records recipe, with_records_recipe, or with_records_body for one without a
+    feature), the overrides, then the steps that fit the feature and the windows to the record's split (see
+    mop.recipe.layers' docstring)."""
     if budget is not None:
         check_budget(budget)
     if budget is not None and records is None:
@@ -296,14 +295,18 @@ def fine_tune_config(
     base = load_config(init)
     records = run_records(records, base)
     config = with_fine_tuning(with_records(base, records), base, init)
+    body_start = records_start(base) and not reads_features(base.model.arch)  # the records recipe's deep LRU
     if records_start(base) and config.data is not None:
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
-        config = with_records_recipe(config, split(config, records), list(overrides), minutes)
+        estimation = split(config, records)
+        if body_start:  # its windows are the records recipe's: record_horizon below leaves them
+            config = with_records_body(config, estimation, minutes)
+        else:
+            config = with_records_recipe(config, estimation, list(overrides), minutes)
     config = with_refitted_orders(apply_overrides(config, list(overrides)), base)
     records = named_records(records, config)
     record = split(config, records)  # the split the overrides ask for (data.validation_fraction, data.split)
     config = with_record_prior(config, record, list(overrides), base)
-    body_start = records_start(base) and not reads_features(base.model.arch)  # windows: with_records_body's
     if record is not None and not body_start and "train.horizon" not in parse_overrides(list(overrides)):
         # the windows fit that split
         fraction = config.data.validation_fraction
