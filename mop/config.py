@@ -345,6 +345,9 @@ class TrainConfig:
         )
 
 
+FEATURE_RUN = "free-run"  # data.feature_input: the network reads its least-squares feature's free run
+
+
 @dataclasses.dataclass(frozen=True)
 class DataConfig:
     """Recorded trajectories to train on (`mop train --data FILE`) instead of simulating `system`.
@@ -356,6 +359,9 @@ class DataConfig:
     split: "auto" (by trajectory where that leaves one on each side, else in time: mop.train.records),
         "trajectory" or "time"; unused with validation_path.
     validation_path: a separate validation record (`mop train --val FILE`); every step of path then trains.
+    feature_input: "none", or "free-run" (FEATURE_RUN): the network reads the records recipe's least-squares feature's
+        free run as m more inputs and predicts what it leaves (mop.models.feature_input); the run holds
+        that feature (RUN/feature).
     y_mean, y_std (m values each), u_mean, u_std (k values each, [] without inputs): per-channel
         normalisation in the file's units, fitted on the training split by the trainer (None = not yet
         fitted; a given value must equal the fit). The predictor of the run applies it, so predictions come
@@ -367,6 +373,7 @@ class DataConfig:
     split_seed: int = 0  # seed of the permutation that picks the validation trajectories
     split: str = "auto"
     validation_path: str = ""
+    feature_input: str = "none"
     y_mean: list[float] | None = None
     y_std: list[float] | None = None
     u_mean: list[float] | None = None
@@ -381,12 +388,18 @@ class DataConfig:
         check(isinstance(self.split_seed, int), f"data.split_seed must be an integer: {self.split_seed!r}")
         check_choice("data.split", self.split, ("auto", "trajectory", "time"))
         check(isinstance(self.validation_path, str), "data.validation_path must name a .npz or .csv file")
+        check_choice("data.feature_input", self.feature_input, ("none", FEATURE_RUN))
         for name in ("y_std", "u_std"):
             value = getattr(self, name)
             check(
                 value is None or all(isinstance(s, (int, float)) and s > 0 for s in value),
                 f"data.{name} must hold positive numbers, got {value!r}",
             )
+
+    @property
+    def reads_feature_run(self) -> bool:
+        """Whether the network reads its least-squares feature's free run (feature_input = FEATURE_RUN)."""
+        return self.feature_input == FEATURE_RUN
 
     @property
     def fitted(self) -> bool:

@@ -359,7 +359,9 @@ class Loaded(Estimator):
         self.spec, self.predictor_ = str(spec), predictor
         self.name = getattr(predictor, "name", self.spec)
         cfg = getattr(predictor, "cfg", None)
-        if cfg is not None:
+        if hasattr(predictor, "record_dims"):  # a network reading its feature's run (more inputs than k)
+            self.shape_ = predictor.record_dims
+        elif cfg is not None:
             self.shape_ = dimensions(dataclasses.asdict(cfg))
         else:
             self.shape_ = (predictor.output_dim, predictor.input_dim)

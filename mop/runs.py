@@ -24,7 +24,9 @@ from torch import nn
 from mop.checkpoint import load_model_weights
 from mop.config import ModelConfig, RunConfig, from_dict
 from mop.errors import MopError, MopWarning
+from mop.identify.store import load as load_fitted
 from mop.models import build_model, predictor_names, skip_presets
+from mop.models.feature_input import FEATURE_DIR, INIT_KEY, FeatureInputPredictor
 from mop.models.predictor import LearnedPredictor, Normalization
 from mop.plugins import PLUGINS_FILE, import_plugin
 from mop.predictors import PREDICTORS, Predictor
@@ -106,8 +108,10 @@ def load_model(
 
 def load_predictor(
     run_dir: str | os.PathLike, device: str | torch.device = "cpu", mode: str = "window"
-) -> LearnedPredictor:
-    """A trained run as a LearnedPredictor (the Predictor interface of the classical filters).
+) -> LearnedPredictor | FeatureInputPredictor:
+    """A trained run as a LearnedPredictor (the Predictor interface of the classical filters); a run whose
+    network reads its feature's run (data.feature_input = "free-run") as a FeatureInputPredictor around
+    it, which reads the records' own channels.
 
     A run on recorded data predicts in the data's units (its normalisation, from config.json, is applied).
     `run_dir` may be `pretrained:NAME` (checked once, then read from the package).
@@ -121,6 +125,10 @@ def load_predictor(
     predictor = LearnedPredictor(
         model, name=name, mode=mode, normalization=norm, input_stats=stats, source=source
     )
+    data = load_config(run_dir).data
+    if data is not None and data.reads_feature_run:  # its feature's run is an input
+        feature = load_fitted(Path(run_dir) / FEATURE_DIR)
+        predictor = FeatureInputPredictor(predictor, feature, int(feature.info[INIT_KEY]))
     reading = chosen_reading(Path(run_dir))
     if reading is not None:
         with_reading(predictor, reading)

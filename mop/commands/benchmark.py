@@ -44,12 +44,13 @@ from mop.identify import load as load_fitted
 from mop.identify.narx_model import KIND as FEATURE_KIND
 from mop.identify.select import POLE_RADIUS
 from mop.incontext import reading_line, simulate_with_context
+from mop.models.feature_input import FEATURE_DIR
 from mop.peers.narx import NarxPredictor, fit_narx, frols_class, narx_line
 from mop.peers.subnet import SubnetPredictor, deepsi, fit_subnet, subnet_line
 from mop.pretrained import dimensions, fitting_hint
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
-from mop.recipe.selection import FEATURE_DIR, feature_alone, selection_line
+from mop.recipe.selection import feature_alone, selection_line
 from mop.record import as_pairs, read_records
 from mop.runs import load_config, load_predictor, with_reading
 from mop.simulators import SimulatorConfig, fit_simulator, simulator_line

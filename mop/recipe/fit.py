@@ -20,6 +20,7 @@ from mop.config import RunConfig, parse_overrides
 from mop.errors import MopError
 from mop.models import reads_features
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget, check_minutes
+from mop.recipe.feature_input import fitted_feature, reads_feature_run, save_feature, with_feature_run
 from mop.recipe.finetune import fine_tune_config, records_start, within_budget
 from mop.recipe.given import split
 from mop.recipe.layers import scratch_config
@@ -171,7 +172,12 @@ def train_and_choose(
     deadline: float | None,
 ) -> FittedRun:
     """The training of `config` on `records` (mop.recipe.training.train), then the held-out choice on its
-    split `record` where the run makes one (selects) and has finished, each announced where `announce`."""
+    split `record` where the run makes one (selects) and has finished, each announced where `announce`.
+    With data.feature_input = "free-run" the network trains on the records with its feature's run
+    (mop.recipe.feature_input), and the run holds that feature."""
+    feature = fitted_feature(config, record) if reads_feature_run(config) else None
+    if feature is not None:
+        records = with_feature_run(records, feature)
     run_dir = train(
         config,
         out_dir,
@@ -182,6 +188,8 @@ def train_and_choose(
         records=records,
         deadline=deadline,
     )
+    if feature is not None:
+        save_feature(run_dir, feature)
     finished = (run_dir / "done.json").is_file()
     chooses = selects(config, record)
     selection = select_against_linear(run_dir, config, record) if chooses and finished else None

@@ -48,7 +48,9 @@ from mop.identify.narx_model import KIND as FEATURE
 from mop.identify.narx_model import fit_cubic_narx
 from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
+from mop.identify.store import load as load_fitted
 from mop.models import reads_features
+from mop.models.feature_input import FEATURE_DIR
 from mop.recipe.records import feature_orders
 from mop.recipe.shrink import GAINS, gain_scores, scale_correction
 from mop.records import divergence_step, simulate_all
@@ -61,7 +63,6 @@ INIT_WINDOW = 50  # measured outputs a held-out simulation starts from where the
 LONG_RUN = 2000  # steps of the long free run (long_run_stretches)
 LINEAR = (ARX.kind, N4SID.kind)  # the fitted linear models the network must beat, preferred in this order
 NAMES = {ARX.kind: "ARX", N4SID.kind: "N4SID", FEATURE: "least-squares feature, NARX"}
-FEATURE_DIR = "feature"  # a featureless run's least-squares feature as scored, loadable as a fitted model
 
 
 def simulation_rmse(predictor, data: list[tuple[np.ndarray, np.ndarray]], init: int) -> float:
@@ -154,11 +155,14 @@ def _fit_linear(train: list, source: str) -> dict:
     return fitted
 
 
-def _feature_model(config: RunConfig, record: RecordedData, train: list) -> dict:
+def _feature_model(config: RunConfig, record: RecordedData, train: list, run_dir: Path) -> dict:
     """{FEATURE: the records recipe's least-squares feature fitted on the training part} for a network that
     reads no feature (model.arch=deep-lru, gru), where that feature is not the fitted ARX: a cubic NARX or a
-    longer ARX (mop.recipe.records.feature_orders; mop.identify.narx_model). A transformer reading one has it
-    already, as its correction at gain 0. {} otherwise."""
+    longer ARX (mop.recipe.records.feature_orders; mop.identify.narx_model); for a network that reads its
+    run (data.feature_input = "free-run"), the one it read, whatever its orders (RUN/feature). A
+    transformer reading one has it already, as its correction at gain 0. {} otherwise."""
+    if config.data.reads_feature_run:
+        return {FEATURE: load_fitted(run_dir / FEATURE_DIR)}
     if reads_features(config.model.arch):
         return {}
     p, q, c, fixed = feature_orders(record.training_part)
@@ -202,7 +206,7 @@ def select_against_linear(run_dir: str | Path, config: RunConfig, record: Record
     train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
     n = init_window(record)
     held_out, long_run = held_out_stretches(record, n), long_run_stretches(record, n)
-    linear = {**_fit_linear(train, config.data.path), **_feature_model(config, record, train)}
+    linear = {**_fit_linear(train, config.data.path), **_feature_model(config, record, train, run_dir)}
     network = load_predictor(run_dir)
     network.model.eval()
     gains = GAINS if _gains_apply(network) else (1.0,)

@@ -1,0 +1,144 @@
+"""A network reading its least-squares feature's free run (data.feature_input = "free-run",
+mop.models.feature_input, mop.recipe.feature_input): the channel is the feature's one-step prediction, then
+its free run, and never reads an output at or after the step it stands for; a run trains on it, holds the
+feature, and simulates a record as the feature's run plus its network's residual."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+import mop
+from mop.checkpoint import save_model
+from mop.errors import MopError
+from mop.identify.narx_model import KIND, fit_cubic_narx
+from mop.models.feature_input import INIT_KEY, FeatureInputPredictor, feature_channel
+from mop.recipe.fit import fit_record
+from mop.record import Record
+from mop.records import simulate_all
+from mop.runs import load_config, load_predictor
+from mop.train.records import TrainingRecords
+
+from .test_narx_model import MOMENTS, cubic_record, traj
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def noisy_record(steps: int = 1500) -> Record:
+    record = cubic_record(steps, seed=4)
+    noise = 0.01 * np.random.default_rng(5).normal(size=record.y.shape)
+    return Record(y=record.y + noise, u=record.u, name="cubic")
+
+
+def test_the_channel_is_the_one_step_prediction_then_the_free_run_and_reads_no_later_output():
+    """s_t for t < c is the feature's one-step prediction of the whole record's (from y_<t), for t >= c its
+    free run from y_<c (mop.predictors.simulate); changing y_c.. changes nothing, and changing y_t (t < c)
+    changes no s_<=t."""
+    record = cubic_record(300)
+    feature = fit_cubic_narx([record], 2, 2, 1, moments=MOMENTS)
+    t, c = traj(record), 40
+    s = feature_channel(feature, t, c)
+    np.testing.assert_array_equal(s[:, :c].numpy(), feature.predict(t)[:, :c].numpy())
+    np.testing.assert_array_equal(s[:, c:].numpy(), feature.simulate(t, c).numpy())
+    later = t.y.clone()
+    later[:, c:] += 5.0
+    np.testing.assert_array_equal(
+        feature_channel(feature, dataclasses.replace(t, y=later), c).numpy(), s.numpy()
+    )
+    earlier = t.y.clone()
+    earlier[:, 20] += 5.0
+    moved = feature_channel(feature, dataclasses.replace(t, y=earlier), c)
+    np.testing.assert_array_equal(moved[:, :21].numpy(), s[:, :21].numpy())
+    assert not torch.equal(moved[:, 21:], s[:, 21:])
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A deep LRU of the records recipe, 30 steps, reading its cubic feature's run."""
+    out = tmp_path_factory.mktemp("feature-input") / "run"
+    records = TrainingRecords((noisy_record(),), source="cubic")
+    return fit_record(
+        out, records, overrides=["data.feature_input=free-run", "train.steps=30"], progress=False
+    )
+
+
+def test_the_run_holds_the_feature_fitted_on_its_training_part_and_the_check_scores_it(run):
+    """RUN/feature is fit_cubic_narx of the orders the recipe chose on the training part (bit for bit), with
+    the window its records were read from; the network reads k + m inputs; the held-out check scores the
+    feature beside the network and the fitted linear models."""
+    loaded = load_predictor(run.run_dir)
+    assert isinstance(loaded, FeatureInputPredictor)
+    feature = loaded.feature
+    split = TrainingRecords((noisy_record(),)).split(run.config.data)
+    train = [(a[:, :1], a[:, 1:]) for a in split.train_parts]
+    refit = fit_cubic_narx(train, **feature.orders, moments=split.fit())
+    np.testing.assert_array_equal(feature.theta, refit.theta)
+    assert feature.orders["c"] >= 1 and feature.info[INIT_KEY] == 50
+    assert loaded.model.cfg.input_dim == 1 + 1 + 1 + 1  # y, u, the feature's run, the observation mask
+    assert set(run.selection["linear_models"]) == {"arx", "n4sid", KIND}
+
+
+def test_a_silent_network_simulates_the_features_run_plus_the_residuals_training_mean(run, tmp_path):
+    """With its read-out zeroed the network predicts its residual's training mean (data.y_mean, in the
+    normalisation of the records it trained on), so the run simulates the record as the feature's free run
+    plus that mean: the composition and both normalisations in closed form."""
+    record = noisy_record()
+    silent = tmp_path / "silent"
+    silent.mkdir()
+    for f in run.run_dir.iterdir():
+        if f.is_file():
+            (silent / f.name).write_bytes(f.read_bytes())
+    (silent / "feature").mkdir()
+    (silent / "feature" / "fitted.json").write_bytes((run.run_dir / "feature" / "fitted.json").read_bytes())
+    (silent / "fitted.json").unlink(missing_ok=True)  # the network, whatever the check kept
+    loaded = load_predictor(silent)
+    with torch.no_grad():
+        loaded.model.read_out.weight.zero_()
+        loaded.model.read_out.bias.zero_()
+    save_model(silent / "model.safetensors", loaded.model)
+    network = mop.load(silent)
+    sim = network.simulate(record, init=50)
+    expected = loaded.feature.simulate(traj(record), 50)[0].numpy() + load_config(run.run_dir).data.y_mean[0]
+    np.testing.assert_allclose(sim[50:], expected, rtol=1e-6, atol=1e-6 * np.abs(record.y).max())
+    assert np.isnan(sim[:50]).all()
+
+
+def test_its_simulation_reads_no_output_after_the_window_and_one_step_reads_only_the_past(run):
+    """simulate(., c) is unchanged by y_c..; predict's y_t reads y_<t only (the channel too)."""
+    record = noisy_record()
+    loaded = load_predictor(run.run_dir)
+    t = traj(record)
+    later = t.y.clone()
+    later[:, 60:] += 3.0
+    moved = dataclasses.replace(t, y=later)
+    np.testing.assert_array_equal(loaded.simulate(t, 60).numpy(), loaded.simulate(moved, 60).numpy())
+    np.testing.assert_array_equal(loaded.predict(t)[:, :61].numpy(), loaded.predict(moved)[:, :61].numpy())
+    assert not torch.equal(loaded.predict(t)[:, 61:], loaded.predict(moved)[:, 61:])
+
+
+def test_mop_load_reads_the_records_own_channels_and_refuses_others(run):
+    """mop.load(RUN) simulates a record of one output and one input (the network reads three), equal to
+    simulate_all on the same predictor; a record of two inputs gets one line naming the columns."""
+    record = noisy_record()
+    loaded = mop.load(run.run_dir)
+    assert loaded.shape_ == (1, 1)
+    sim = loaded.simulate(record, init=50)
+    np.testing.assert_array_equal(sim[50:], simulate_all(loaded.predictor_, [record.pair], 50)[0])
+    wide = Record(y=record.y, u=np.concatenate([record.u, record.u], 1))
+    with pytest.raises(MopError, match=r"1 input\(s\); these data have 1 and 2"):
+        loaded.simulate(wide, init=50)
+
+
+def test_a_record_with_gaps_or_a_bad_choice_is_refused_before_training(tmp_path):
+    record = noisy_record(400)
+    y = record.y.copy()
+    y[100] = np.nan
+    gaps = TrainingRecords((Record(y=y, u=record.u),), source="gaps")
+    with pytest.raises(MopError, match="complete outputs"):
+        fit_record(tmp_path / "a", gaps, overrides=["data.feature_input=free-run"], progress=False)
+    assert not (tmp_path / "a").exists()
+    with pytest.raises(MopError, match="data.feature_input"):
+        fit_record(
+            tmp_path / "b", TrainingRecords((record,)), overrides=["data.feature_input=sim"], progress=False
+        )
