@@ -96,6 +96,8 @@ def apply_settings(config: T, settings: dict[str, Any]) -> T:
             _change_family(node, value)
         if value is None and path == ["model"] and "none" in FEATURE_CHOICES.get(leaf, ()):
             value = "none"  # model.record_norm=none: the choice named "none", which parse_value reads as null
+        if value is None and key == "data.feature_input":
+            value = "none"
         node[leaf] = value
     base = SystemConfig if isinstance(config, SystemConfig) else type(config)
     return from_dict(base, data)
@@ -359,9 +361,10 @@ class DataConfig:
     split: "auto" (by trajectory where that leaves one on each side, else in time: mop.train.records),
         "trajectory" or "time"; unused with validation_path.
     validation_path: a separate validation record (`mop train --val FILE`); every step of path then trains.
-    feature_input: "none", or "free-run" (FEATURE_RUN): the network reads the records recipe's least-squares feature's
-        free run as m more inputs and predicts what it leaves (mop.models.feature_input); the run holds
-        that feature (RUN/feature).
+    feature_input: "none", or "free-run" (FEATURE_RUN): the network reads the records recipe's
+        least-squares feature's free run as m more inputs and predicts what it leaves
+        (mop.models.feature_input); the run holds that feature (RUN/feature). The records recipe's deep
+        LRU reads it by default.
     y_mean, y_std (m values each), u_mean, u_std (k values each, [] without inputs): per-channel
         normalisation in the file's units, fitted on the training split by the trainer (None = not yet
         fitted; a given value must equal the fit). The predictor of the run applies it, so predictions come

@@ -194,13 +194,10 @@ def test_a_diverging_model_is_reported_as_diverged(tmp_path):
     assert math.isinf(score.rmse) and score.diverged_at >= 20
 
 
-def test_mop_on_a_cubic_plant_keeps_its_cubic_feature_and_scores_the_network_beside_it(tmp_path, monkeypatch):
-    """`mop benchmark --predictors arx,mop` on a Duffing-like record (a cubic restoring force) with a short
-    training: the records recipe chooses cubed output lags for its least-squares feature, the held-out
-    check keeps that cubic NARX over the barely trained network, and the run's free run simulates the
-    unseen test at under half the fitted ARX's RMSE (observed about a tenth); the network the check did
-    not keep is scored beside it ("mop:network"), at what the run's network simulates in the reading its
-    check scored lowest; the report says what MOP is."""
+def cubic_plant_benchmark(tmp_path, monkeypatch, *train: str) -> tuple[dict, Path]:
+    """`mop benchmark --predictors arx,mop` on a Duffing-like record (a cubic restoring force; 1200 steps
+    estimate, 400 test) with a short training (20 steps) and `--train` overrides: (the test's scores, the
+    run directory)."""
     import mop.recipe.budget as budget
 
     monkeypatch.setattr(budget, "MIN_STEPS", 20)  # a short training: the feature carries the result
@@ -216,9 +213,18 @@ def test_mop_on_a_cubic_plant_keeps_its_cubic_feature_and_scores_the_network_bes
         (tmp_path / f"{name}.csv").write_text("y0,u0\n" + rows + "\n")
     out = tmp_path / "out"
     argv = ["benchmark", "--est", str(tmp_path / "est.csv"), "--test", str(tmp_path / "val.csv")]
+    argv += [f"--train={key}" for key in train]
     assert main([*argv, "--predictors", "arx,mop", "--out", str(out), "--quiet", "--budget", "0.1"]) == 0
-    scores = json.loads((out / "results.json").read_text())["est"]["val"]
-    run = out / "est" / "mop" / "run"
+    return json.loads((out / "results.json").read_text())["est"]["val"], out / "est" / "mop" / "run"
+
+
+def test_mop_on_a_cubic_plant_keeps_its_cubic_feature_and_scores_the_network_beside_it(tmp_path, monkeypatch):
+    """The network without its feature's run (data.feature_input=none): the records recipe chooses cubed
+    output lags for its least-squares feature, the held-out check keeps that cubic NARX over the barely
+    trained network, and the run's free run simulates the unseen test at under half the fitted ARX's RMSE
+    (observed about a tenth); the network the check did not keep is scored beside it ("mop:network"), at
+    what the run's network simulates in the reading its check scored lowest; the report says what MOP is."""
+    scores, run = cubic_plant_benchmark(tmp_path, monkeypatch, "data.feature_input=none")
     chosen = json.loads((run / "selection.json").read_text())
     assert chosen["kept"] == FEATURE_KIND
     assert scores["mop"]["rmse"] < 0.5 * scores["arx"]["rmse"]
@@ -229,11 +235,26 @@ def test_mop_on_a_cubic_plant_keeps_its_cubic_feature_and_scores_the_network_bes
     with_reading(network, min(own, key=own.get))  # in the reading the check scored lowest
     network = run_test(network, dataclasses.replace(test, init_window=50)).rmse
     assert network == pytest.approx(scores["mop:network"]["rmse"], rel=1e-6)
-    report = (out / "report.md").read_text()
+    report = (run.parents[2] / "report.md").read_text()  # OUT/report.md
     assert (
         "the run keeps the fitted least-squares feature, NARX(p=" in report
         and "held-out simulation" in report
     )
+
+
+def test_mop_reading_its_cubic_features_run_is_kept_below_that_feature(tmp_path, monkeypatch):
+    """The default: the network reads the cubic NARX's free run. After the same 20 steps the check keeps
+    the network, which simulates the unseen test below the feature alone (observed 0.55 of it: asserted
+    below 0.8) and the fitted ARX; the feature is scored beside it ("mop:feature") as `mop predict
+    RUN/feature` simulates it."""
+    scores, run = cubic_plant_benchmark(tmp_path, monkeypatch)
+    chosen = json.loads((run / "selection.json").read_text())
+    assert chosen["kept"] == "network" and chosen["linear_orders"][FEATURE_KIND]["c"] >= 1
+    assert set(scores) == {"arx", "mop", "mop:feature"}
+    assert scores["mop"]["rmse"] < 0.8 * scores["mop:feature"]["rmse"] < scores["arx"]["rmse"]
+    (test,) = read_records(tmp_path / "val.csv")
+    alone = run_test(load_fitted(run / "feature"), dataclasses.replace(test, init_window=50)).rmse
+    assert alone == pytest.approx(scores["mop:feature"]["rmse"], rel=1e-9)
 
 
 def test_a_shipped_model_fine_tuned_on_the_estimation_part_is_scored_as_its_run(tmp_path):

@@ -14,7 +14,7 @@ from mop.checkpoint import save_model
 from mop.errors import MopError
 from mop.identify.narx_model import KIND, fit_cubic_narx
 from mop.models.feature_input import INIT_KEY, FeatureInputPredictor, feature_channel
-from mop.recipe.fit import fit_record
+from mop.recipe.fit import fine_tune_record, fit_record
 from mop.record import Record
 from mop.records import simulate_all
 from mop.runs import load_config, load_predictor
@@ -142,3 +142,28 @@ def test_a_record_with_gaps_or_a_bad_choice_is_refused_before_training(tmp_path)
         fit_record(
             tmp_path / "b", TrainingRecords((record,)), overrides=["data.feature_input=sim"], progress=False
         )
+
+
+def test_a_fine_tune_keeps_the_weights_and_refits_the_feature_on_its_record(run, tmp_path):
+    """`--init RUN` on another record of the plant (a tenth the noise, another input): at lr 1e-30 the
+    network's weights and normalisation are the source's, and its feature is refitted on the new record's
+    training part with the orders the recipe chooses there (fit_cubic_narx of those orders, bit for bit)."""
+    record = cubic_record(1500, seed=9)
+    records = TrainingRecords((record,), source="other")
+    tuned = fine_tune_record(
+        tmp_path / "ft",
+        records,
+        str(run.run_dir),
+        overrides=["train.steps=1", "train.lr=1e-30"],
+        progress=False,
+    )
+    a, b = (load_predictor(r).model.state_dict() for r in (run.run_dir, tuned.run_dir))
+    for key in a:
+        torch.testing.assert_close(b[key], a[key], rtol=0, atol=1e-12)
+    assert load_config(tuned.run_dir).data.y_mean == load_config(run.run_dir).data.y_mean
+    feature = load_predictor(tuned.run_dir).feature
+    split = records.split(tuned.config.data)
+    train = [(x[:, :1], x[:, 1:]) for x in split.train_parts]
+    refit = fit_cubic_narx(train, **feature.orders, moments=split.fit())
+    np.testing.assert_array_equal(feature.theta, refit.theta)
+    assert not np.array_equal(feature.theta, load_predictor(run.run_dir).feature.theta)

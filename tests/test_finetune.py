@@ -52,7 +52,8 @@ def test_fine_tuning_starts_from_the_source_weights_and_keeps_its_normalisation(
     names the source."""
     first, other = record(tmp_path / "a.npz", 0), record(tmp_path / "b.npz", 1, scale=10.0)
     src, ft = tmp_path / "src", tmp_path / "ft"
-    assert main(["train", "--data", first, "--out", str(src), "--no-progress", "train.steps=3", *SMALL]) == 0
+    own = ["train.steps=3", "data.feature_input=none", *SMALL]  # the network alone (no feature refitted)
+    assert main(["train", "--data", first, "--out", str(src), "--no-progress", *own]) == 0
     argv = ["train", "--data", other, "--init", str(src), "--out", str(ft), "--no-progress"]
     assert main([*argv, "train.steps=1", "train.lr=1e-30"]) == 0
     a, b = weights(src), weights(ft)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from mop.config import FEATURE_RUN
 from mop.models.lru import NAME as DEEP_LRU
 from mop.recipe.budget import BudgetPlan
 
@@ -36,6 +37,7 @@ RECORDS_BODY = {
     "model.forecast_mode": "gap",
     "train.simulate_after": 5,
     "train.batch_size": 16,
+    "data.feature_input": FEATURE_RUN,
 }
 RECORDS_HORIZON = 200  # the body's training windows (and context), at most; shorter on a shorter record
 

@@ -220,17 +220,24 @@ def body_line(
     if config.model.arch != RECORDS_BODY["model.arch"] or not recipe_reads(record):
         return None
     m, t = config.model, config.train
+    reads = " and its least-squares feature's free run" if config.data.reads_feature_run else ""
     return (
         f"network: the records recipe's deep LRU ({m.num_layers} x {m.width}), trained on its free-run "
         f"simulation error: in each window of {t.horizon} steps the outputs from a random step >= "
-        f"{t.simulate_after} on are read as missing and simulated; the held-out check then scores it beside "
-        "the least-squares models (model.arch=gpt: the transformer reading the ARX feature instead)"
+        f"{t.simulate_after} on are read as missing and simulated from the inputs{reads}; the held-out "
+        "check then scores it beside the least-squares models (data.feature_input=none: the network "
+        "alone; model.arch=gpt: the transformer reading the ARX feature instead)"
     )
 
 
 def feature_line(config: RunConfig) -> str | None:
     """One line naming the input feature a records run reads, or None without one."""
     m = config.model
+    if config.data is not None and config.data.reads_feature_run:
+        return (
+            "feature: the network reads the free run of the records recipe's least-squares feature (fitted "
+            "on the training part: RUN/feature) as inputs, and predicts its residual"
+        )
     if m.rls_order == 0:
         return None
     kind = f"ARX({m.rls_order}, {m.arx_order})" if m.arx_order else f"RLS-AR({m.rls_order})"
