@@ -9,11 +9,13 @@ predicts, each record with that model's run as m more input channels:
     s_t = the feature's free run from y_<c and u_<t               t >= c
     the network reads y_t - s_t as its outputs and (u_t, s_t) as its inputs; yhat_t = s_t + its prediction
 
-c is the number of measured outputs a simulation starts from (the test's initialisation window); a record
-trained on reads its first INIT steps so (mop.recipe.selection.init_window). So in a free run the network
-corrects a whole simulation of the feature rather than rebuilding the plant from its inputs: on the
-Silverbox the cubic NARX simulates at 0.90 mV and the deep LRU alone at 1.29; reading the NARX's run, the
-deep LRU simulates at 0.35 mV (docs/results/benchmarks.md). The feature's channel before c never reads
+c is the number of measured outputs a simulation starts from (the test's initialisation window); each
+record trained on is read so from its first n outputs (n: the held-out check's window,
+mop.recipe.selection.init_window, kept in the feature's file as INIT_KEY), which one-step predictions and
+forecasts use too. So in a free run the network corrects a whole simulation of the feature rather than
+rebuilding the plant from its inputs: on the Silverbox multisine test the cubic NARX simulates at 0.90 mV
+and the deep LRU alone at 1.29; reading the NARX's run, the deep LRU simulates at 0.37 mV
+(docs/results/benchmarks.md). The feature's channel before c never reads
 y_t itself, so no output leaks into its own prediction.
 """
 
