@@ -127,6 +127,11 @@ def load_predictor(
     )
     data = load_config(run_dir).data
     if data is not None and data.reads_feature_run:  # its feature's run is an input
+        if not (Path(run_dir) / FEATURE_DIR).is_dir():
+            raise MopError(
+                f"{source} holds no {FEATURE_DIR}/, the least-squares model its network reads "
+                "(data.feature_input=free-run); train the run again with the same command"
+            )
         feature = load_fitted(Path(run_dir) / FEATURE_DIR)
         predictor = FeatureInputPredictor(predictor, feature, int(feature.info[INIT_KEY]))
     reading = chosen_reading(Path(run_dir))

@@ -117,6 +117,17 @@ def test_its_simulation_reads_no_output_after_the_window_and_one_step_reads_only
     assert not torch.equal(loaded.predict(t)[:, 61:], loaded.predict(moved)[:, 61:])
 
 
+def test_a_run_without_its_feature_is_named_in_one_line(run, tmp_path):
+    """A run stopped before it wrote RUN/feature (a crash mid-training) is refused, saying what to do."""
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for f in run.run_dir.iterdir():
+        if f.is_file():
+            (bare / f.name).write_bytes(f.read_bytes())
+    with pytest.raises(MopError, match="holds no feature/.*train the run again"):
+        load_predictor(bare)
+
+
 def test_mop_load_reads_the_records_own_channels_and_refuses_others(run):
     """mop.load(RUN) simulates a record of one output and one input (the network reads three), equal to
     simulate_all on the same predictor; a record of two inputs gets one line naming the columns."""
