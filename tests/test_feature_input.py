@@ -53,6 +53,15 @@ def test_the_channel_is_the_one_step_prediction_then_the_free_run_and_reads_no_l
     assert not torch.equal(moved[:, 21:], s[:, 21:])
 
 
+def run_files(run_dir, out):
+    """A copy of the run directory's files (not its folders: RUN/feature, tb) in a new folder `out`."""
+    out.mkdir()
+    for f in run_dir.iterdir():
+        if f.is_file():
+            (out / f.name).write_bytes(f.read_bytes())
+    return out
+
+
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """A deep LRU of the records recipe, 30 steps, reading its cubic feature's run."""
@@ -84,11 +93,7 @@ def test_a_silent_network_simulates_the_features_run_plus_the_residuals_training
     normalisation of the records it trained on), so the run simulates the record as the feature's free run
     plus that mean: the composition and both normalisations in closed form."""
     record = noisy_record()
-    silent = tmp_path / "silent"
-    silent.mkdir()
-    for f in run.run_dir.iterdir():
-        if f.is_file():
-            (silent / f.name).write_bytes(f.read_bytes())
+    silent = run_files(run.run_dir, tmp_path / "silent")
     (silent / "feature").mkdir()
     (silent / "feature" / "fitted.json").write_bytes((run.run_dir / "feature" / "fitted.json").read_bytes())
     (silent / "fitted.json").unlink(missing_ok=True)  # the network, whatever the check kept
@@ -119,11 +124,7 @@ def test_its_simulation_reads_no_output_after_the_window_and_one_step_reads_only
 
 def test_a_run_without_its_feature_is_named_in_one_line(run, tmp_path):
     """A run stopped before it wrote RUN/feature (a crash mid-training) is refused, saying what to do."""
-    bare = tmp_path / "bare"
-    bare.mkdir()
-    for f in run.run_dir.iterdir():
-        if f.is_file():
-            (bare / f.name).write_bytes(f.read_bytes())
+    bare = run_files(run.run_dir, tmp_path / "bare")
     with pytest.raises(MopError, match="holds no feature/.*train the run again"):
         load_predictor(bare)
 

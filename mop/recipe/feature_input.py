@@ -16,10 +16,10 @@ from pathlib import Path
 from mop.atomic import write_json
 from mop.config import RunConfig
 from mop.errors import MopError
-from mop.identify.narx_model import FittedNARX, fit_cubic_narx
+from mop.identify.narx_model import FittedNARX
 from mop.identify.store import FILE as FITTED_FILE
 from mop.models.feature_input import FEATURE_DIR, INIT_KEY, record_with_channel
-from mop.recipe.records import feature_orders, recipe_reads
+from mop.recipe.records import fitted_feature, recipe_reads
 from mop.recipe.selection import init_window
 from mop.train.records import RecordedData, TrainingRecords
 
@@ -29,19 +29,16 @@ def reads_feature_run(config: RunConfig) -> bool:
     return config.data is not None and config.data.reads_feature_run
 
 
-def fitted_feature(config: RunConfig, record: RecordedData) -> FittedNARX:
+def run_feature(record: RecordedData) -> FittedNARX:
     """The records recipe's feature fitted on the record's training part (in its normalisation), with the
     window each trained record's run starts from (info[INIT_KEY]); one-line MopError where the record has
     no inputs or missing outputs."""
     if not recipe_reads(record):
         raise MopError(
             f"data.feature_input=free-run fits a least-squares model on {record.path}, which needs inputs "
-            "and complete outputs; fill the gaps, or drop data.feature_input"
+            "and complete outputs; fill the gaps, or set data.feature_input=none"
         )
-    p, q, c, _ = feature_orders(record.training_part)
-    m = record.output_dim
-    train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
-    feature = fit_cubic_narx(train, p, q, c, config.data.path, moments=record.fit())
+    feature, _ = fitted_feature(record)
     feature.info[INIT_KEY] = init_window(record)
     return feature
 

@@ -20,7 +20,7 @@ from mop.config import RunConfig, parse_overrides
 from mop.errors import MopError
 from mop.models import reads_features
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget, check_minutes
-from mop.recipe.feature_input import fitted_feature, reads_feature_run, save_feature, with_feature_run
+from mop.recipe.feature_input import reads_feature_run, run_feature, save_feature, with_feature_run
 from mop.recipe.finetune import fine_tune_config, records_start, within_budget
 from mop.recipe.given import split
 from mop.recipe.layers import scratch_config
@@ -175,7 +175,7 @@ def train_and_choose(
     split `record` where the run makes one (selects) and has finished, each announced where `announce`.
     With data.feature_input = "free-run" the network trains on the records with its feature's run
     (mop.recipe.feature_input), and the run holds that feature."""
-    feature = fitted_feature(config, record) if reads_feature_run(config) else None
+    feature = run_feature(record) if reads_feature_run(config) else None
     if feature is not None:
         records = with_feature_run(records, feature)
     run_dir = train(

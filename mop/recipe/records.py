@@ -28,6 +28,7 @@ from mop.errors import MopError
 from mop.identify.arx import ARX
 from mop.identify.cubic import EXTRA_LAGS, choose_cubes
 from mop.identify.long_arx import LONG_ORDERS, choose_long_orders
+from mop.identify.narx_model import FittedNARX, fit_cubic_narx
 from mop.identify.select import chosen_orders, feasible_order, fit, largest_order
 from mop.models import reads_features
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, BudgetPlan, plan_windows
@@ -148,6 +149,16 @@ def feature_orders(part: TrainingPart, cubes: bool = True) -> tuple[int, int, in
     if c == 0 and part.normalised is not None:
         p, q = choose_long_orders(part.normalised, p, q, max(LONG_ORDERS))[:2]
     return p, q, c, max(p, q) in LONG_ORDERS and c == 0
+
+
+def fitted_feature(record: RecordedData) -> tuple[FittedNARX, bool]:
+    """(the records recipe's least-squares feature fitted on the record's training part in its
+    normalisation (feature_orders; mop.identify.narx_model), whether it is more than the fitted ARX: cubed
+    output lags or a long ARX)."""
+    p, q, c, fixed = feature_orders(record.training_part)
+    m = record.output_dim
+    train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
+    return fit_cubic_narx(train, p, q, c, record.path, moments=record.fit()), c > 0 or fixed
 
 
 def recipe_reads(record: RecordedData) -> bool:

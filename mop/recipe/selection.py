@@ -45,13 +45,12 @@ from mop.errors import MopError
 from mop.identify.arx import ARX
 from mop.identify.n4sid import N4SID
 from mop.identify.narx_model import KIND as FEATURE
-from mop.identify.narx_model import fit_cubic_narx
 from mop.identify.select import fit
 from mop.identify.store import FILE as FITTED_FILE
 from mop.identify.store import load as load_fitted
 from mop.models import reads_features
 from mop.models.feature_input import FEATURE_DIR
-from mop.recipe.records import feature_orders
+from mop.recipe.records import fitted_feature
 from mop.recipe.shrink import GAINS, gain_scores, scale_correction
 from mop.records import divergence_step, simulate_all
 from mop.runs import SELECTION_FILE, load_predictor, with_reading
@@ -155,7 +154,7 @@ def _fit_linear(train: list, source: str) -> dict:
     return fitted
 
 
-def _feature_model(config: RunConfig, record: RecordedData, train: list, run_dir: Path) -> dict:
+def _feature_model(config: RunConfig, record: RecordedData, run_dir: Path) -> dict:
     """{FEATURE: the records recipe's least-squares feature fitted on the training part} for a network that
     reads no feature (model.arch=deep-lru, gru), where that feature is not the fitted ARX: a cubic NARX or a
     longer ARX (mop.recipe.records.feature_orders; mop.identify.narx_model); for a network that reads its
@@ -165,10 +164,8 @@ def _feature_model(config: RunConfig, record: RecordedData, train: list, run_dir
         return {FEATURE: load_fitted(run_dir / FEATURE_DIR)}
     if reads_features(config.model.arch):
         return {}
-    p, q, c, fixed = feature_orders(record.training_part)
-    if c == 0 and not fixed:
-        return {}
-    return {FEATURE: fit_cubic_narx(train, p, q, c, config.data.path, moments=record.fit())}
+    feature, more = fitted_feature(record)
+    return {FEATURE: feature} if more else {}
 
 
 def _refit(kind: str, model, record: RecordedData, source: str):
@@ -206,7 +203,7 @@ def select_against_linear(run_dir: str | Path, config: RunConfig, record: Record
     train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
     n = init_window(record)
     held_out, long_run = held_out_stretches(record, n), long_run_stretches(record, n)
-    linear = {**_fit_linear(train, config.data.path), **_feature_model(config, record, train, run_dir)}
+    linear = {**_fit_linear(train, config.data.path), **_feature_model(config, record, run_dir)}
     network = load_predictor(run_dir)
     network.model.eval()
     gains = GAINS if _gains_apply(network) else (1.0,)
