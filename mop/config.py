@@ -94,10 +94,8 @@ def apply_settings(config: T, settings: dict[str, Any]) -> T:
             raise MopError(f"unknown config key {key!r}; known keys here: {', '.join(node)}")
         if leaf == "family" and value != node["family"]:
             _change_family(node, value)
-        if value is None and path == ["model"] and "none" in FEATURE_CHOICES.get(leaf, ()):
+        if value is None and "none" in NAMED_NONE.get(".".join(path), {}).get(leaf, ()):
             value = "none"  # model.record_norm=none: the choice named "none", which parse_value reads as null
-        if value is None and key == "data.feature_input":
-            value = "none"
         node[leaf] = value
     base = SystemConfig if isinstance(config, SystemConfig) else type(config)
     return from_dict(base, data)
@@ -348,6 +346,10 @@ class TrainConfig:
 
 
 FEATURE_RUN = "free-run"  # data.feature_input: the network reads its least-squares feature's free run
+DATA_CHOICES: dict[str, tuple[str, ...]] = {
+    "split": ("auto", "trajectory", "time"),
+    "feature_input": ("none", FEATURE_RUN),
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -389,9 +391,9 @@ class DataConfig:
             f"data.validation_fraction must be in (0, 1), got {self.validation_fraction!r}",
         )
         check(isinstance(self.split_seed, int), f"data.split_seed must be an integer: {self.split_seed!r}")
-        check_choice("data.split", self.split, ("auto", "trajectory", "time"))
+        for name, choices in DATA_CHOICES.items():
+            check_choice(f"data.{name}", getattr(self, name), choices)
         check(isinstance(self.validation_path, str), "data.validation_path must name a .npz or .csv file")
-        check_choice("data.feature_input", self.feature_input, ("none", FEATURE_RUN))
         for name in ("y_std", "u_std"):
             value = getattr(self, name)
             check(
@@ -422,3 +424,7 @@ class RunConfig:
     model: ModelConfig = dataclasses.field(default_factory=ModelConfig)
     train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
     data: DataConfig | None = None
+
+
+# the sections whose choices may be named "none", which a key=value override's JSON reads as null
+NAMED_NONE: dict[str, dict[str, tuple[str, ...]]] = {"model": FEATURE_CHOICES, "data": DATA_CHOICES}
