@@ -169,8 +169,11 @@ def test_a_context_longer_than_the_model_is_read_whole(lti, noise_std):
 
 
 def test_the_fit_reading_serves_class_models_only(lti):
+    """A class model's fit readings are two whole models: its fitted feature alone (gain 0) and the model as
+    trained (gain 1), at its own orders and at the context's."""
     model, _ = lti
-    assert "fit gain 0" in readings(model) and "fit gain 1" in readings(model)
+    assert [r for r in readings(model) if r.startswith("fit")] == ["fit gain 0", "fit gain 1"]
+    assert readings(model, (3, 2))[-2:] == ["fit ARX(3, 2) gain 0", "fit ARX(3, 2) gain 1"]
     assert readings(make_predictor("arx")) == ["none", "window"]
 
 
