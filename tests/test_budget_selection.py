@@ -25,6 +25,7 @@ from mop.recipe.selection import (
     simulation_rmse,
     stretches_rmse,
 )
+from mop.recipe.shrink import GAINS
 from mop.records import simulate_all
 from mop.runs import load_config
 from mop.train.records import recorded_data
@@ -160,7 +161,7 @@ def test_the_kept_gain_is_the_best_held_out_simulation_and_is_what_the_run_predi
     argv = ["train", "--data", str(rec), "--out", str(run), "--no-progress", "train.steps=40", "train.lr=3"]
     assert main([*argv, "model.arch=gpt"]) == 0  # the transformer: its correction has gains
     chosen = json.loads((run / SELECTION_FILE).read_text())
-    assert chosen["linear_models"] == {}
+    assert chosen["linear_models"] == {} and chosen["gains"] == list(GAINS)  # trained one step ahead
     reading = load_config(run).model.forecast_mode
     by_gain = [s["score"] for s in chosen["network"][reading]]
     scores = [s["score"] for by in chosen["network"].values() for s in by]

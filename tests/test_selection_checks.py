@@ -116,6 +116,27 @@ def test_a_run_trained_for_simulation_is_scored_in_both_readings_and_loads_the_k
     assert "held-out check (mean RMSE" in selection.selection_line(chosen)
 
 
+def test_a_transformer_trained_for_simulation_is_weighed_at_its_feature_alone_and_as_trained(tmp_path):
+    """model.arch=gpt trained for simulation (SIMULATION): its correction is weighed at gain 0 (its feature
+    alone) and 1 (as trained) only, in both readings, where one trained one step ahead is weighed at every
+    gain of mop.recipe.shrink.GAINS (test_budget_selection); the kept candidate is the lowest of those."""
+    records = TrainingRecords((cubic_plant(800),), source="cubic")
+    over = ["model.arch=gpt", "train.steps=30", *SIMULATION]
+    run = fit_record(tmp_path / "run", records, overrides=over, progress=False)
+    chosen = run.selection
+    assert load_config(run.run_dir).model.rls_order > 0  # a feature whose correction has gains
+    assert chosen["gains"] == [0.0, 1.0] and set(chosen["network"]) == {"gap", "rollout"}
+    assert all(len(by) == 2 for by in chosen["network"].values())
+    scores = [s["score"] for by in chosen["network"].values() for s in by]
+    scores += [s["score"] for s in chosen["linear_models"].values()]
+    kept = (
+        chosen["network"][chosen["reading"]][chosen["gains"].index(chosen["gain"])]
+        if chosen["kept"] == "network"
+        else chosen["linear_models"][chosen["kept"]]
+    )
+    assert kept["score"] == min(scores)
+
+
 @pytest.mark.parametrize("arch", ["deep-lru", "gru"])
 def test_a_recurrent_records_run_trains_without_a_feature_and_makes_the_check(arch, tmp_path):
     """model.arch=deep-lru (or gru) reads no input features: the records recipe plans its model size and steps

@@ -3,7 +3,8 @@
 After a records-recipe run has trained, the candidates are its network, in each of its readings (readings:
 a network trained for simulation reads its simulated outputs as missing, as it trained, or its predictions
 fed back), for a transformer reading a feature with the correction at each gain of mop.recipe.shrink.GAINS
-(1: as trained; 0: its in-context feature alone), and the linear models `mop fit arx` and `mop fit n4sid`
+(1: as trained; 0: its in-context feature alone; trained for simulation at 0 and 1 only: gains_of), and
+the linear models `mop fit arx` and `mop fit n4sid`
 choose on the same training part (LINEAR); for a network that reads no feature (the records recipe's deep
 LRU) also the recipe's least-squares feature fitted on that part as a model of its own where it is not that
 ARX (a cubic NARX or a longer ARX: mop.identify.narx_model, FEATURE).
@@ -131,12 +132,30 @@ def _gains_apply(predictor) -> bool:
     return cfg is not None and getattr(cfg, "rls_order", 0) > 0 and getattr(cfg, "readout", "") == "mean"
 
 
+def gains_of(predictor) -> tuple[float, ...]:
+    """The gains the check weighs the network's correction at: every gain of mop.recipe.shrink.GAINS for a
+    transformer trained one step ahead (its correction kept gain 0.5 or 0.75 in 10 of the 28 checks of
+    the results pages' recorded plants, each below both ends); 0 (its feature alone) and 1 (as trained)
+    for one trained for simulation (trained_for_simulation: on the real cascaded tanks, seeds 0-2, and the
+    F-16 its checks kept gain 1, 1, 1 and 0, the gains between never lowest); 1 alone where the correction
+    cannot be scaled."""
+    if not _gains_apply(predictor):
+        return (1.0,)
+    return (0.0, 1.0) if trained_for_simulation(predictor.model.cfg) else GAINS
+
+
+def trained_for_simulation(cfg) -> bool:
+    """Whether the network trained for simulation with an observation mask (train.simulate_after): it
+    reads its simulated outputs as missing (model.forecast_mode "gap")."""
+    return bool(cfg.observation_mask) and cfg.forecast_mode == "gap"
+
+
 def readings(cfg) -> tuple[str, ...]:
-    """How the network may simulate (model.forecast_mode): a network trained for simulation with an
-    observation mask (train.simulate_after) reads the simulated outputs as missing ("gap", as it trained)
-    or its own predictions fed back as measured ("rollout", its one-step reading, at gain 0 its feature's
-    own free run); any other network its own forecast_mode."""
-    if cfg.observation_mask and cfg.forecast_mode == "gap":
+    """How the network may simulate (model.forecast_mode): a network trained for simulation
+    (trained_for_simulation) reads the simulated outputs as missing ("gap", as it trained) or its own
+    predictions fed back as measured ("rollout", its one-step reading, at gain 0 its feature's own free
+    run); any other network its own forecast_mode."""
+    if trained_for_simulation(cfg):
         return ("gap", "rollout")
     return (cfg.forecast_mode,)
 
@@ -206,12 +225,12 @@ def select_against_linear(run_dir: str | Path, config: RunConfig, record: Record
     linear = {**_fit_linear(train, config.data.path), **_feature_model(config, record, run_dir)}
     network = load_predictor(run_dir)
     network.model.eval()
-    gains = GAINS if _gains_apply(network) else (1.0,)
+    gains = gains_of(network)
     network_scores: dict[str, list[dict[str, float]]] = {}
     for reading in readings(network.model.cfg):
         with_reading(network, reading)
         score = lambda: _scores(network, held_out, long_run)  # noqa: E731
-        network_scores[reading] = gain_scores(network.model, score) if len(gains) > 1 else [score()]
+        network_scores[reading] = gain_scores(network.model, score, gains) if len(gains) > 1 else [score()]
     with_reading(network, config.model.forecast_mode)
     linear_scores = {kind: _scores(model, held_out, long_run) for kind, model in linear.items()}
     # candidates in order of preference on a tie: the network as it trained at the larger gain, then

@@ -82,14 +82,16 @@ def simulation_rmse(model: nn.Module, config: RunConfig, records: TrainingRecord
     return float(np.sqrt(sq / max(n, 1)))
 
 
-def gain_scores(model: nn.Module, score: Callable[[], float]) -> list[float]:
-    """score() with `model`'s correction scaled by each gain of GAINS in turn; the model is left as it was
-    (its read-out restored, its train/eval mode too)."""
+def gain_scores(
+    model: nn.Module, score: Callable[[], float], gains: tuple[float, ...] = GAINS
+) -> list[float]:
+    """score() with `model`'s correction scaled by each gain of `gains` in turn; the model is left as it
+    was (its read-out restored, its train/eval mode too)."""
     was_training = model.training
     model.eval()
     kept = {k: v.clone() for k, v in model.read_out.state_dict().items()}
     scores = []
-    for gain in GAINS:
+    for gain in gains:
         model.read_out.load_state_dict(kept)
         scale_correction(model, gain)
         scores.append(score())
