@@ -17,8 +17,8 @@ model has read the context records. There are three readings:
   with its feature starting from those coefficients (model.rls_prior, as a fine-tune of the class model
   starts at step 0, mop.recipe.finetune.with_record_prior), and its network's correction at a gain g of
   GAINS: 0, the fitted feature alone, or 1, the class model as trained (two whole models, as the records
-  recipe's held-out check weighs). So the model's
-  context is the whole estimation record, not its last C steps, with no training. Where the context is long
+  recipe's held-out check weighs). So the model's context is the whole estimation record, not its last C
+  steps, with no training. Where the context is long
   enough to support a longer linear ARX than the model's own (context_orders: the records recipe's rule,
   mop.identify.long_arx), the readings "fit ARX(P, P) gain G" fit that one instead (the network reads the
   feature's prediction, whatever its orders); where it is too short for that, "fit ARX(p, q) gain G" read

@@ -4,10 +4,10 @@ After a records-recipe run has trained, the candidates are its network, in each 
 a network trained for simulation reads its simulated outputs as missing, as it trained, or its predictions
 fed back), for a transformer reading a feature with the correction at each gain of mop.recipe.shrink.GAINS
 (1: as trained; 0: its in-context feature alone; trained for simulation at 0 and 1 only: gains_of), and
-the linear models `mop fit arx` and `mop fit n4sid`
-choose on the same training part (LINEAR); for a network that reads no feature (the records recipe's deep
-LRU) also the recipe's least-squares feature fitted on that part as a model of its own where it is not that
-ARX (a cubic NARX or a longer ARX: mop.identify.narx_model, FEATURE).
+the linear models `mop fit arx` and `mop fit n4sid` choose on the same training part (LINEAR); for a
+network that reads no feature (the records recipe's deep LRU) also the recipe's least-squares feature
+fitted on that part as a model of its own where it is not that ARX (a cubic NARX or a longer ARX:
+mop.identify.narx_model, FEATURE).
 Each simulates from the inputs alone, after n measured outputs (the records' initialization
 window, Record.init_window, as a benchmark's test is simulated, where they give one, else INIT_WINDOW):
 - the held-out data (held_out_stretches: the last 10% of a record after the n measured steps before it, or
