@@ -8,6 +8,8 @@ from pathlib import Path
 import pytest
 
 from mop.cli import main
+from mop.experiments.pretrained_build import training_config
+from mop.pretrained.catalog import catalog_entry
 
 
 @pytest.fixture(autouse=True)
@@ -45,21 +47,22 @@ def test_class_experiment_runs_and_its_model_simulates_below_the_last_value(argv
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    "argv, simulate_after",
+    "argv, arch, simulate_after",
     [
-        (["reproduce", "class-duffing-records", "--preset", "smoke"], 0),
-        (["reproduce", "class-cascaded-tanks-records", "--preset", "smoke"], 0),
-        (["reproduce", "class-cascaded-tanks-lru", "--preset", "smoke"], 5),
-        (["reproduce", "class-duffing-lru", "--preset", "smoke"], 5),
+        (["reproduce", "class-duffing-records", "--preset", "smoke"], "gpt", 0),
+        (["reproduce", "class-cascaded-tanks-records", "--preset", "smoke"], "gpt", 0),
+        (["reproduce", "class-cascaded-tanks-lru", "--preset", "smoke"], "deep-lru", 5),
+        (["reproduce", "class-duffing-lru", "--preset", "smoke"], "deep-lru", 5),
     ],
 )
 def test_the_records_start_experiment_trains_on_estimation_prefixes_and_scores_every_predictor(
-    argv, simulate_after, tmp_path
+    argv, arch, simulate_after, tmp_path
 ):
     """A records start's experiment at the smoke preset: its run is the records recipe's shape (no
-    record_norm; the transformer one step ahead, the deep LRU on its simulated tails from step 5) trained
-    with each window after its estimation record (train.context_prefix), and every predictor of the
-    experiment gets a finite simulation of the test systems read without one."""
+    record_norm; the transformer one step ahead, the deep LRU on its simulated tails from step 5), in the
+    architecture `mop pretrained build` trains (its training_config), trained with each window after its
+    estimation record (train.context_prefix), and every predictor of the experiment gets a finite
+    simulation of the test systems read without one."""
     argv = [*argv, "--quiet", "train.steps=5"]
     assert main([*argv, "--out", str(tmp_path / "out")]) == 0
     data = json.loads((tmp_path / "out" / "eval.json").read_text())
@@ -71,6 +74,9 @@ def test_the_records_start_experiment_trains_on_estimation_prefixes_and_scores_e
     config = json.loads((Path(run) / "config.json").read_text())
     assert config["model"].get("record_norm", "none") == "none" and config["train"]["context_prefix"] == 200
     assert config["model"]["width"] == 32 and config["train"].get("simulate_after", 0) == simulate_after
+    name = argv[1].removeprefix("class-")
+    built = training_config(catalog_entry(name))  # the shipped model's build
+    assert config["model"]["arch"] == built.model.arch == arch
 
 
 def test_the_records_body_start_is_the_records_recipes_network():

@@ -18,7 +18,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from mop.config import RunConfig, SystemConfig, to_dict
+from mop.config import ModelConfig, RunConfig, SystemConfig, to_dict
 from mop.errors import MopError, NoPretrainedModel
 from mop.experiments import run_config
 from mop.experiments.evaluating import test_system
@@ -26,6 +26,7 @@ from mop.experiments.spec import Condition, Experiment
 from mop.experiments.validate import evaluated
 from mop.identify import is_fitted
 from mop.identify import load as load_fitted
+from mop.models.registry import predictor_names
 from mop.predictors import PREDICTORS, is_learned, make_predictor
 from mop.pretrained import find_shipped, shipped_names
 from mop.runs import load_predictor
@@ -75,7 +76,12 @@ def classical_predictor(name: str, preset: str, seed: int, system: SystemConfig 
 
 
 def _with_arch(trained: RunConfig, name: str) -> RunConfig:
-    return for_arch(trained, PREDICTORS.meta(name)["arch"])  # the GRU: no input features
+    """The RunConfig learned predictor `name` trains. The experiment's own learned slot (mop, the
+    transformer's predictor) trains the architecture its layers give (the transformer unless one names
+    model.arch: a records start's deep LRU, as `mop pretrained build` trains it); another learned slot
+    (gru, deep-lru) its own architecture, without the input features where it reads none."""
+    arch = PREDICTORS.meta(name)["arch"]
+    return trained if name == predictor_names()[ModelConfig.arch] else for_arch(trained, arch)
 
 
 def given_run(session: Session, name: str, condition: Condition, trained: RunConfig) -> str:
