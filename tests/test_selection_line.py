@@ -6,7 +6,7 @@ says so."""
 import json
 
 from mop.config import RunConfig, apply_overrides
-from mop.recipe.selection import feature_alone, selection_line, training_time
+from mop.recipe.selection import feature_alone, kept_model, selection_line, training_time
 
 FEATURE = "the ARX(40, 40) with an intercept fixed at its least-squares fit on the training part"
 
@@ -73,3 +73,12 @@ def test_the_feature_and_the_training_time_in_words(tmp_path):
     (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
     assert training_time(tmp_path) == "100 steps, about 6 s"  # 50 / 10 + 50 / 50 seconds
     assert training_time(tmp_path / "none") is None
+
+
+def test_what_a_run_keeps_is_named_with_its_orders():
+    """`mop benchmark`'s warning names the least-squares model a run kept as the check's line does: a long
+    ARX kept as the feature is the NARX of no cubes it is, not its file kind."""
+    feature = {"kept": "cubic-narx", "linear_orders": {"cubic-narx": {"p": 40, "q": 40, "c": 0}}}
+    assert kept_model(feature) == "least-squares feature, NARX(p=40, q=40, c=0)"
+    assert kept_model({"kept": "arx", "linear_orders": {"arx": {"p": 3, "q": 10}}}) == "ARX(3, 10)"
+    assert kept_model({"kept": "network"}) == kept_model({}) == "network"

@@ -50,7 +50,7 @@ from mop.peers.subnet import SubnetPredictor, deepsi, fit_subnet, subnet_line
 from mop.pretrained import dimensions, fitting_hint
 from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
 from mop.recipe.records import feature_line
-from mop.recipe.selection import feature_alone, selection_line
+from mop.recipe.selection import feature_alone, kept_model, selection_line
 from mop.record import as_pairs, read_records
 from mop.runs import load_config, load_predictor, with_reading
 from mop.simulators import SimulatorConfig, fit_simulator, simulator_line
@@ -270,11 +270,11 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
                 **{"train.seed": args.seed, **parse_overrides(args.train)},
             )
             models[name] = learned.fit(with_init_window(split)).predictor_
-            kept = (getattr(learned, "selection_", None) or {}).get("kept", "network")
+            kept = kept_model(getattr(learned, "selection_", None) or {})
             if kept != "network":
                 warnings.append(
-                    f"{split.name}: {name} did not beat its fitted linear models on held-out data and is the "
-                    f"fitted {kept}"
+                    f"{split.name}: {name} did not beat its fitted least-squares models on held-out data and "
+                    f"is the fitted {kept}"
                 )
             notes.append(f"{name}: {feature_line(load_config(learned.run_dir_)) or 'no input feature'}")
             if getattr(learned, "selection_", None):

@@ -319,6 +319,13 @@ def _linear_name(result: dict, kind: str) -> str:
     return f"{NAMES[kind]}({', '.join(shown)})"
 
 
+def kept_model(result: dict) -> str:
+    """The least-squares model a selection kept, named with its orders ('ARX(3, 10)', 'least-squares
+    feature, NARX(p=40, q=40, c=0)'); "network" where it kept the network."""
+    kept = result.get("kept", "network")
+    return kept if kept == "network" else _linear_name(result, kept)
+
+
 READINGS = {
     "gap": "reading its simulated outputs as missing, as it trained",
     "rollout": "feeding its predictions back as outputs",
