@@ -10,11 +10,16 @@ import pytest
 import torch
 
 import mop
+import mop.recipe.records as records_recipe
 from mop.checkpoint import save_model
+from mop.config import DataConfig
 from mop.errors import MopError
 from mop.identify.narx_model import KIND, fit_cubic_narx
 from mop.models.feature_input import INIT_KEY, FeatureInputPredictor, feature_channel
+from mop.recipe.feature_input import run_feature
 from mop.recipe.fit import fine_tune_record, fit_record
+from mop.recipe.records import fitted_feature
+from mop.recipe.selection import check_scores
 from mop.record import Record
 from mop.records import simulate_all
 from mop.runs import load_config, load_predictor
@@ -179,3 +184,32 @@ def test_a_fine_tune_keeps_the_weights_and_refits_the_feature_on_its_record(run,
     refit = fit_cubic_narx(train, **feature.orders, moments=split.fit())
     np.testing.assert_array_equal(feature.theta, refit.theta)
     assert not np.array_equal(feature.theta, load_predictor(run.run_dir).feature.theta)
+
+
+def linear_record(steps: int = 1500) -> Record:
+    """y_t = 1.2 y_{t-1} - 0.5 y_{t-2} + 0.8 u_{t-1} + noise: a plant with nothing to cube."""
+    rng = np.random.default_rng(8)
+    u, y = rng.normal(size=steps), np.zeros(steps)
+    for t in range(2, steps):
+        y[t] = 1.2 * y[t - 1] - 0.5 * y[t - 2] + 0.8 * u[t - 1] + 0.05 * rng.normal()
+    return Record(y=y[:, None], u=u[:, None], name="linear")
+
+
+@pytest.mark.parametrize("plant", ["cubic", "linear"])
+def test_the_feature_read_is_the_one_the_check_scores_lower(plant, monkeypatch):
+    """A cubic NARX is read only where it scores below the feature without cubes on the check's own
+    stretches (mop.recipe.selection.check_scores). On the cubic plant the cubic NARX is kept; on a linear
+    plant offered cubes of every output lag (choose_cubes made to propose them), whichever of the two
+    scores lower there, each scored here as the check scores it."""
+    if plant == "linear":
+        monkeypatch.setattr(records_recipe, "choose_cubes", lambda parts, p, q: (p, p, {}))
+    rec = noisy_record() if plant == "cubic" else linear_record()
+    record = TrainingRecords((rec,)).split(DataConfig(path=plant))
+    cubic, linear = fitted_feature(record)[0], fitted_feature(record, cubes=False)[0]
+    assert cubic.orders["c"] > 0 and linear.orders["c"] == 0
+    scores = [check_scores(f, record)["score"] for f in (cubic, linear)]
+    read = run_feature(record)
+    expected = (cubic, linear)[int(np.argmin(scores))]
+    assert read.orders == expected.orders and np.array_equal(read.theta, expected.theta)
+    if plant == "cubic":
+        assert read.orders["c"] > 0

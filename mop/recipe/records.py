@@ -151,11 +151,11 @@ def feature_orders(part: TrainingPart, cubes: bool = True) -> tuple[int, int, in
     return p, q, c, max(p, q) in LONG_ORDERS and c == 0
 
 
-def fitted_feature(record: RecordedData) -> tuple[FittedNARX, bool]:
+def fitted_feature(record: RecordedData, cubes: bool = True) -> tuple[FittedNARX, bool]:
     """(the records recipe's least-squares feature fitted on the record's training part in its
-    normalisation (feature_orders; mop.identify.narx_model), whether it is more than the fitted ARX: cubed
-    output lags or a long ARX)."""
-    p, q, c, fixed = feature_orders(record.training_part)
+    normalisation (feature_orders; cubes=False: without cubed lags; mop.identify.narx_model), whether it is
+    more than the fitted ARX: cubed output lags or a long ARX)."""
+    p, q, c, fixed = feature_orders(record.training_part, cubes)
     m = record.output_dim
     train = [(a[:, :m], a[:, m:]) for a in record.train_parts]
     return fit_cubic_narx(train, p, q, c, record.path, moments=record.fit()), c > 0 or fixed

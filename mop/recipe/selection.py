@@ -194,6 +194,13 @@ def _refit(kind: str, model, record: RecordedData, source: str):
     return model if kind == FEATURE else fit(kind, list(record.given.records), source=source)
 
 
+def check_scores(predictor, record: RecordedData) -> dict[str, float]:
+    """_scores of a predictor on the record's held-out and long-run stretches, as the check scores each
+    candidate (init_window measured outputs before each)."""
+    n = init_window(record)
+    return _scores(predictor, held_out_stretches(record, n), long_run_stretches(record, n))
+
+
 def _scores(predictor, held_out: list, long_run: list) -> dict[str, float]:
     """{"held_out", "long_run", "score"}: the two simulations' RMSE and their mean (inf where either
     diverged)."""
