@@ -24,7 +24,7 @@ from mop.errors import MopError
 from mop.identify.narx_model import FittedNARX
 from mop.identify.store import FILE as FITTED_FILE
 from mop.models.feature_input import FEATURE_DIR, INIT_KEY, record_with_channel
-from mop.recipe.records import fitted_feature, recipe_reads
+from mop.recipe.records import fitted_features, recipe_reads
 from mop.recipe.selection import check_scores, init_window
 from mop.train.records import RecordedData, TrainingRecords
 
@@ -43,11 +43,9 @@ def run_feature(record: RecordedData) -> FittedNARX:
             f"data.feature_input=free-run fits a least-squares model on {record.path}, which needs inputs "
             "and complete outputs; fill the gaps, or set data.feature_input=none"
         )
-    feature, _ = fitted_feature(record)
-    if feature.orders["c"] > 0:  # cubed lags only where the check's stretches say so too
-        linear, _ = fitted_feature(record, cubes=False)
-        if check_scores(linear, record)["score"] < check_scores(feature, record)["score"]:
-            feature = linear
+    feature, linear = fitted_features(record)  # linear: without the cubed lags feature has (or None)
+    if linear is not None and check_scores(linear, record)["score"] < check_scores(feature, record)["score"]:
+        feature = linear
     feature.info[INIT_KEY] = init_window(record)
     return feature
 
