@@ -257,6 +257,29 @@ def test_mop_reading_its_cubic_features_run_is_kept_below_that_feature(tmp_path,
     assert alone == pytest.approx(scores["mop:feature"]["rmse"], rel=1e-9)
 
 
+@pytest.mark.parametrize("passes", [None, 1])
+def test_the_report_says_whether_the_budget_bound_the_training(tmp_path, monkeypatch, passes):
+    """The report names the steps MOP trained and whether the budget set them: 0.1 min buys 0.1 * 60 / 0.02
+    steps of 50-step windows, proportionally fewer of longer ones (the reference CPU's nominal step); where
+    the record allows fewer (here one pass over its windows, MAX_EPOCHS = 1) a larger budget trains the
+    same and the line says so."""
+    import mop.recipe.budget as budget
+
+    if passes is not None:
+        monkeypatch.setattr(budget, "MAX_EPOCHS", passes)
+    _, run = cubic_plant_benchmark(tmp_path, monkeypatch)
+    config = load_config(run)
+    bought = int(0.1 * 60 / (0.02 * max(1.0, config.train.horizon / 50)))
+    report = (run.parents[2] / "report.md").read_text()
+    if passes is None:
+        assert config.train.steps == bought
+        assert f"mop: trained {bought} steps, what the 0.1-min budget buys" in report
+    else:
+        assert 20 < config.train.steps < bought
+        line = f"mop: trained {config.train.steps} steps, fewer than the {bought} the 0.1-min budget buys"
+        assert line in report and "a larger --budget trains the same" in report
+
+
 def test_a_shipped_model_fine_tuned_on_the_estimation_part_is_scored_as_its_run(tmp_path):
     """finetune:lti-siso trains `mop train --data EST --init pretrained:lti-siso` (its run directory under
     OUT says so) and is scored by the protocol on that run's model: the run's fitted predictor, simulated

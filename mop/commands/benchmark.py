@@ -48,9 +48,9 @@ from mop.models.feature_input import FEATURE_DIR
 from mop.peers.narx import NarxPredictor, fit_narx, frols_class, narx_line
 from mop.peers.subnet import SubnetPredictor, deepsi, fit_subnet, subnet_line
 from mop.pretrained import dimensions, fitting_hint
-from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, check_budget
+from mop.recipe.budget import DEFAULT_BUDGET_MINUTES, budget_line, check_budget
 from mop.recipe.records import feature_line
-from mop.recipe.selection import feature_alone, kept_model, selection_line
+from mop.recipe.selection import feature_alone, kept_model, selection_line, training_time
 from mop.record import as_pairs, read_records
 from mop.runs import load_config, load_predictor, with_reading
 from mop.simulators import SimulatorConfig, fit_simulator, simulator_line
@@ -276,9 +276,13 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
                     f"{split.name}: {name} did not beat its fitted least-squares models on held-out data and "
                     f"is the fitted {kept}"
                 )
-            notes.append(f"{name}: {feature_line(load_config(learned.run_dir_)) or 'no input feature'}")
+            config = load_config(learned.run_dir_)
+            notes.append(f"{name}: {feature_line(config) or 'no input feature'}")
+            took = training_time(learned.run_dir_)
+            trained = budget_line(config.train.steps, budget, config.train.horizon)
+            notes.append(f"{name}: trained {trained}{f'; its log: {took} on this machine' if took else ''}")
             if getattr(learned, "selection_", None):
-                feature = feature_alone(load_config(learned.run_dir_))
+                feature = feature_alone(config)
                 notes.append(f"{name}: {selection_line(learned.selection_, feature)}")
                 models.update(alone(name, learned.run_dir_, learned.selection_))
         elif name == NARX:

@@ -80,13 +80,42 @@ def plan_steps(minutes: float, windows: int, batch_size: int, horizon: int = NOM
     """The steps `minutes` buy on a record of `windows` training windows of `horizon` steps (see the module
     docstring)."""
     minutes = check_budget(minutes)
-    step_seconds = NOMINAL_STEP_SECONDS * max(1.0, horizon / NOMINAL_HORIZON)
-    by_budget = int(minutes * 60 / step_seconds)
+    step_seconds = nominal_step_seconds(horizon)
+    by_budget = steps_bought(minutes, horizon)
     by_record = math.ceil(MAX_EPOCHS * windows / batch_size)
     steps, why = (by_budget, "budget") if by_budget <= by_record else (by_record, "record")
     if steps < MIN_STEPS:
         steps, why = MIN_STEPS, "minimum"
     return BudgetPlan(minutes, windows, batch_size, steps, why, step_seconds)
+
+
+def nominal_step_seconds(horizon: int) -> float:
+    """One step's nominal cost (s) on the reference CPU on windows of `horizon` steps (module docstring)."""
+    return NOMINAL_STEP_SECONDS * max(1.0, horizon / NOMINAL_HORIZON)
+
+
+def steps_bought(minutes: float, horizon: int = NOMINAL_HORIZON) -> int:
+    """The steps `minutes` buy on windows of `horizon` steps, whatever the record: a plan trains fewer where
+    the record limits it (MAX_EPOCHS passes) and MIN_STEPS where that is more."""
+    return int(check_budget(minutes) * 60 / nominal_step_seconds(horizon))
+
+
+def budget_line(steps: int, minutes: float, horizon: int) -> str:
+    """What a run of `steps` steps on windows of `horizon` steps made of a budget of `minutes`: 'what the
+    budget buys' where it trained that, else that the budget did not bind (the record's MAX_EPOCHS passes,
+    the MIN_STEPS floor, or a schedule of the run's own), so a larger budget trains the same."""
+    bought = steps_bought(minutes, horizon)
+    if steps == bought:
+        return f"{steps} steps, what the {minutes:g}-min budget buys"
+    than, why = (
+        ("fewer", f"the record's limit of {MAX_EPOCHS} passes over its training windows")
+        if steps < bought
+        else ("more", f"the recipe's minimum of {MIN_STEPS}")
+    )
+    return (
+        f"{steps} steps, {than} than the {bought} the {minutes:g}-min budget buys ({why}, or train.steps or "
+        "a fine-tune's own schedule): a larger --budget trains the same"
+    )
 
 
 def plan_windows(
