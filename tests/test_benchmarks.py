@@ -273,10 +273,11 @@ def test_the_report_says_whether_the_budget_bound_the_training(tmp_path, monkeyp
     report = (run.parents[2] / "report.md").read_text()
     if passes is None:
         assert config.train.steps == bought
-        assert f"mop: trained {bought} steps, what the 0.1-min budget buys" in report
+        size = f"{config.model.arch} {config.model.num_layers} x {config.model.width}"
+        assert f"mop: trained {size}, {bought} steps, what the 0.1-min budget buys" in report
     else:
         assert 20 < config.train.steps < bought
-        line = f"mop: trained {config.train.steps} steps, fewer than the {bought} the 0.1-min budget buys"
+        line = f"{config.train.steps} steps, fewer than the {bought} the 0.1-min budget buys"
         assert line in report and "a larger --budget trains the same" in report
 
 

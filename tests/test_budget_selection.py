@@ -96,6 +96,29 @@ def test_the_budget_buys_the_windows_the_overrides_name(tmp_path):
     assert plan_steps(2, 1800 - 50, 64).steps == 1915  # what the preset's windows would have planned
 
 
+@pytest.mark.parametrize("minutes, width", [(5, 32), (8.8, 32), (8.9, 64), (30, 64)])
+def test_where_the_record_limits_the_steps_the_budgets_rest_buys_width(minutes, width):
+    """The cascaded tanks' 721 training windows of 200 steps: 70 passes are 3155 steps of 16 at 80 ms
+    nominal (252 s); at 2.1 times that cost (WIDTH_COST) a width of 64 needs 530 s (8.83 min), so 5
+    minutes keep 32 and 8.9 or more buy 64, the widest measured. A budget that limits the steps buys none."""
+    plan = plan_steps(minutes, 721, 16, 200)
+    assert (plan.steps, plan.limited_by) == (math.ceil(70 * 721 / 16), "record") == (3155, "record")
+    assert plan.width(32) == width
+    assert plan.width(48) == 48  # a width the costs were not measured at stays
+    assert plan_steps(minutes, 10**6, 16, 200).width(32) == 32  # the budget limits the steps
+    wider = "the budget's rest widens the network to"
+    assert (f"{wider} {width}" in plan.line(base_width=32)) == (width > 32)
+
+
+def test_a_short_records_run_is_as_wide_as_its_budget_buys_and_an_override_wins(tmp_path):
+    """The default network (the deep LRU) on a 700-step record: its 70 passes leave 30 minutes room for a
+    width of 64, 1 minute none; model.width=16 named stays 16."""
+    rec = arx_plant(tmp_path / "rec.csv")
+    assert training_config(None, None, str(rec), budget=30).model.width == 64
+    assert training_config(None, None, str(rec), budget=1).model.width == 32
+    assert training_config(None, None, str(rec), overrides=["model.width=16"], budget=30).model.width == 16
+
+
 def test_a_simulation_that_turns_non_finite_scores_inf_not_its_finite_steps(tmp_path):
     _, data = read_trajectories(arx_plant(tmp_path / "rec.csv", steps=200))
     arx = fit("arx", data)

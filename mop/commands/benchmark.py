@@ -280,7 +280,10 @@ def _run_split(split: Split, args, predictors: list[str], budget: float, out: Pa
             notes.append(f"{name}: {feature_line(config) or 'no input feature'}")
             took = training_time(learned.run_dir_)
             trained = budget_line(config.train.steps, budget, config.train.horizon)
-            notes.append(f"{name}: trained {trained}{f'; its log: {took} on this machine' if took else ''}")
+            size = f"{config.model.arch} {config.model.num_layers} x {config.model.width}"
+            notes.append(
+                f"{name}: trained {size}, {trained}{f'; its log: {took} on this machine' if took else ''}"
+            )
             if getattr(learned, "selection_", None):
                 feature = feature_alone(config)
                 notes.append(f"{name}: {selection_line(learned.selection_, feature)}")

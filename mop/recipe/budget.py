@@ -31,6 +31,13 @@ NOMINAL_STEP_SECONDS = 0.02
 NOMINAL_HORIZON = 50  # the windows' length NOMINAL_STEP_SECONDS was measured on
 MAX_EPOCHS = 70
 MIN_STEPS = 1000  # the recipe's steps on short records, as tuned (a record of up to ~1000 samples)
+# What a step of the records recipe's deep LRU (2 layers, batch 16 x 200) costs at each width, relative to
+# its width of 32: 26.6 / 55 ms a step on the 2-core CPU (the cascaded tanks' runs, one thread each, two
+# jobs at once). Where the record, not the budget, limits the steps, the budget's rest buys width
+# (BudgetPlan.width): measured on the cascaded tanks' test (seeds 0-2), 2 x 64 simulates at 0.3379 /
+# 0.3287 / 0.3269 V (mean 0.331) against 0.3827 / 0.4307 / 0.3807 (0.398) for 2 x 32 at the same 3155
+# steps. 2 x 128 (170 ms a step) is left out: 0.3925 on seed 0.
+WIDTH_COST = {32: 1.0, 64: 2.1}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,8 +51,23 @@ class BudgetPlan:
     limited_by: str  # "budget" or "record" (MAX_EPOCHS passes over its windows) or "minimum"
     step_seconds: float = NOMINAL_STEP_SECONDS  # a step's nominal cost on the reference CPU
 
-    def line(self, step_seconds: float | None = None) -> str:
-        """One line for the user: the plan, and the time it takes at `step_seconds` (measured here)."""
+    def width(self, base: int) -> int:
+        """The network's width the budget buys: `base` where the budget limits the steps; where the record
+        limits them (MAX_EPOCHS passes), the widest of WIDTH_COST whose steps at their cost relative to
+        `base` the budget still buys (`base` itself unless it is a width of WIDTH_COST)."""
+        if self.limited_by != "record" or base not in WIDTH_COST:
+            return base
+        seconds = self.minutes * 60
+        affordable = [
+            w
+            for w, cost in WIDTH_COST.items()
+            if w >= base and self.steps * self.step_seconds * cost / WIDTH_COST[base] <= seconds
+        ]
+        return max(affordable, default=base)
+
+    def line(self, step_seconds: float | None = None, base_width: int | None = None) -> str:
+        """One line for the user: the plan, and the time it takes at `step_seconds` (measured here); with
+        `base_width`, the width the budget's rest buys where it is wider (BudgetPlan.width)."""
         passes = self.steps * self.batch_size / max(self.windows, 1)
         why = {
             "budget": f"the steps {self.minutes:g} min buy on a reference 2-core CPU at "
@@ -54,9 +76,11 @@ class BudgetPlan:
             "minimum": f"the minimum of {MIN_STEPS} steps",
         }[self.limited_by]
         took = f"; about {self.steps * step_seconds / 60:.1f} min on this machine" if step_seconds else ""
+        wide = self.width(base_width) if base_width else None
+        wider = f"; the budget's rest widens the network to {wide}" if wide != base_width else ""
         return (
             f"budget: {self.minutes:g} min -> {self.steps} steps of batch {self.batch_size} "
-            f"({passes:.1f} passes over the training windows; {why}){took}"
+            f"({passes:.1f} passes over the training windows; {why}){took}{wider}"
         )
 
 
@@ -102,8 +126,9 @@ def steps_bought(minutes: float, horizon: int = NOMINAL_HORIZON) -> int:
 
 def budget_line(steps: int, minutes: float, horizon: int) -> str:
     """What a run of `steps` steps on windows of `horizon` steps made of a budget of `minutes`: 'what the
-    budget buys' where it trained that, else that the budget did not bind (the record's MAX_EPOCHS passes,
-    the MIN_STEPS floor, or a schedule of the run's own), so a larger budget trains the same."""
+    budget buys' where it trained that, else that the budget did not set the steps (the record's MAX_EPOCHS
+    passes, the MIN_STEPS floor, or a schedule of the run's own), so a larger budget trains the same steps
+    (where the record limits them, a wider network: BudgetPlan.width)."""
     bought = steps_bought(minutes, horizon)
     if steps == bought:
         return f"{steps} steps, what the {minutes:g}-min budget buys"
@@ -114,7 +139,7 @@ def budget_line(steps: int, minutes: float, horizon: int) -> str:
     )
     return (
         f"{steps} steps, {than} than the {bought} the {minutes:g}-min budget buys ({why}, or train.steps or "
-        "a fine-tune's own schedule): a larger --budget trains the same"
+        "a fine-tune's own schedule): a larger --budget trains the same steps"
     )
 
 

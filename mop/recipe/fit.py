@@ -24,6 +24,7 @@ from mop.recipe.feature_input import reads_feature_run, run_feature, save_featur
 from mop.recipe.finetune import fine_tune_config, records_start, within_budget
 from mop.recipe.given import split
 from mop.recipe.layers import scratch_config
+from mop.recipe.plan import RECORDS_BODY
 from mop.recipe.records import (
     body_line,
     budget_plan,
@@ -226,7 +227,9 @@ def record_lines(
         minutes = DEFAULT_BUDGET_MINUTES if budget is None else budget
         plan = budget_plan(record.training_part, config.train.batch_size, config.train.horizon, minutes)
         if plan.steps == config.train.steps:
-            lines.append(plan.line())
+            base = int(RECORDS_BODY["model.width"])  # the body's width, and what the budget's rest buys
+            body = config.model.arch == RECORDS_BODY["model.arch"] and config.model.width == plan.width(base)
+            lines.append(plan.line(base_width=base if body and init is None else None))
     lines.append(record.summary(config.train.horizon, validates_tails(config, record.given)))
     if gaps_turn_off_recipe(given, overrides, chosen, init):
         m, t = config.model, config.train

@@ -28,7 +28,9 @@ RECORDED_MODEL = {"model.num_layers": 1, "model.width": 32, "model.num_heads": 2
 # random step s >= SIMULATE_AFTER read as missing and scored), on windows of up to RECORDS_HORIZON steps, 16
 # a step. Measured on the real benchmarks (docs/results/benchmarks.md, the 2-core CPU, 5 minutes): below the
 # transformer reading the ARX feature on the cascaded tanks, the F-16 and the F-16 with three outputs, and
-# kept by the held-out check on all four (the transformer's correction at gain 0 on three).
+# kept by the held-out check on all four (the transformer's correction at gain 0 on three). Its width is
+# the budget's (mop.recipe.records.with_recorded_features, BudgetPlan.width): 32 where the budget limits the
+# steps, wider where a short record's passes leave the budget room.
 RECORDS_BODY = {
     "model.arch": DEEP_LRU,
     "model.num_layers": 2,
