@@ -16,6 +16,9 @@ NOMINAL_STEP_SECONDS is one step of the recipe's 1 x 32 model at batch 64 x 50 o
 measured with `mop train --data`'s trial steps); windows longer than NOMINAL_HORIZON (a long ARX feature's)
 cost proportionally more. MAX_EPOCHS keeps a short record where the recipe was tuned:
 1000 steps of batch 64 over the 970 windows of a 1024-sample record are 66 passes.
+Where the record, not the budget, limits the steps, the budget's rest buys the records recipe's deep LRU a
+wider body (BudgetPlan.width: the widest of WIDTH_COST, a step's measured cost at each width, that the
+steps at that cost fit in the budget).
 """
 
 from __future__ import annotations
