@@ -112,11 +112,13 @@ def test_where_the_record_limits_the_steps_the_budgets_rest_buys_width(minutes, 
 
 def test_a_short_records_run_is_as_wide_as_its_budget_buys_and_an_override_wins(tmp_path):
     """The default network (the deep LRU) on a 700-step record: its 70 passes leave 30 minutes room for a
-    width of 64, 1 minute none; model.width=16 named stays 16."""
+    width of 64, 1 minute none; model.width=16 named stays 16, and train.steps named (not the plan's steps)
+    keeps the body's 32."""
     rec = arx_plant(tmp_path / "rec.csv")
     assert training_config(None, None, str(rec), budget=30).model.width == 64
     assert training_config(None, None, str(rec), budget=1).model.width == 32
     assert training_config(None, None, str(rec), overrides=["model.width=16"], budget=30).model.width == 16
+    assert training_config(None, None, str(rec), overrides=["train.steps=50"], budget=30).model.width == 32
 
 
 def test_a_simulation_that_turns_non_finite_scores_inf_not_its_finite_steps(tmp_path):

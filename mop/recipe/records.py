@@ -230,7 +230,7 @@ def with_recorded_features(
     windows = {key: named[key] for key in WINDOW_KEYS if key in named}  # the budget buys the windows trained
     planned = apply_settings(config, {**body, **windows})
     plan = plan_records(record.training_part, planned, budget, cubes, feature=reads_features(arch))
-    if body and "model.width" not in named:  # where the record limits the steps, the budget buys width
+    if body and not {"model.width", "train.steps"} & set(named):  # the planned steps' rest buys width
         body = {**body, "model.width": plan.budget.width(int(body["model.width"]))}
     return apply_settings(config, {**plan.settings(), **body})
 
